@@ -1,0 +1,20 @@
+"""Exceptions a user can act on.
+
+Every error that a user can fix (bad file, bad column, impossible option) is an :class:`InputError` with a
+one-line message that says what is wrong, where, and how to fix it. The CLI prints it and exits with code 2.
+:class:`CalibrationError` means the data were readable but no trustworthy camera could be found (exit code 1).
+"""
+
+from __future__ import annotations
+
+
+class TrafficgeoError(Exception):
+    """Base class of every error trafficgeo raises on purpose."""
+
+
+class InputError(TrafficgeoError, ValueError):
+    """Bad user input: a one-line message naming what, where and how to fix it (CLI exit code 2)."""
+
+
+class CalibrationError(TrafficgeoError, RuntimeError):
+    """Calibration ran but could not converge to a usable camera (CLI exit code 1)."""
