@@ -1,0 +1,19 @@
+"""The camera model: pinhole + OpenCV distortion, posed in a projected CRS (see :mod:`.model` for conventions)."""
+
+from trafficgeo.camera.distortion import distort_normalized, undistort_normalized
+from trafficgeo.camera.io import camera_to_dict, read_camera_document, read_camera_json, write_camera_json
+from trafficgeo.camera.model import Camera
+from trafficgeo.camera.orientation import Orientation, orientation_from_rotation, rotation_from_orientation
+
+__all__ = [
+    "Camera",
+    "Orientation",
+    "camera_to_dict",
+    "distort_normalized",
+    "orientation_from_rotation",
+    "read_camera_document",
+    "read_camera_json",
+    "rotation_from_orientation",
+    "undistort_normalized",
+    "write_camera_json",
+]
