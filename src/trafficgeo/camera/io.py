@@ -49,18 +49,18 @@ def camera_to_dict(camera: Camera) -> dict[str, Any]:
     }
 
 
-def _finite(obj: Any) -> Any:
+def to_json_safe(obj: Any) -> Any:
     """Replace non-finite floats by None so the JSON stays standard (NaN is not JSON)."""
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
     if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
+        return {k: to_json_safe(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
-        return [_finite(v) for v in obj]
+        return [to_json_safe(v) for v in obj]
     if isinstance(obj, np.ndarray):
-        return _finite(obj.tolist())
+        return to_json_safe(obj.tolist())
     if isinstance(obj, np.floating):
-        return _finite(float(obj))
+        return to_json_safe(float(obj))
     if isinstance(obj, np.integer):
         return int(obj)
     if isinstance(obj, np.bool_):
@@ -73,7 +73,7 @@ def write_camera_json(path: str | Path, camera: Camera, extra: dict[str, Any] | 
     doc = camera_to_dict(camera)
     if extra:
         doc.update(extra)
-    write_text_atomic(path, json.dumps(_finite(doc), indent=2, allow_nan=False) + "\n")
+    write_text_atomic(path, json.dumps(to_json_safe(doc), indent=2, allow_nan=False) + "\n")
 
 
 def _matrix(doc: dict[str, Any], key: str, shape: tuple[int, ...], where: str) -> np.ndarray:

@@ -1,0 +1,31 @@
+# Two entry points do all set-up on a fresh machine (Python 3.11, pip, make, git):
+#   make demo   -> create .venv, install trafficgeo, run the demo on a generated scene with known truth
+#   make test   -> create .venv, install trafficgeo with test tools, run ruff and the test suite
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+
+.PHONY: demo test lint bench clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(VENV)/.installed: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $@
+
+demo: $(VENV)/.installed
+	$(BIN)/trafficgeo demo --out demo-out
+
+lint: $(VENV)/.installed
+	$(BIN)/ruff check src tests
+
+test: $(VENV)/.installed lint
+	$(BIN)/python -m pytest -q
+
+bench: $(VENV)/.installed
+	$(BIN)/python benchmarks/bench_calibration.py
+
+clean:
+	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache

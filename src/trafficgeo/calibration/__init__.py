@@ -1,0 +1,19 @@
+"""GCP tables, hierarchical calibration, validation (see :mod:`.pipeline` for the stages)."""
+
+from trafficgeo.calibration.gcps import GCPTable, read_gcps, validate_gcps
+from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, Finding, calibrate
+from trafficgeo.calibration.run import CalibrationRun, run_calibration
+from trafficgeo.calibration.validation import build_report
+
+__all__ = [
+    "Calibration",
+    "CalibrationOptions",
+    "CalibrationRun",
+    "Finding",
+    "GCPTable",
+    "build_report",
+    "calibrate",
+    "read_gcps",
+    "run_calibration",
+    "validate_gcps",
+]

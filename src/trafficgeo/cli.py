@@ -1,0 +1,184 @@
+"""Command line: a thin layer over the Python API.
+
+Exit codes: 0 success; 1 the job ran but could not produce a trustworthy result (explained); 2 bad input (one line
+on stderr, no traceback, nothing written).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.console import Console
+
+from trafficgeo.errors import CalibrationError, InputError, TrafficgeoError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="Georeferenced, lane-level traffic data from a fixed camera and common GIS data.")
+console = Console()
+
+
+def parse_image_size(text: str) -> tuple[int, int]:
+    """'1920x1080' -> (1920, 1080)."""
+    parts = text.lower().replace("*", "x").split("x")
+    try:
+        w, h = (int(p) for p in parts)
+    except ValueError:
+        raise InputError(f"--image-size '{text}' is not WIDTHxHEIGHT; give e.g. --image-size 1920x1080") from None
+    if w <= 0 or h <= 0:
+        raise InputError(f"--image-size '{text}' must be positive, e.g. 1920x1080")
+    return w, h
+
+
+def _parse_pattern(text: str) -> tuple[int, int]:
+    parts = text.lower().split("x")
+    try:
+        c, r = (int(p) for p in parts)
+    except ValueError:
+        raise InputError(f"--pattern '{text}' is not COLSxROWS of inner corners; e.g. --pattern 9x6") from None
+    if c < 2 or r < 2:
+        raise InputError(f"--pattern '{text}' needs at least 2x2 inner corners")
+    return c, r
+
+
+def _load_intrinsics(path: Path, image_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """K and dist from an OpenCV YAML/XML file or a trafficgeo camera JSON; the image size must match."""
+    if path.suffix.lower() == ".json":
+        from trafficgeo.camera.io import read_camera_json
+
+        cam = read_camera_json(path)
+        K, dist, size = cam.K, cam.dist, cam.image_size
+    else:
+        from trafficgeo.camera.opencv_yaml import read_intrinsics_yaml
+
+        intr = read_intrinsics_yaml(path)
+        K, dist, size = intr.K, intr.dist, intr.image_size
+    if size is not None and tuple(size) != tuple(image_size):
+        raise InputError(f"{path}: intrinsics are for a {size[0]}x{size[1]} image but --image-size is "
+                         f"{image_size[0]}x{image_size[1]}; calibrate the camera in the video's own resolution")
+    return K, dist
+
+
+def _distortion_option(text: str) -> str | tuple[str, ...]:
+    t = text.strip().lower()
+    if t in ("auto", "none"):
+        return t
+    return tuple(p.strip() for p in t.split(",") if p.strip())
+
+
+@app.command()
+def calibrate(
+    gcps: Annotated[Path, typer.Argument(help="GCP CSV (id,x,y,z,u,v[,role][,sigma_px]) or ODM gcp_list.txt")],
+    image_size: Annotated[str, typer.Option("--image-size", help="video frame size WIDTHxHEIGHT, e.g. 1920x1080")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="camera JSON to write")],
+    report: Annotated[Path | None, typer.Option(help="validation report JSON to write")] = None,
+    crs: Annotated[str | None, typer.Option(help="working projected CRS, e.g. EPSG:2949")] = None,
+    gcp_crs: Annotated[str | None, typer.Option(help="CRS of the GCP file's x,y (EPSG:4326: x=lon, y=lat)")] = None,
+    odm_image: Annotated[str | None, typer.Option(help="image name to use from an ODM gcp_list.txt")] = None,
+    intrinsics: Annotated[Path | None, typer.Option(help="OpenCV YAML or camera JSON with K and dist")] = None,
+    refine_intrinsics: Annotated[bool, typer.Option(help="refine --intrinsics instead of holding them fixed")] = False,
+    focal_px: Annotated[float | None, typer.Option(help="hold the focal length at this value (px)")] = None,
+    focal: Annotated[str, typer.Option(help="auto | single | separate")] = "auto",
+    principal_point: Annotated[str, typer.Option(help="auto | fixed | free")] = "auto",
+    distortion: Annotated[str, typer.Option(help="auto | none | terms such as k1,k2")] = "auto",
+    loss: Annotated[str, typer.Option(help="robust loss: soft_l1 | huber | cauchy | linear")] = "soft_l1",
+    survey_sigma: Annotated[float, typer.Option(help="standard deviation of GCP world coordinates (m)")] = 0.03,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only the summary line")] = False,
+) -> None:
+    """Calibrate the camera (intrinsics, distortion, pose) from GCPs and report how far it can be trusted."""
+    from trafficgeo.calibration import CalibrationOptions, read_gcps, run_calibration
+
+    size = parse_image_size(image_size)
+    intr = _load_intrinsics(intrinsics, size) if intrinsics is not None else None
+    options = CalibrationOptions(
+        focal=focal, principal_point=principal_point, distortion=_distortion_option(distortion), focal_px=focal_px,
+        intrinsics=intr, fix_intrinsics=intr is not None and not refine_intrinsics, loss=loss,
+        survey_sigma_m=survey_sigma)
+    table = read_gcps(gcps, gcp_crs=gcp_crs, crs=crs, odm_image=odm_image)
+    result = run_calibration(table, size, options, camera_path=output, report_path=report)
+    if quiet:
+        console.print(result.report["summary"])
+    else:
+        from trafficgeo.report.terminal import print_calibration_report
+
+        print_calibration_report(result.report, console)
+    console.print(f"wrote {output}" + (f" and {report}" if report else ""))
+
+
+@app.command()
+def intrinsics(
+    images: Annotated[list[Path], typer.Argument(help="chessboard photos taken in the video's own mode")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="OpenCV YAML to write")],
+    pattern: Annotated[str, typer.Option(help="inner corners COLSxROWS")] = "9x6",
+    square: Annotated[float, typer.Option(help="square size (m)")] = 0.025,
+    fix_aspect_ratio: Annotated[bool, typer.Option(help="force fx = fy")] = False,
+) -> None:
+    """Intrinsics (K, distortion) from chessboard images; use with 'calibrate --intrinsics'.
+
+    Take the photos in the same mode and resolution as the video, with stabilisation off.
+    """
+    from rich.progress import Progress
+
+    from trafficgeo.calibration.chessboard import calibrate_chessboard
+    from trafficgeo.camera.opencv_yaml import write_intrinsics_yaml
+
+    pat = _parse_pattern(pattern)
+    if not square > 0:
+        raise InputError(f"--square {square} must be a positive size in metres, e.g. 0.025")
+    with Progress(console=console, transient=True) as progress:
+        task = progress.add_task("finding chessboards", total=len(images))
+        result = calibrate_chessboard(images, pat, square, fix_aspect_ratio=fix_aspect_ratio,
+                                      progress=lambda i, n: progress.update(task, completed=i))
+    write_intrinsics_yaml(output, result.intrinsics)
+    K = result.intrinsics.K
+    console.print(f"boards found in {len(result.used_images)} of {len(images)} images"
+                  + (f" (skipped: {', '.join(Path(s).name for s in result.skipped_images)})"
+                     if result.skipped_images else ""))
+    console.print(f"fx {K[0, 0]:.2f}  fy {K[1, 1]:.2f}  cx {K[0, 2]:.2f}  cy {K[1, 2]:.2f} px; dist "
+                  f"{np.array2string(result.intrinsics.dist, precision=5)}; RMS {result.rms_px:.3f} px")
+    console.print(f"wrote {output}")
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option(help="folder for the demo's files")] = Path("demo-out"),
+    seed: Annotated[int, typer.Option(help="scene seed")] = 7,
+) -> None:
+    """Run the pipeline on a generated scene with known truth and compare every result with the truth."""
+    from trafficgeo.demo import run_demo
+
+    run_demo(out, seed=seed, console=console)
+
+
+def main(argv: list[str] | None = None) -> Any:
+    """Entry point of the ``trafficgeo`` console script."""
+    try:
+        return app(args=argv, standalone_mode=False)
+    except InputError as exc:
+        print(f"trafficgeo: error: {exc}", file=sys.stderr)
+        sys.exit(2)
+    except CalibrationError as exc:
+        print(f"trafficgeo: calibration failed: {exc}", file=sys.stderr)
+        sys.exit(1)
+    except TrafficgeoError as exc:
+        print(f"trafficgeo: {exc}", file=sys.stderr)
+        sys.exit(1)
+    except typer.Abort:
+        print("trafficgeo: interrupted", file=sys.stderr)
+        sys.exit(130)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except typer.TyperException as exc:  # usage errors: bad option, missing argument
+        exc.show()
+        sys.exit(getattr(exc, "exit_code", 2))
+    except (json.JSONDecodeError, OSError) as exc:
+        print(f"trafficgeo: error: {exc}", file=sys.stderr)
+        sys.exit(2)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

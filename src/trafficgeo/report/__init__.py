@@ -1,0 +1,1 @@
+"""Human-facing views of results (terminal tables now; HTML later). Nothing below this layer imports it."""
