@@ -19,7 +19,7 @@ demo: $(VENV)/.installed
 	$(BIN)/trafficgeo demo --out demo-out
 
 lint: $(VENV)/.installed
-	$(BIN)/ruff check src tests
+	$(BIN)/ruff check src tests benchmarks
 
 test: $(VENV)/.installed lint
 	$(BIN)/python -m pytest -q

@@ -101,8 +101,9 @@ def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     if np.linalg.det(P[:, :3]) < 0:
         P = -P
     K, R = scipy.linalg.rq(P[:, :3])
-    signs = np.diag(np.sign(np.diag(K)))
-    signs[signs == 0] = 1.0
+    d = np.sign(np.diag(K))
+    d[d == 0] = 1.0
+    signs = np.diag(d)
     K = K @ signs
     R = signs @ R
     t = np.linalg.solve(K, P[:, 3])

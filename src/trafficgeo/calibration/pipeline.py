@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -241,8 +242,14 @@ def _coverage_radius(full: np.ndarray, pix: np.ndarray, image_size: tuple[int, i
     return float(np.percentile(r, 90) / _max_image_radius(full, image_size))
 
 
+@functools.lru_cache(maxsize=256)
 def _f_critical(confidence: float, dof: int) -> float:
     return float(stats.f.ppf(confidence, 2, max(dof, 1)))
+
+
+@functools.lru_cache(maxsize=256)
+def _chi2_quantile(q: float, dof: int) -> float:
+    return float(stats.chi2.ppf(q, dof))
 
 
 # ------------------------------------------------------------------------------------------------ stages
@@ -258,7 +265,12 @@ def _robust_start(loc: np.ndarray, pix: np.ndarray, sig: np.ndarray, image_size:
     best: Fit | None = None
     best_cost = np.inf
     tried = []
-    for start in starts[:4]:
+    distinct: list = []
+    for start in starts:
+        # Starts that agree on the focal length (1 %) and the camera centre converge to the same camera.
+        if all(abs(start.full[6] - d.full[6]) > 0.01 * d.full[6] for d in distinct):
+            distinct.append(start)
+    for start in distinct[:3]:
         fit = fit_camera(loc, pix, sig, start.full, model, loss=options.loss, f_scale=options.loss_scale,
                          focal_bounds=focal_bounds(image_size))
         cost = _soft_l1_cost(fit.residuals_px / sig[:, None], options.loss_scale) if fit.success else np.inf
@@ -395,8 +407,8 @@ def outlier_test(d2: float, s2: float, dof: int, confidence: float) -> tuple[flo
     significantly more noise (variance factor ``s2`` above the 99 % quantile of chi2(dof) / dof): then the noise is
     estimated from them and the test is F(2, dof) (Pope's tau test).
     """
-    if dof <= 0 or s2 <= float(stats.chi2.ppf(0.99, dof)) / dof:
-        return d2 / 2.0, float(stats.chi2.ppf(confidence, 2)) / 2.0
+    if dof <= 0 or s2 <= _chi2_quantile(0.99, dof) / dof:
+        return d2 / 2.0, _chi2_quantile(confidence, 2) / 2.0
     return d2 / 2.0 / s2, _f_critical(confidence, dof)
 
 
@@ -404,8 +416,8 @@ def _snoop(fit: Fit, loc: np.ndarray, pix: np.ndarray, sig: np.ndarray, mask: np
            options: CalibrationOptions) -> tuple[Fit, np.ndarray, list[tuple[int, float, float]]]:
     """Remove, one at a time, the worst point while it fails the leave-one-out test. Returns fit, mask, removals."""
     removed: list[tuple[int, float, float]] = []
-    max_removals = max(0, (int(mask.sum()) - 4) // 3)
-    while len(removed) < max_removals:
+    # Keep at least 4 points and a redundancy of 2 after the removal (the test needs dof > 0).
+    while int(mask.sum()) - 1 >= 4 and 2 * (int(mask.sum()) - 1) - fit.model.n_free >= 2:
         idx = np.nonzero(mask)[0]
         if idx.size <= EXACT_LOO_MAX_POINTS:
             d2, s2_ext, dof = exact_loo_stats(loc[idx], pix[idx], sig[idx], fit)
