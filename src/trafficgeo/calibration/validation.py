@@ -175,6 +175,16 @@ def _grid_gaps(pixels: np.ndarray, image_size: tuple[int, int]) -> list[str]:
             for r in range(3) for c in range(3) if (r, c) not in filled]
 
 
+def _rms(a: np.ndarray) -> float:
+    a = a[np.isfinite(a)]
+    return float(np.sqrt(np.mean(a ** 2))) if a.size else float("nan")
+
+
+def _median(a: np.ndarray) -> float:
+    a = a[np.isfinite(a)]
+    return float(np.median(a)) if a.size else float("nan")
+
+
 def build_report(cal: Calibration) -> dict[str, Any]:
     """The validation report as a JSON-ready dictionary (units in the key names)."""
     cam = cal.camera
@@ -227,10 +237,10 @@ def build_report(cal: Calibration) -> dict[str, Any]:
         "n_outliers": int(ctrl_out.size),
         "mean_px": float(e_in.mean()), "rmse_px": float(np.sqrt(np.mean(e_in ** 2))), "max_px": float(e_in.max()),
         "std_px": float(e_in.std()),
-        "loo_rmse_px": float(np.sqrt(np.nanmean(loo_err[inl] ** 2))),
-        "loo_ground_rmse_m": float(np.sqrt(np.nanmean(loo_ground[inl] ** 2))),
-        "loo_ground_median_m": float(np.nanmedian(loo_ground[inl])),
-        "ground_rmse_m": float(np.sqrt(np.nanmean(ground_err[inl] ** 2))),
+        "loo_rmse_px": _rms(loo_err[inl]),
+        "loo_ground_rmse_m": _rms(loo_ground[inl]),
+        "loo_ground_median_m": _median(loo_ground[inl]),
+        "ground_rmse_m": _rms(ground_err[inl]),
         "redundancy": int(fit.redundancy), "n_parameters": int(fit.model.n_free),
         "sigma0": sigma0,
     }
@@ -239,8 +249,8 @@ def build_report(cal: Calibration) -> dict[str, Any]:
         check_block.update({
             "rmse_px": float(np.sqrt(np.mean(err[check] ** 2))), "mean_px": float(err[check].mean()),
             "max_px": float(err[check].max()),
-            "ground_rmse_m": float(np.sqrt(np.nanmean(ground_err[check] ** 2))),
-            "ground_max_m": float(np.nanmax(ground_err[check])),
+            "ground_rmse_m": _rms(ground_err[check]),
+            "ground_max_m": float(np.max(ground_err[check][np.isfinite(ground_err[check])], initial=np.nan)),
         })
 
     unc = _uncertainty(cal)
@@ -285,8 +295,8 @@ def build_report(cal: Calibration) -> dict[str, Any]:
         warnings.append(f"parameters {hc['a']} and {hc['b']} are {abs(hc['correlation']):.3f} correlated")
     for i in ctrl_out:
         recs.append(f"Re-measure GCP {g.ids[i]} (excluded): {reasons.get(int(i), '')}.")
-    if inl.size >= 5:
-        med = float(np.nanmedian(loo_err[inl]))
+    if inl.size >= 5 and np.isfinite(loo_err[inl]).sum() >= 5:
+        med = _median(loo_err[inl])
         worst = inl[int(np.nanargmax(loo_err[inl]))]
         if loo_err[worst] > max(3 * med, 3 * sigma):
             recs.append(f"Verify GCP {g.ids[worst]}: its leave-one-out error {loo_err[worst]:.1f} px is "
@@ -297,9 +307,17 @@ def build_report(cal: Calibration) -> dict[str, Any]:
                     "positions there are extrapolated.")
     if not recs:
         recs.append("No action needed: the GCPs agree with one camera to the stated pixel noise.")
-    summary = (f"Expect about {stats_block['loo_rmse_px']:.1f} px for a new point (leave-one-out RMSE), typically "
-               f"{stats_block['loo_ground_median_m']:.2f} m on the ground within the GCPs' area (median leave-one-out)"
-               + (f"; check points: {check_block['ground_rmse_m']:.2f} m RMS" if check.size else "") + ".")
+    if not np.isfinite(stats_block["loo_rmse_px"]):
+        summary = (f"Fit RMSE {stats_block['rmse_px']:.1f} px; leave-one-out errors are not available (too few points "
+                   "to refit without each one), so the accuracy for a new point is unknown: add GCPs.")
+    else:
+        summary = (f"Expect about {stats_block['loo_rmse_px']:.1f} px for a new point (leave-one-out RMSE), typically "
+                   f"{stats_block['loo_ground_median_m']:.2f} m on the ground within the GCPs' area (median "
+                   "leave-one-out)")
+    if check.size:
+        summary = summary.rstrip(".") + f"; check points: {check_block['ground_rmse_m']:.2f} m RMS."
+    elif not summary.endswith("."):
+        summary += "."
 
     return {
         "format": REPORT_FORMAT,

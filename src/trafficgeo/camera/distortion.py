@@ -63,14 +63,18 @@ def _distortion_jacobian(xy: NDArray, dist: NDArray) -> tuple[NDArray, NDArray, 
 def undistort_normalized(xyd: NDArray, dist: NDArray, *, tol: float = 1e-10, max_iter: int = 50) -> NDArray:
     """Invert :func:`distort_normalized` for distorted normalized coordinates ``xyd`` (N, 2).
 
-    Damped Newton iterations from ``xyd``; a point whose residual does not fall below ``tol`` (normalized units)
-    gets NaN: it lies outside the region where the lens model is invertible (e.g. beyond the radius where strong
-    barrel distortion folds back), so no trustworthy ray exists for it.
+    Damped Newton iterations from one fixed-point step ``xyd / radial(xyd)``, which moves the start towards the
+    solution for barrel and pincushion lenses alike, away from the fold. A point whose residual does not fall
+    below ``tol`` (normalized units) gets NaN: it lies outside the region where the lens model is invertible
+    (e.g. beyond the radius where strong distortion folds back), so no trustworthy ray exists for it.
     """
     xyd = np.asarray(xyd, dtype=np.float64)
     if not np.any(dist):
         return xyd.copy()
-    xy = xyd.copy()
+    k1, k2, _, _, k3 = dist
+    r2d = np.sum(xyd * xyd, axis=-1)
+    radial_d = 1.0 + r2d * (k1 + r2d * (k2 + r2d * k3))
+    xy = np.where((radial_d > 0.2)[..., None], xyd / np.where(radial_d > 0.2, radial_d, 1.0)[..., None], xyd)
     resid = distort_normalized(xy, dist) - xyd
     err = np.hypot(resid[..., 0], resid[..., 1])
     active = err > tol
