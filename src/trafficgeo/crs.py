@@ -119,6 +119,12 @@ def _horizontal(crs: pyproj.CRS) -> pyproj.CRS:
     return crs
 
 
+def same_horizontal_crs(a: pyproj.CRS, b: pyproj.CRS) -> bool:
+    """Whether two CRSs have the same horizontal CRS (axis order ignored; vertical parts are not compared)."""
+    ha, hb = _horizontal(a), _horizontal(b)
+    return bool(ha.equals(hb, ignore_axis_order=True) or ha == hb)
+
+
 def is_geographic(crs: pyproj.CRS | None) -> bool:
     """True when the horizontal coordinates of ``crs`` are angles (longitude/latitude); False for ``None``."""
     if crs is None:

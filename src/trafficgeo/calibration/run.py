@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from trafficgeo.calibration.gcps import GCPTable
+from trafficgeo.calibration.params import FULL_NAMES
 from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, calibrate
 from trafficgeo.calibration.validation import build_report, gcp_records, stats_record
 from trafficgeo.camera.io import to_json_safe, write_camera_json
@@ -22,14 +23,34 @@ class CalibrationRun:
     report: dict[str, Any]
 
 
-def camera_extras(report: dict[str, Any]) -> dict[str, Any]:
-    """The calibration keys stored in the camera JSON beside the camera itself."""
+def covariance_record(cal: Calibration) -> dict[str, Any]:
+    """Covariance of the full OpenCV parameter vector about the local origin (for :mod:`trafficgeo.geo.uncertainty`).
+
+    Fixed parameters have zero rows and columns. Scaled by the a-posteriori variance factor, like the report.
+    """
+    M = cal.fit.model.matrix()
+    cov = M @ cal.fit.covariance() @ M.T
     return {
+        "parameters": list(FULL_NAMES),
+        "convention": "OpenCV rvec/tvec map (X_world - origin) to the camera frame; fx..cx in pixels; "
+                      "origin, tvec in CRS units",
+        "origin": cal.origin.tolist(),
+        "values": cal.fit.full.tolist(),
+        "matrix": cov.tolist(),
+    }
+
+
+def camera_extras(report: dict[str, Any], cal: Calibration | None = None) -> dict[str, Any]:
+    """The calibration keys stored in the camera JSON beside the camera itself."""
+    extras = {
         "gcps": gcp_records(report),
         "stats": stats_record(report),
         "model": {"free_parameters": report["model"]["free_parameters"], "reasons": report["model"]["reasons"]},
         "uncertainty": {k: report["uncertainty"][k] for k in ("position_std_m", "orientation_std_deg", "focal_std_px")},
     }
+    if cal is not None:
+        extras["covariance"] = covariance_record(cal)
+    return extras
 
 
 def run_calibration(gcps: GCPTable, image_size: tuple[int, int], options: CalibrationOptions | None = None, *,
@@ -40,5 +61,5 @@ def run_calibration(gcps: GCPTable, image_size: tuple[int, int], options: Calibr
     if report_path is not None:
         write_text_atomic(report_path, json.dumps(to_json_safe(report), indent=2, allow_nan=False) + "\n")
     if camera_path is not None:
-        write_camera_json(camera_path, cal.camera, camera_extras(report))
+        write_camera_json(camera_path, cal.camera, camera_extras(report, cal))
     return CalibrationRun(cal, report)

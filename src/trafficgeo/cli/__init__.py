@@ -87,6 +87,8 @@ def calibrate(
     distortion: Annotated[str, typer.Option(help="auto | none | terms such as k1,k2")] = "auto",
     loss: Annotated[str, typer.Option(help="robust loss: soft_l1 | huber | cauchy | linear")] = "soft_l1",
     survey_sigma: Annotated[float, typer.Option(help="standard deviation of GCP world coordinates (m)")] = 0.03,
+    gis: Annotated[Path | None, typer.Option(help="also write camera, GCPs with residuals and the footprint on "
+                                             "the GCP plane (.gpkg / .geojson)")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only the summary line")] = False,
 ) -> None:
     """Calibrate the camera (intrinsics, distortion, pose) from GCPs and report how far it can be trusted."""
@@ -99,7 +101,11 @@ def calibrate(
         intrinsics=intr, fix_intrinsics=intr is not None and not refine_intrinsics, loss=loss,
         survey_sigma_m=survey_sigma)
     table = read_gcps(gcps, gcp_crs=gcp_crs, crs=crs, odm_image=odm_image)
+    if gis is not None and table.crs is None:
+        raise InputError(f"--gis {gis}: the GCPs have no CRS, so nothing can be placed on a map; give --crs")
     result = run_calibration(table, size, options, camera_path=output, report_path=report)
+    if gis is not None:
+        _write_site_gis(gis, output)
     if quiet:
         console.print(result.report["summary"])
     else:
@@ -107,6 +113,17 @@ def calibrate(
 
         print_calibration_report(result.report, console)
     console.print(f"wrote {output}" + (f" and {report}" if report else ""))
+
+
+def _write_site_gis(path: Path, camera_json: Path) -> None:
+    from trafficgeo.camera.io import read_camera_document
+    from trafficgeo.geo.load import plane_from_gcps
+    from trafficgeo.geo.site import site_layers, visible_footprint
+    from trafficgeo.io.gis import write_gis
+
+    cam, doc = read_camera_document(camera_json)
+    plane = plane_from_gcps(doc, None, str(camera_json))
+    write_gis(path, site_layers(cam, doc, visible_footprint(cam, plane)), cam.crs)
 
 
 @app.command()
@@ -152,6 +169,9 @@ def demo(
     from trafficgeo.demo import run_demo
 
     run_demo(out, seed=seed, console=console)
+
+
+from trafficgeo.cli import geo as _geo  # noqa: E402, F401  (registers the geospatial commands)
 
 
 def main(argv: list[str] | None = None) -> Any:

@@ -1,0 +1,1 @@
+"""Geospatial layer: rasters, point clouds, surfaces and image <-> world mapping."""
