@@ -23,10 +23,11 @@ the ray through a vehicle's roof with the plane of the roof), or a status saying
 ``outside_image``   the pixel lies outside the frame (set by :mod:`trafficgeo.geo.mapping`)
 ==================  =========================================================================================
 
-The DEM intersection marches along the ray through a max-height pyramid: a step is taken only where the ray stays
+The DEM intersection marches along each ray through a max-height pyramid: a step is taken only where the ray stays
 above the highest cell within the step's reach, so no hit is skipped; near the surface it advances half a cell at a
-time and brackets the crossing, which regula falsi refines to well under a millimetre. All rays advance together in
-vectorized numpy.
+time, checks the piecewise-quadratic height of the ray above the bilinear surface for a sign change (kinks and
+bulges included), and regula falsi solves the crossing to ~1e-9 of the elevation scale. The per-ray loop is
+compiled with numba (:mod:`trafficgeo.geo._raymarch`): each ray stops as soon as it is resolved.
 """
 
 from __future__ import annotations
@@ -40,9 +41,6 @@ STATUSES = ("ok", "above_horizon", "behind_camera", "miss", "no_data", "grazing"
 OK, ABOVE_HORIZON, BEHIND_CAMERA, MISS, NO_DATA, GRAZING, OUTSIDE_LENS, OUTSIDE_IMAGE = range(len(STATUSES))
 
 DEFAULT_MIN_INCIDENCE_DEG = 0.5
-_MARCHING = -1  # internal: ray not finished yet
-_CHUNK = 1 << 14  # rays marched together (state arrays stay in the CPU cache)
-_CHUNK_ITERATIONS = 40
 
 
 @dataclass(frozen=True)
@@ -300,295 +298,23 @@ class DEMSurface:
         n = d.shape[0]
         code = np.full(n, MISS, dtype=np.int8)
         t_hit = np.full(n, np.nan)
-        rows, cols = self.values.shape
         # Grid space: g = (col, row, z - height); t stays the world distance along the ray.
         g0 = np.array([(o[0] - self.left) / self.xres, (self.top - o[1]) / self.yres, o[2] - height])
         dg = np.column_stack([d[:, 0] / self.xres, -d[:, 1] / self.yres, d[:, 2]])
-        valid = np.all(np.isfinite(d), axis=1)
-        code[~valid] = OUTSIDE_LENS
-
-        # Parameter range inside the raster footprint (2-D slab test) and inside the slab zmin <= z <= zmax.
-        t0 = np.zeros(n)
-        t1 = np.full(n, np.inf)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            for axis, size in ((0, cols), (1, rows)):
-                ta = (0.0 - g0[axis]) / dg[:, axis]
-                tb = (size - g0[axis]) / dg[:, axis]
-                lo, hi = np.minimum(ta, tb), np.maximum(ta, tb)
-                par = dg[:, axis] == 0
-                inside_axis = 0.0 <= g0[axis] <= size
-                lo = np.where(par, -np.inf if inside_axis else np.inf, lo)
-                hi = np.where(par, np.inf if inside_axis else -np.inf, hi)
-                t0 = np.maximum(t0, lo)
-                t1 = np.minimum(t1, hi)
-            # The slab is widened a hair so that rounding cannot start a ray below a flat surface.
-            pad = 1e-7 * (1.0 + abs(self.zmax) + abs(self.zmin))
-            zmax, zmin = self.zmax + pad, self.zmin - pad
-            tz_top = (zmax - g0[2]) / dg[:, 2]
-            tz_bot = (zmin - g0[2]) / dg[:, 2]
-        descending = dg[:, 2] < 0
-        # Rays that never come below the highest point of the surface cannot hit it.
-        never_low = np.where(descending, False, g0[2] > zmax)
-        t0 = np.where(descending & (g0[2] > zmax), np.maximum(t0, tz_top), t0)
-        # A descending ray that sinks below the lowest surface point inside the footprint without a hit must have
-        # passed over cells without data.
-        sinks = descending & (tz_bot < t1)
-        t1 = np.where(descending, np.minimum(t1, tz_bot), np.where(dg[:, 2] > 0, np.minimum(t1, tz_top), t1))
-        code[valid & never_low] = ABOVE_HORIZON
-        live = valid & ~never_low & (t0 <= t1)
         # Camera below the surface at its own position: the surface lies behind / above it.
         z_here = self._bilinear_grid(np.array([g0[0]]), np.array([g0[1]]))[0][0]
         if np.isfinite(z_here) and g0[2] < z_here:
-            code[valid] = BEHIND_CAMERA
-            live[:] = False
+            code[:] = BEHIND_CAMERA
+            code[~np.all(np.isfinite(d), axis=1)] = OUTSIDE_LENS
+            return _finish(o, d, t_hit, code, np.full((n, 3), np.nan), min_incidence_deg)
+        from trafficgeo.geo._raymarch import intersect_rays
 
-        # March in cache-sized chunks for a bounded number of iterations; the few rays that skim the surface for
-        # a long way (near the horizon) then finish together.
-        live_idx = np.flatnonzero(live)
-        pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        for start in range(0, live_idx.size, _CHUNK):
-            idx = live_idx[start:start + _CHUNK]
-            t_c, code_c, crossed_c = self._march(g0, dg[idx], t0[idx], t1[idx], max_iter=_CHUNK_ITERATIONS)
-            t_hit[idx] = t_c
-            code[idx] = code_c
-            more = code_c == _MARCHING
-            if more.any():
-                pending.append((idx[more], t_c[more], crossed_c[more]))
-        if pending:
-            idx = np.concatenate([p[0] for p in pending])
-            t_c, code_c, _ = self._march(g0, dg[idx], np.concatenate([p[1] for p in pending]), t1[idx],
-                                         crossed=np.concatenate([p[2] for p in pending]))
-            t_hit[idx] = t_c
-            code[idx] = code_c
-        code[(code == MISS) & sinks] = NO_DATA
-        # Rays that rise and end without a hit: above the horizon rather than a miss.
-        rising = (code == MISS) & (dg[:, 2] >= 0) & valid
-        code[rising] = ABOVE_HORIZON
-
-        normal = np.full((n, 3), np.nan)
-        hit = code == OK
-        if hit.any():
-            p = o + t_hit[hit, None] * d[hit]
-            normal[hit] = self.normal(p[:, 0], p[:, 1])
-        return _finish(o, d, t_hit, code, normal, min_incidence_deg)
-
-    def _height(self, gc: np.ndarray, gr: np.ndarray) -> np.ndarray:
-        """Bilinear elevation at grid coordinates (hot path of the ray march; NaN outside or over no data)."""
-        rows, cols = self.values.shape
-        fc = np.clip(gc - 0.5, 0.0, cols - 1.0)
-        fr = np.clip(gr - 0.5, 0.0, rows - 1.0)
-        c0 = np.minimum(fc.astype(np.intp), max(cols - 2, 0))
-        r0 = np.minimum(fr.astype(np.intp), max(rows - 2, 0))
-        wc = fc - c0
-        wr = fr - r0
-        i00 = r0 * cols + c0
-        v = self._flat
-        z00 = v[i00]
-        z01 = v[i00 + self._dc]
-        z10 = v[i00 + self._dr]
-        z11 = v[i00 + self._dr + self._dc]
-        top = z00 + (z01 - z00) * wc
-        z = top + (z10 + (z11 - z10) * wc - top) * wr
-        outside = (gc < 0) | (gc > cols) | (gr < 0) | (gr > rows)
-        z[outside] = np.nan
-        return z
-
-    def _march(self, g0: np.ndarray, dg: np.ndarray, t0: np.ndarray, t1: np.ndarray, max_iter: int = 10**7,
-               crossed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """March rays (grid-space directions ``dg``) from t0 to t1.
-
-        Returns (t, code, crossed): t of the first hit where code is OK; for rays still marching after
-        ``max_iter`` iterations code is ``_MARCHING`` and t is how far the ray is known to be clear of the surface
-        (pass it back as t0, with ``crossed``, to resume). ``crossed``: the ray passed over no-data cells.
-
-        Each iteration looks up the pyramid at the ray's level L and at L - 1 and jumps by the larger safe step
-        (then tries one level coarser); where neither is safe at the finest levels it advances half a cell and
-        brackets a sign change of the ray's height above the surface.
-        """
-        n = dg.shape[0]
-        t_hit = np.full(n, np.nan)
-        code = np.full(n, MISS, dtype=np.int8)
-        crossed_out = np.zeros(n, dtype=bool) if crossed is None else crossed.copy()
-        if n == 0:
-            return t_hit, code, crossed_out
         pyr = self._pyramid
-        rows, cols = self.values.shape
-        top = pyr.levels - 1
-        # Compact per-ray state of the rays still marching.
-        idx = np.arange(n)
-        dz = dg[:, 2]
-        cheb = np.maximum(np.abs(dg[:, 0]), np.abs(dg[:, 1]))  # cells per unit t (Chebyshev)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            fine = np.where(cheb > 0, 0.5 / cheb, np.inf)  # half a cell along the ray
-            inv_cheb = np.where(cheb > 0, 1.0 / cheb, np.inf)
-            descent = np.maximum(-dz, 0.0)
-            inv_descent = np.where(descent > 0, 1.0 / descent, np.inf)
-            # Start at the level whose reach matches the run through the elevation slab.
-            run_cells = (self.zmax - self.zmin + 1e-9) * inv_descent * cheb
-            level = np.clip(np.floor(np.log2(np.maximum(run_cells, 1.0))), 2, top).astype(np.intp)
-        crossed = crossed_out.copy()
-        # Float state of the marching rays as rows of one array, so that dropping finished rays is one gather.
-        T, TEND, DC, DR, DZ, FINE, INVC, INVD, GAP = range(9)
-        state = np.empty((9, n))
-        state[T], state[TEND], state[DC], state[DR], state[DZ] = t0, t1, dg[:, 0], dg[:, 1], dg[:, 2]
-        state[FINE], state[INVC], state[INVD] = fine, inv_cheb, inv_descent
-        # A ray that enters the grid's footprint through its side below the surface never crosses it from above.
-        state[GAP] = g0[2] + t0 * dg[:, 2] - self._height(g0[0] + t0 * dg[:, 0], g0[1] + t0 * dg[:, 1])
-        keep = ~(state[GAP] < 0)
-        idx, level, crossed, state = idx[keep], level[keep], crossed[keep], state[:, keep]
-        reach = pyr.reach
-        for _ in range(max_iter):
-            if idx.size == 0:
-                break
-            t, dc, dr, dz = state[T], state[DC], state[DR], state[DZ]
-            ci = np.clip((g0[0] + t * dc).astype(np.intp), 0, cols - 1)
-            ri = np.clip((g0[1] + t * dr).astype(np.intp), 0, rows - 1)
-            z = g0[2] + t * dz
-            lo = np.maximum(level - 1, 1)
-            room_hi = z - pyr.lookup(level, ri, ci)
-            room_lo = z - pyr.lookup(lo, ri, ci)
-            reach_hi = reach[level] * state[INVC]
-            reach_lo = reach[lo] * state[INVC]
-            with np.errstate(invalid="ignore"):
-                drop_hi = room_hi * state[INVD]
-                drop_lo = room_lo * state[INVD]
-            safe_hi = np.minimum(reach_hi, drop_hi)
-            safe_lo = np.minimum(reach_lo, drop_lo)
-            safe_hi[~(room_hi > 0)] = 0.0
-            safe_lo[~(room_lo > 0)] = 0.0
-            use_hi = safe_hi >= state[FINE]
-            use_lo = ~use_hi & (safe_lo >= state[FINE])
-            jump = use_hi | use_lo
-            state[T] = t + np.where(use_hi, safe_hi, np.where(use_lo, safe_lo, 0.0))
-            # Next level: coarser after a jump limited by reach, finer after one that met the level's envelope.
-            level = np.where(use_hi, np.where(reach_hi <= drop_hi, level + 1, level - 1),
-                             np.where(use_lo, np.where(reach_lo <= drop_lo, level, level - 2), level - 2))
-            level = np.clip(level, 1, top)
-            state[GAP, jump] = np.nan  # unknown after a jump
-            # Finest level and no safe jump: advance half a cell and look for a sign change.
-            step = ~jump & (lo <= 1)
-            hit = np.zeros(idx.size, dtype=bool)
-            if step.any():
-                sub = state[:, step]
-                ts, sdc, sdr, sdz, gp = sub[T], sub[DC], sub[DR], sub[DZ], sub[GAP]
-                te = np.minimum(ts + sub[FINE], sub[TEND])
-                unknown = np.isnan(gp)
-                if unknown.any():
-                    tu = ts[unknown]
-                    gp[unknown] = g0[2] + tu * sdz[unknown] - self._height(g0[0] + tu * sdc[unknown],
-                                                                           g0[1] + tu * sdr[unknown])
-                gn = g0[2] + te * sdz - self._height(g0[0] + te * sdc, g0[1] + te * sdr)
-                crossed[step] |= ~np.isfinite(gn)
-                found, ta, tb, fa, fb = self._bracket(g0, sdc, sdr, sdz, ts, te, gp, gn)
-                if found.any():
-                    where = np.flatnonzero(step)[found]
-                    dgc = np.column_stack([sdc[found], sdr[found], sdz[found]])
-                    t_hit[idx[where]] = self._refine(g0, dgc, ta[found], tb[found], fa[found], fb[found])
-                    code[idx[where]] = OK
-                    hit[where] = True
-                state[T, step] = te
-                state[GAP, step] = gn
-                level[step] = np.where(np.isfinite(gn) & (gn > 0), 2, 1)
-            done = hit | (state[T] >= state[TEND])
-            if done.any():
-                ended = done & ~hit
-                code[idx[ended]] = np.where(crossed[ended], NO_DATA, MISS)
-                keep = ~done
-                idx, level, crossed, state = idx[keep], level[keep], crossed[keep], state[:, keep]
-        if idx.size:
-            t_hit[idx] = state[T]
-            code[idx] = _MARCHING
-            crossed_out[idx] = crossed
-        return t_hit, code, crossed_out
-
-    def _bracket(self, g0: np.ndarray, dc: np.ndarray, dr: np.ndarray, dz: np.ndarray, ts: np.ndarray,
-                 te: np.ndarray, gs: np.ndarray, ge: np.ndarray) -> tuple[np.ndarray, ...]:
-        """First sign change of the ray's height above the surface in [ts, te] (at most half a cell long).
-
-        Along the segment the height is continuous and piecewise quadratic, with kinks where it crosses the lines
-        between cell centres (at most one per axis). It is evaluated at those kinks, so ridges are not stepped
-        over; inside a piece it can only dip below its chord by ``|twist dc dr| L^2 / 4`` (``twist`` the cell's
-        bilinear cross term), and where that could reach zero the piece's vertex is evaluated too. Returns
-        (found, ta, tb, fa, fb) with fa > 0 >= fb where found (a ray entering data below the surface from a
-        no-data hole has ta = tb).
-        """
-        # Kinks: where the grid coordinate crosses k + 0.5 inside the segment.
-        knots = []
-        for g_origin, d in ((g0[0], dc), (g0[1], dr)):
-            a_, b_ = g_origin + ts * d, g_origin + te * d
-            line = np.floor(np.maximum(a_, b_) - 0.5) + 0.5
-            inside = (line > np.minimum(a_, b_)) & (line < np.maximum(a_, b_))
-            with np.errstate(divide="ignore", invalid="ignore"):
-                tk = ts + (line - a_) / d
-            knots.append(np.where(inside, tk, te))
-        k1, k2 = np.minimum(knots[0], knots[1]), np.maximum(knots[0], knots[1])
-        tk = np.concatenate([k1, k2])
-        gk = g0[2] + tk * np.tile(dz, 2) - self._height(g0[0] + tk * np.tile(dc, 2), g0[1] + tk * np.tile(dr, 2))
-        m = ts.size
-        T = np.stack([ts, k1, k2, te])
-        G = np.stack([gs, gk[:m], gk[m:], ge])
-        found = np.zeros(m, dtype=bool)
-        ta, tb, fa, fb = te.copy(), te.copy(), ge.copy(), ge.copy()
-        twist_bound = self._max_twist * np.abs(dc * dr)
-        for k in range(3):
-            t_a, t_b, f_a, f_b = T[k], T[k + 1], G[k], G[k + 1]
-            length = t_b - t_a
-            sign = ~found & (f_a > 0) & (f_b <= 0)
-            # A dip inside the piece with both ends above the surface.
-            maybe = ~found & ~sign & (f_a > 0) & (f_b > 0) & (length > 0) & (np.minimum(f_a, f_b) <
-                                                                           twist_bound * length**2 / 4)
-            if maybe.any():
-                j = np.flatnonzero(maybe)
-                tm = 0.5 * (t_a[j] + t_b[j])
-                fm = g0[2] + tm * dz[j] - self._height(g0[0] + tm * dc[j], g0[1] + tm * dr[j])
-                curv = 2 * (f_a[j] + f_b[j]) - 4 * fm  # A L^2 of g(s) = f_a + (f_b - f_a) s + A L^2 s (s - 1)
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    s_star = np.clip(0.5 - (f_b[j] - f_a[j]) / (2 * curv), 0.0, 1.0)
-                s_star = np.where(curv > 0, s_star, 0.5)
-                g_star = f_a[j] + (f_b[j] - f_a[j]) * s_star + curv * s_star * (s_star - 1)
-                dip = np.isfinite(g_star) & (g_star <= 0)
-                jd = j[dip]
-                ta[jd], fa[jd] = t_a[jd], f_a[jd]
-                tb[jd], fb[jd] = t_a[jd] + s_star[dip] * length[jd], g_star[dip]
-                found[jd] = True
-            ta[sign], tb[sign], fa[sign], fb[sign] = t_a[sign], t_b[sign], f_a[sign], f_b[sign]
-            found |= sign
-        # A ray that enters data already below the surface from a no-data hole hits where the data begin.
-        enter = ~found & ~np.isfinite(gs) & np.isfinite(ge) & (ge <= 0)
-        ta[enter], tb[enter], fa[enter], fb[enter] = te[enter], te[enter], 0.0, ge[enter]
-        found |= enter
-        return found, ta, tb, fa, fb
-
-    def _refine(self, g0: np.ndarray, dg: np.ndarray, ta: np.ndarray, tb: np.ndarray, fa: np.ndarray,
-                fb: np.ndarray, max_iterations: int = 40) -> np.ndarray:
-        """Root of the ray's height above the surface in [ta, tb] (fa > 0 >= fb): regula falsi, Illinois variant,
-        until the height is within 1e-9 of the elevation scale or the bracket is 1e-9 of a cell wide."""
-        fa = np.where(np.isfinite(fa), fa, 0.0)
-        out = tb.copy()
-        act = np.flatnonzero(ta < tb)
-        ta, tb, fa, fb = ta[act], tb[act], fa[act], fb[act]
-        dg = dg[act]
-        side = np.zeros(act.size, dtype=np.int8)
-        tol = 1e-9 * (1.0 + abs(self.zmax))
-        for _ in range(max_iterations):
-            if act.size == 0:
-                break
-            with np.errstate(divide="ignore", invalid="ignore"):
-                tm = np.where(fa != fb, (ta * fb - tb * fa) / (fb - fa), 0.5 * (ta + tb))
-            tm = np.clip(tm, ta, tb)
-            fm = g0[2] + tm * dg[:, 2] - self._height(g0[0] + tm * dg[:, 0], g0[1] + tm * dg[:, 1])
-            fm = np.where(np.isfinite(fm), fm, -tol)
-            out[act] = tm
-            pos = fm > 0
-            ta, fa = np.where(pos, tm, ta), np.where(pos, fm, fa)
-            tb, fb = np.where(pos, tb, tm), np.where(pos, fb, fm)
-            fb = np.where(pos & (side == 1), fb * 0.5, fb)
-            fa = np.where(~pos & (side == -1), fa * 0.5, fa)
-            side = np.where(pos, 1, -1).astype(np.int8)
-            cheb = np.maximum(np.abs(dg[:, 0]), np.abs(dg[:, 1]))
-            more = (np.abs(fm) > tol) & ((tb - ta) * cheb > 1e-9)
-            act, ta, tb, fa, fb, side, dg = act[more], ta[more], tb[more], fa[more], fb[more], side[more], dg[more]
-        return out
+        t_hit, code, grad = intersect_rays(self.values, pyr.data, pyr.offsets, pyr.ncols, pyr.reach,
+                                           self._max_twist, self.zmin, self.zmax, g0, dg)
+        normal = np.column_stack([-grad[:, 0] / self.xres, grad[:, 1] / self.yres, np.ones(n)])
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        return _finish(o, d, t_hit, code, normal, min_incidence_deg)
 
 
 class _MaxPyramid:
@@ -638,3 +364,4 @@ class _MaxPyramid:
     def lookup(self, level: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
         """Stored maxima at cells (row, col) for per-point pyramid levels (intp arrays)."""
         return self.data[self.offsets[level] + (row >> level) * self.ncols[level] + (col >> level)]
+
