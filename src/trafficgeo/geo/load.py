@@ -26,10 +26,11 @@ SURFACE_HINT = "give a number (constant elevation), 'plane', a GeoTIFF DEM or a 
 
 
 def plane_from_gcps(doc: dict[str, Any], crs: pyproj.CRS | None, where: str) -> PlaneSurface:
-    """Least-squares plane through the inlier control GCPs recorded in a camera JSON document."""
+    """Robust least-squares plane through the inlier control GCPs recorded in a camera JSON document (points off
+    the road, such as pole tops, are left out by the robust fit)."""
     rows = doc.get("gcps") or []
-    pts = [(r["x"], r["y"], r["z"]) for r in rows
-           if isinstance(r, dict) and r.get("inlier", True) and r.get("role", "control") == "control"]
+    use = [r for r in rows if isinstance(r, dict) and r.get("inlier", True) and r.get("role", "control") == "control"]
+    pts = [(r["x"], r["y"], r["z"]) for r in use]
     if len(pts) < 3:
         raise InputError(f"{where}: --surface plane needs the GCPs that 'trafficgeo calibrate' stores in the camera "
                          f"JSON (found {len(pts)} inliers); use a number, a DEM or a point cloud instead")

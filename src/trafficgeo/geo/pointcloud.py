@@ -42,6 +42,7 @@ __all__ = [
     "cloud_to_dem",
     "ground_mask",
     "read_point_cloud",
+    "write_point_cloud",
 ]
 
 #: ASPRS LAS classification code of ground points.
@@ -215,6 +216,28 @@ def read_point_cloud(path: str | os.PathLike[str], crs: str | pyproj.CRS | None 
     if is_geographic(out_crs):
         raise _geographic_error(str(p), out_crs, xyz)
     return PointCloud(xyz, np.asarray(las.classification), rgb, out_crs, str(p))
+
+
+def write_point_cloud(path: str | os.PathLike[str], cloud: PointCloud, scale: float = 0.001) -> None:
+    """Write a LAS (or LAZ, by suffix) 1.4 file atomically: xyz at ``scale`` CRS units, classification, RGB if any,
+    and the CRS as a WKT VLR."""
+    p = Path(path)
+    if p.suffix.lower() not in (".las", ".laz"):
+        raise InputError(f"{p}: a point cloud must be written as .las or .laz")
+    from trafficgeo.io.atomic import atomic_path
+
+    header = laspy.LasHeader(point_format=7 if cloud.rgb is not None else 6, version="1.4")
+    header.offsets = np.floor(cloud.xyz.min(axis=0))
+    header.scales = np.array([scale, scale, scale])
+    if cloud.crs is not None:
+        header.add_crs(cloud.crs)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = cloud.xyz[:, 0], cloud.xyz[:, 1], cloud.xyz[:, 2]
+    las.classification = cloud.classification
+    if cloud.rgb is not None:
+        las.red, las.green, las.blue = cloud.rgb[:, 0], cloud.rgb[:, 1], cloud.rgb[:, 2]
+    with atomic_path(p) as tmp:
+        las.write(tmp, do_compress=p.suffix.lower() == ".laz")
 
 
 # ---------------------------------------------------------------------- ground selection

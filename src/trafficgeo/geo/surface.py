@@ -137,6 +137,17 @@ class ConstantSurface:
         return f"constant elevation {self.z:g}"
 
 
+def _plane_lstsq(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(gx, gy, dz) of the least-squares plane through points (N, 3) about their centroid, and the centroid."""
+    c = p.mean(axis=0)
+    rel = p - c
+    A = np.column_stack([rel[:, 0], rel[:, 1], np.ones(len(rel))])
+    if np.linalg.matrix_rank(A) < 3:
+        raise ValueError("the points are collinear: they do not define a plane")
+    coef, *_ = np.linalg.lstsq(A, rel[:, 2], rcond=None)
+    return coef, c
+
+
 @dataclass(frozen=True, eq=False)
 class PlaneSurface:
     """Plane ``Z = point[2] + gx (x - point[0]) + gy (y - point[1])`` (gradients dZ/dx, dZ/dy, unitless)."""
@@ -146,26 +157,42 @@ class PlaneSurface:
     gy: float
     crs: pyproj.CRS | None = None
     rms: float = field(default=float("nan"))  # RMS of the fit residuals in Z, CRS units (when fitted)
+    excluded: tuple[int, ...] = ()  # indices of the points a robust fit left out
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "point", np.asarray(self.point, dtype=np.float64).reshape(3))
 
     @classmethod
-    def fit(cls, points: object, crs: pyproj.CRS | None = None) -> PlaneSurface:
-        """Least-squares plane through (N >= 3) world points (N, 3), about their centroid."""
+    def fit(cls, points: object, crs: pyproj.CRS | None = None, robust: bool = True) -> PlaneSurface:
+        """Least-squares plane through (N >= 3) world points (N, 3), about their centroid.
+
+        ``robust``: points off the plane by more than 3 robust sigmas (and 5 cm) are dropped and the plane refitted
+        until the set is stable, so a few pole tops or wrong heights among road points do not tilt it; see
+        ``excluded``.
+        """
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        p = p[np.all(np.isfinite(p), axis=1)]
-        if p.shape[0] < 3:
-            raise ValueError(f"a plane needs at least 3 points, got {p.shape[0]}")
-        c = p.mean(axis=0)
-        rel = p - c
-        A = np.column_stack([rel[:, 0], rel[:, 1], np.ones(len(rel))])
-        coef, *_ = np.linalg.lstsq(A, rel[:, 2], rcond=None)
-        if np.linalg.matrix_rank(A) < 3:
-            raise ValueError("the points are collinear: they do not define a plane")
-        resid = rel[:, 2] - A @ coef
+        finite = np.all(np.isfinite(p), axis=1)
+        if finite.sum() < 3:
+            raise ValueError(f"a plane needs at least 3 points, got {int(finite.sum())}")
+        from trafficgeo.crs import metres_per_unit
+
+        floor = 0.05 / (metres_per_unit(crs) if crs is not None else 1.0)
+        use = finite.copy()
+        for _ in range(10):
+            coef, c = _plane_lstsq(p[use])
+            resid = p[:, 2] - (c[2] + coef[2] + coef[0] * (p[:, 0] - c[0]) + coef[1] * (p[:, 1] - c[1]))
+            if not robust:
+                break
+            r = resid[use]
+            scale = 1.4826 * np.median(np.abs(r - np.median(r)))
+            new = finite & (np.abs(resid) <= max(3.0 * scale, floor))
+            if new.sum() < 3 or np.array_equal(new, use):
+                break
+            use = new
         point = c + np.array([0.0, 0.0, coef[2]])
-        return cls(point=point, gx=float(coef[0]), gy=float(coef[1]), crs=crs, rms=float(np.sqrt(np.mean(resid**2))))
+        return cls(point=point, gx=float(coef[0]), gy=float(coef[1]), crs=crs,
+                   rms=float(np.sqrt(np.mean(resid[use] ** 2))), excluded=tuple(int(i) for i in np.flatnonzero(
+                       finite & ~use)))
 
     def elevation(self, x: object, y: object) -> np.ndarray:
         xx, yy = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
@@ -183,7 +210,12 @@ class PlaneSurface:
 
     def describe(self) -> str:
         slope = np.degrees(np.arctan(np.hypot(self.gx, self.gy)))
-        return f"plane through ({self.point[0]:.3f}, {self.point[1]:.3f}, {self.point[2]:.3f}), slope {slope:.2f} deg"
+        text = f"plane through ({self.point[0]:.3f}, {self.point[1]:.3f}, {self.point[2]:.3f}), slope {slope:.2f} deg"
+        if np.isfinite(self.rms):
+            text += f", RMS {self.rms:.3f}"
+        if self.excluded:
+            text += f", {len(self.excluded)} point(s) off the plane left out"
+        return text
 
 
 class DEMSurface:
