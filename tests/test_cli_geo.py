@@ -39,6 +39,7 @@ SIZE_TEXT = "1920x1080"
 SCENE_SEED = 7
 DEM_RES = 0.25  # m, synthetic road DEM cells
 DEM_CELLS = 800  # 200 m x 200 m
+WALL = (24.0, 27.0)  # m ahead of the camera: where the 'wall' DEM stands 6 m above the road
 BAND_NAMES = ("radial_m", "major_m", "minor_m", "calibration_m", "pixel_m", "gsd_m")
 TO_LONLAT_2949 = pyproj.Transformer.from_crs("EPSG:2949", "EPSG:4326", always_xy=True)
 
@@ -167,13 +168,7 @@ def road_dem(scene, work: Path) -> Path:
 
 
 @pytest.fixture(scope="module")
-def wall(scene) -> tuple[float, float]:
-    """Stations (ahead of the camera, m) between which the 'wall' DEM stands 6 m above the road."""
-    return 24.0, 27.0
-
-
-@pytest.fixture(scope="module")
-def wall_dem(scene, wall, work: Path) -> Path:
+def wall_dem(scene, work: Path) -> Path:
     """The road DEM with a 6 m high wall across the road 24-27 m ahead of the camera."""
     cam, road = scene.camera, scene.road
     s0, _ = road.station_offset(cam.position[0], cam.position[1])
@@ -182,7 +177,7 @@ def wall_dem(scene, wall, work: Path) -> Path:
     def z_of(x, y):
         s, _o = road.station_offset(x, y)
         ahead = (s - s0) * look
-        return road.z(x, y) + np.where((ahead >= wall[0]) & (ahead <= wall[1]), 6.0, 0.0)
+        return road.z(x, y) + np.where((ahead >= WALL[0]) & (ahead <= WALL[1]), 6.0, 0.0)
 
     z, transform = dem_grid(scene, z_of)
     path = work / "wall.tif"
@@ -476,13 +471,13 @@ def test_project_round_trip(true_cam: Path, georef_true_dem, tmp_path: Path) -> 
         assert col in res.columns
 
 
-def test_project_statuses_and_occlusion(true_cam: Path, scene, wall, wall_dem: Path, tmp_path: Path) -> None:
+def test_project_statuses_and_occlusion(true_cam: Path, scene, wall_dem: Path, tmp_path: Path) -> None:
     cam, road = scene.camera, scene.road
     s0, _ = road.station_offset(cam.position[0], cam.position[1])
     look = float(np.sign(cam.optical_axis[:2] @ road.axis))
     front = road.points(s0 + look * np.array([12.0, 15.0]), [0.0, 2.0])  # before the wall
     hidden = road.points(s0 + look * np.array([40.0, 55.0]), [0.0, 2.0])  # behind the wall
-    on_wall = road.points(s0 + look * 25.5, 0.0)
+    on_wall = road.points(s0 + look * sum(WALL) / 2, 0.0)
     on_wall[:, 2] += 6.0
     behind = (cam.position - 10.0 * cam.optical_axis)[None]
     side = (cam.position + 30.0 * cam.R[0] + 10 * cam.optical_axis)[None]  # far right of the frame
@@ -640,6 +635,9 @@ def test_gcp_z_with_cloud(autzen_gcps, tmp_path: Path) -> None:
     # the other columns pass through
     assert res["note"].tolist() == [f"n{k}" for k in "ABCDEF"]
     assert res["u"].tolist() == [100, 101, 102, 103, 104, 105]
+    lon, lat = pyproj.Transformer.from_crs("EPSG:2994", "EPSG:4326", always_xy=True).transform(res["x"], res["y"])
+    np.testing.assert_allclose(res["lon"], lon, atol=2e-9)
+    np.testing.assert_allclose(res["lat"], lat, atol=2e-9)
 
     ok("gcp-z", path, "--cloud", AUTZEN, "--radius", "2", "--replace", "-o", tmp_path / "replaced.csv")
     rep = pd.read_csv(tmp_path / "replaced.csv").set_index("id")
@@ -948,11 +946,9 @@ def test_excel_csv_with_bom_and_upper_case_columns(true_cam: Path, tmp_path: Pat
     assert res["z"].iloc[0] == pytest.approx(90.0)
 
 
-# ------------------------------------------------------------------------------------------------ bugs (xfail)
+# ------------------------------------------------------------------------------------------------ fixed bugs
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: geo/load.py load_surface accepts float('nan') / float('inf') as a "
-                   "constant surface; rays then get status 'ok' with empty or infinite x, y, z instead of exit 2")
 @pytest.mark.parametrize("value", ["nan", "inf"])
 def test_surface_not_finite_is_bad_input(value: str, true_cam: Path, bad_files: dict[str, Path],
                                          tmp_path: Path) -> None:
@@ -961,8 +957,6 @@ def test_surface_not_finite_is_bad_input(value: str, true_cam: Path, bad_files: 
     assert_bad_input(code, stdout, stderr, [out], value)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: cli/geo.py georef does not check that --height is finite; "
-                   "--height nan writes every pixel with empty coordinates (and the sky as 'ok')")
 def test_height_not_finite_is_bad_input(true_cam: Path, bad_files: dict[str, Path], tmp_path: Path) -> None:
     out = tmp_path / "o.csv"
     code, stdout, stderr = invoke("georef", true_cam, bad_files["px"], "--surface", "90", "-o", out,
@@ -970,8 +964,6 @@ def test_height_not_finite_is_bad_input(true_cam: Path, bad_files: dict[str, Pat
     assert_bad_input(code, stdout, stderr, [out], "--height")
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: cli/geo.py accuracy writes the GeoTIFF before write_gis checks the "
-                   "--gis suffix: exit 2 but acc.tif is left behind")
 def test_accuracy_bad_gis_suffix_writes_nothing(cal_cam: Path, road_dem: Path, tmp_path: Path) -> None:
     out, site = tmp_path / "acc.tif", tmp_path / "site.shp"
     code, stdout, stderr = invoke("accuracy", cal_cam, "--surface", road_dem, "-o", out, "--gis", site,
@@ -979,8 +971,6 @@ def test_accuracy_bad_gis_suffix_writes_nothing(cal_cam: Path, road_dem: Path, t
     assert_bad_input(code, stdout, stderr, [out, site], ".shp")
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: cli/__init__.py calibrate runs run_calibration (which writes the "
-                   "camera JSON) before _write_site_gis checks the --gis suffix: exit 2 but the camera is written")
 def test_calibrate_bad_gis_suffix_writes_nothing(gcps_csv: Path, tmp_path: Path) -> None:
     out, site = tmp_path / "cam.json", tmp_path / "site.shp"
     code, stdout, stderr = invoke("calibrate", gcps_csv, "--image-size", SIZE_TEXT, "-o", out, "--crs", "EPSG:2949",
@@ -988,9 +978,29 @@ def test_calibrate_bad_gis_suffix_writes_nothing(gcps_csv: Path, tmp_path: Path)
     assert_bad_input(code, stdout, stderr, [out, site], ".shp")
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: cli/geo.py project (and gcp-z) call write_point_table(output, out, "
-                   "None): a .gpkg output fails with 'the camera has none' although the camera has EPSG:2949")
 def test_project_to_gpkg_does_not_blame_the_camera_crs(true_cam: Path, georef_true_dem, tmp_path: Path) -> None:
     out = tmp_path / "p.gpkg"
     code, _stdout, stderr = invoke("project", true_cam, georef_true_dem[0], "-o", out)
-    assert code == 0 or "camera has none" not in stderr, stderr
+    assert code == 0, stderr
+    import geopandas as gpd
+
+    assert gpd.read_file(out).crs.to_epsg() == 2949
+
+
+def test_gcp_z_to_gpkg_uses_the_data_crs_and_rejects_a_non_numeric_z(autzen_gcps, tmp_path: Path) -> None:
+    path, _ = autzen_gcps
+    out = tmp_path / "g.gpkg"
+    ok("gcp-z", path, "--cloud", AUTZEN, "--crs", "EPSG:2994", "--radius", "2", "-o", out)
+    import geopandas as gpd
+
+    assert gpd.read_file(out).crs.to_epsg() == 2994
+    bad = tmp_path / "bad.csv"
+    bad.write_text("id,x,y,z\nA,636600,849200,91.2m\n")
+    code, stdout, stderr = invoke("gcp-z", bad, "--cloud", AUTZEN, "--crs", "EPSG:2994", "-o", tmp_path / "b.csv")
+    assert_bad_input(code, stdout, stderr, [tmp_path / "b.csv"], "91.2m")
+
+
+def test_dem_output_must_be_a_geotiff(tmp_path: Path) -> None:
+    out = tmp_path / "dem.png"
+    code, stdout, stderr = invoke("dem", AUTZEN, "--crs", "EPSG:2994", "-o", out)
+    assert_bad_input(code, stdout, stderr, [out], ".tif")

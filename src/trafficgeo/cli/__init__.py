@@ -95,6 +95,10 @@ def calibrate(
     from trafficgeo.calibration import CalibrationOptions, read_gcps, run_calibration
 
     size = parse_image_size(image_size)
+    if gis is not None:
+        from trafficgeo.cli.geo import _check_gis_path
+
+        _check_gis_path(gis, "--gis")
     intr = _load_intrinsics(intrinsics, size) if intrinsics is not None else None
     options = CalibrationOptions(
         focal=focal, principal_point=principal_point, distortion=_distortion_option(distortion), focal_px=focal_px,

@@ -31,6 +31,22 @@ def _surface(spec: str, camera, doc, surface_crs: str | None, resolution: float,
     return load_surface(spec, camera, doc, surface_crs=surface_crs, resolution_m=resolution, where=where)
 
 
+def _check_gis_path(path: Path | None, option: str) -> None:
+    """Refuse an unknown GIS suffix before anything is computed or written."""
+    from trafficgeo.io.gis import GIS_SUFFIXES
+
+    if path is not None and path.suffix.lower() not in GIS_SUFFIXES:
+        raise InputError(f"{option} {path}: unknown GIS format '{path.suffix}'; use .gpkg, .geojson or .parquet")
+
+
+def _check_table_path(path: Path) -> None:
+    """Refuse an output suffix that :func:`trafficgeo.io.tables.write_point_table` cannot write, up front."""
+    from trafficgeo.io.tables import GIS_OUTPUT_SUFFIXES
+
+    if path.suffix.lower() not in (".csv", ".txt", *GIS_OUTPUT_SUFFIXES):
+        raise InputError(f"{path}: unknown output format '{path.suffix}'; use .csv, .gpkg, .geojson or .parquet")
+
+
 def _status_summary(status: np.ndarray) -> str:
     names, counts = np.unique(status.astype(str), return_counts=True)
     return ", ".join(f"{c} {n}" for n, c in sorted(zip(names, counts, strict=True), key=lambda p: -p[1]))
@@ -54,6 +70,9 @@ def georef(
     from trafficgeo.geo.mapping import camera_crs
     from trafficgeo.io.tables import read_point_table, write_point_table
 
+    if not np.isfinite(height):
+        raise InputError(f"--height {height} must be a finite height above the road in metres, e.g. 1.4")
+    _check_table_path(output)
     cam, doc = _camera(camera)
     table = read_point_table(pixels, ("u", "v"), "pixels", "give a CSV with columns u,v (pixels, origin at the "
                              "centre of the top-left pixel)")
@@ -77,15 +96,17 @@ def project(
     resolution: ResolutionOpt = 0.25,
 ) -> None:
     """Project world points into the image (pixels, depth, status: ok, behind_camera, outside_image, occluded)."""
-    from trafficgeo.geo.georef import project_table
+    from trafficgeo.geo.georef import lonlat_columns, project_table
+    from trafficgeo.geo.mapping import camera_crs
     from trafficgeo.io.tables import read_point_table, write_point_table
 
+    _check_table_path(output)
     cam, doc = _camera(camera)
     table = read_point_table(world, ("x", "y", "z"), "world points",
                              "give a CSV with columns x,y,z in the camera's CRS and units")
     surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera)) if surface else None
-    out = project_table(cam, table, surf)
-    write_point_table(output, out, None)
+    out = lonlat_columns(project_table(cam, table, surf), camera_crs(cam))
+    write_point_table(output, out, camera_crs(cam))
     console.print(f"{len(out)} points: {_status_summary(out['status'].to_numpy())}")
     console.print(f"wrote {output}")
 
@@ -105,6 +126,8 @@ def dem(
 
     if not resolution > 0:
         raise InputError(f"--resolution {resolution} must be a positive cell size in metres, e.g. 0.25")
+    if output.suffix.lower() not in (".tif", ".tiff"):
+        raise InputError(f"{output}: the DEM is written as a GeoTIFF; name it .tif")
     pc = read_point_cloud(cloud, crs=crs)
     if pc.crs is None:
         raise InputError(f"{cloud}: the cloud has no CRS; give it with --crs (e.g. EPSG:2994)")
@@ -130,7 +153,7 @@ def gcp_z(
     replace: Annotated[bool, typer.Option(help="replace every z by the ground z")] = False,
 ) -> None:
     """Fill missing GCP heights from a point cloud or DEM and flag heights that disagree with the ground."""
-    from trafficgeo.geo.georef import GroundCheckOptions, check_gcp_heights
+    from trafficgeo.geo.georef import GroundCheckOptions, check_gcp_heights, lonlat_columns
     from trafficgeo.io.tables import read_point_table, write_point_table
 
     if (cloud is None) == (dem_path is None):
@@ -138,6 +161,7 @@ def gcp_z(
     for name, value in (("--radius", radius), ("--tolerance", tolerance), ("--roughness", roughness)):
         if not value > 0:
             raise InputError(f"{name} {value} must be positive (metres)")
+    _check_table_path(output)
     table = read_point_table(gcps, ("x", "y"), "GCP", "give a CSV with columns id,x,y[,z],u,v in the CRS of the "
                              "cloud/DEM")
     if cloud is not None:
@@ -154,7 +178,8 @@ def gcp_z(
         ground = DEMSurface.from_raster(raster)
         data_crs = raster.crs
     out = check_gcp_heights(table, ground, data_crs, GroundCheckOptions(radius, tolerance, roughness, replace))
-    write_point_table(output, out, None)
+    out = lonlat_columns(out, data_crs)
+    write_point_table(output, out, data_crs)
     for _, row in out[out["z_check"].isin(["disagrees", "rough", "outside", "empty"])].iterrows():
         label = row.get("id", row.name)
         console.print(f"  GCP {label}: {row['z_check']}"
@@ -192,6 +217,7 @@ def accuracy(
         raise InputError(f"--max-distance {max_distance} must be positive (m)")
     if output.suffix.lower() not in (".tif", ".tiff"):
         raise InputError(f"{output}: the accuracy map is a GeoTIFF; name it .tif")
+    _check_gis_path(gis, "--gis")
     cam, doc = _camera(camera)
     if cam.crs is None:
         raise InputError(f"{camera}: the camera has no CRS, so the map cannot be georeferenced; calibrate with --crs")

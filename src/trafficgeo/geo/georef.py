@@ -6,6 +6,7 @@ units; distances and height differences the user reads are also given in metres 
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,6 +15,7 @@ import pyproj
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
+from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface, camera_crs, lonlat_of, pixels_to_world, world_to_pixels
 from trafficgeo.geo.surface import DEFAULT_MIN_INCIDENCE_DEG
 
@@ -78,8 +80,10 @@ def _dem_lookup(surface: Surface, x: np.ndarray, y: np.ndarray, radius: float) -
     ang = np.linspace(0, 2 * np.pi, 8, endpoint=False)
     rings = [(r * np.cos(a), r * np.sin(a)) for r in (radius / 2, radius) for a in ang]
     samples = np.stack([surface.elevation(x + dx, y + dy) for dx, dy in rings] + [z], axis=1)
-    med = np.nanmedian(samples, axis=1) if np.isfinite(samples).any() else np.full(x.shape, np.nan)
-    spread = 1.4826 * np.nanmedian(np.abs(samples - med[:, None]), axis=1) if np.isfinite(samples).any() else med
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: points outside the DEM
+        med = np.nanmedian(samples, axis=1)
+        spread = 1.4826 * np.nanmedian(np.abs(samples - med[:, None]), axis=1)
     return z, spread
 
 
@@ -98,9 +102,15 @@ def check_gcp_heights(table: pd.DataFrame, ground: object, crs: pyproj.CRS | Non
     m = metres_per_unit(crs) if crs is not None else 1.0
     x = table["x"].to_numpy(dtype=np.float64)
     y = table["y"].to_numpy(dtype=np.float64)
-    has_z = "z" in table.columns
-    z_given = pd.to_numeric(table["z"], errors="coerce").to_numpy(dtype=np.float64) if has_z else np.full(x.shape,
-                                                                                                          np.nan)
+    z_given = np.full(x.shape, np.nan)
+    if "z" in table.columns:
+        z_num = pd.to_numeric(table["z"], errors="coerce")
+        bad = z_num.isna() & table["z"].notna() & (table["z"].astype(str).str.strip() != "")
+        if bad.any():
+            row = int(np.flatnonzero(bad.to_numpy())[0])
+            raise InputError(f"GCP row {row + 2}: z = {table['z'].iloc[row]!r} is not a number; leave it empty to "
+                             "fill it from the ground")
+        z_given = z_num.to_numpy(dtype=np.float64)
     n = x.size
     count = np.full(n, -1)
     if hasattr(ground, "lookup"):

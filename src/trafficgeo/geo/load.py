@@ -54,9 +54,13 @@ def load_surface(spec: str, camera: Camera, doc: dict[str, Any] | None = None, *
     cam_crs = camera_crs(camera)
     text = spec.strip()
     try:
-        return ConstantSurface(float(text), crs=cam_crs)
+        z = float(text)
     except ValueError:
-        pass
+        z = None
+    if z is not None:
+        if not np.isfinite(z):
+            raise InputError(f"--surface {spec!r}: a constant elevation must be a finite number (CRS units)")
+        return ConstantSurface(z, crs=cam_crs)
     if text.lower() == "plane":
         return plane_from_gcps(doc or {}, cam_crs, where)
     path = Path(text)
