@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import io
 import json
 import os
 import re
@@ -22,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cli_support import invoke
 from trafficgeo import cli
 from trafficgeo.camera import read_camera_json
 from trafficgeo.camera.opencv_yaml import Intrinsics, read_intrinsics_yaml, write_intrinsics_yaml
@@ -45,16 +45,6 @@ STATS_KEYS = ("n_control", "n_inliers", "mean_px", "rmse_px", "loo_rmse_px")
 # ------------------------------------------------------------------------------------------------ helpers
 
 
-def invoke(*args: object) -> tuple[int, str, str]:
-    """Run ``trafficgeo ARGS`` in-process; returns (exit code, stdout, stderr)."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            cli.main([str(a) for a in args])
-            code = 0
-        except SystemExit as exc:
-            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    return code, out.getvalue(), err.getvalue()
 
 
 def read_json(path: Path) -> dict:

@@ -8,9 +8,7 @@ line on stderr and nothing written.
 
 from __future__ import annotations
 
-import contextlib
 import csv
-import io
 import json
 from pathlib import Path
 
@@ -25,7 +23,7 @@ import rasterio
 import shapely
 from affine import Affine
 
-from trafficgeo import cli
+from cli_support import invoke
 from trafficgeo.camera.io import read_camera_document, write_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.raster import read_dem, write_geotiff
@@ -47,16 +45,6 @@ TO_LONLAT_2949 = pyproj.Transformer.from_crs("EPSG:2949", "EPSG:4326", always_xy
 # ------------------------------------------------------------------------------------------------ helpers
 
 
-def invoke(*args: object) -> tuple[int, str, str]:
-    """Run ``trafficgeo ARGS`` in-process; returns (exit code, stdout, stderr)."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            cli.main([str(a) for a in args])
-            code = 0
-        except SystemExit as exc:
-            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    return code, out.getvalue(), err.getvalue()
 
 
 def ok(*args: object) -> str:

@@ -16,19 +16,23 @@ _OK, _ABOVE_HORIZON, _MISS, _NO_DATA, _OUTSIDE_LENS = 0, 1, 3, 4, 6
 
 
 @njit(cache=True, nogil=True)
+def _cell(values: np.ndarray, gc: float, gr: float) -> tuple[int, int, int, int, float, float]:
+    """Bilinear patch of grid coordinates: corner indices r0, c0, r1, c1 and weights wc, wr (clamped at the edges)."""
+    rows, cols = values.shape
+    fc = min(max(gc - 0.5, 0.0), cols - 1.0)
+    fr = min(max(gr - 0.5, 0.0), rows - 1.0)
+    c0 = min(int(fc), max(cols - 2, 0))
+    r0 = min(int(fr), max(rows - 2, 0))
+    return r0, c0, min(r0 + 1, rows - 1), min(c0 + 1, cols - 1), fc - c0, fr - r0
+
+
+@njit(cache=True, nogil=True)
 def _height(values: np.ndarray, gc: float, gr: float) -> float:
     """Bilinear elevation at grid coordinates (clamped in the outer half cell; NaN outside or over no data)."""
     rows, cols = values.shape
     if gc < 0.0 or gc > cols or gr < 0.0 or gr > rows or not (gc == gc and gr == gr):
         return math.nan
-    fc = min(max(gc - 0.5, 0.0), cols - 1.0)
-    fr = min(max(gr - 0.5, 0.0), rows - 1.0)
-    c0 = min(int(fc), max(cols - 2, 0))
-    r0 = min(int(fr), max(rows - 2, 0))
-    c1 = min(c0 + 1, cols - 1)
-    r1 = min(r0 + 1, rows - 1)
-    wc = fc - c0
-    wr = fr - r0
+    r0, c0, r1, c1, wc, wr = _cell(values, gc, gr)
     top = values[r0, c0] + (values[r0, c1] - values[r0, c0]) * wc
     bot = values[r1, c0] + (values[r1, c1] - values[r1, c0]) * wc
     return top + (bot - top) * wr
@@ -38,14 +42,7 @@ def _height(values: np.ndarray, gc: float, gr: float) -> float:
 def _gradient(values: np.ndarray, gc: float, gr: float) -> tuple[float, float]:
     """dZ/dcol, dZ/drow of the bilinear surface (zero across the clamped outer half cell)."""
     rows, cols = values.shape
-    fc = min(max(gc - 0.5, 0.0), cols - 1.0)
-    fr = min(max(gr - 0.5, 0.0), rows - 1.0)
-    c0 = min(int(fc), max(cols - 2, 0))
-    r0 = min(int(fr), max(rows - 2, 0))
-    c1 = min(c0 + 1, cols - 1)
-    r1 = min(r0 + 1, rows - 1)
-    wc = fc - c0
-    wr = fr - r0
+    r0, c0, r1, c1, wc, wr = _cell(values, gc, gr)
     dzdc = (values[r0, c1] - values[r0, c0]) * (1 - wr) + (values[r1, c1] - values[r1, c0]) * wr
     top = values[r0, c0] + (values[r0, c1] - values[r0, c0]) * wc
     bot = values[r1, c0] + (values[r1, c1] - values[r1, c0]) * wc
