@@ -212,8 +212,9 @@ def main() -> None:
     rows = throughput()
     for name, count, rate, note in rows:
         print(f"| {name} | {count:,} | {rate / 1e6:.2f} M | {note} |")
-    dem_rate = min(r for name, _, r, _ in rows if name.startswith("DEM") and "pixels" not in name)
-    print(f"\ntarget >= 1 M points/s on a DEM: {dem_rate / 1e6:.2f} M -> {'PASS' if dem_rate >= 1e6 else 'MISS'}")
+    dem_rate = min(r for name, _, r, _ in rows if name.startswith("DEM"))
+    print(f"\ntarget >= 1 M points/s on a DEM (slowest DEM row, pixels -> world included): {dem_rate / 1e6:.2f} M -> "
+          f"{'PASS' if dem_rate >= 1e6 else 'MISS'}")
 
     print(f"\n## Ground error at 60 m: camera + DEM vs 4-point homography ({n} scenes per row)\n")
     print("| road | noise | check points | camera+DEM median (m) | p90 | homography median (m) | p90 | ratio |")

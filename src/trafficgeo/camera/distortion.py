@@ -44,75 +44,23 @@ def distort_normalized(xy: NDArray, dist: NDArray) -> NDArray:
     return np.stack([xd, yd], axis=-1)
 
 
-def _distortion_jacobian(xy: NDArray, dist: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-    """Partial derivatives (dxd/dx, dxd/dy, dyd/dx, dyd/dy) of :func:`distort_normalized`, each (N,)."""
-    k1, k2, p1, p2, k3 = dist
-    x = xy[..., 0]
-    y = xy[..., 1]
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    dradial_dr2 = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
-    a = 2.0 * dradial_dr2
-    dxd_dx = radial + a * x * x + 2.0 * p1 * y + 6.0 * p2 * x
-    dxd_dy = a * x * y + 2.0 * p1 * x + 2.0 * p2 * y
-    dyd_dx = a * x * y + 2.0 * p1 * x + 2.0 * p2 * y
-    dyd_dy = radial + a * y * y + 6.0 * p1 * y + 2.0 * p2 * x
-    return dxd_dx, dxd_dy, dyd_dx, dyd_dy
-
-
 def undistort_normalized(xyd: NDArray, dist: NDArray, *, tol: float = 1e-10, max_iter: int = 50) -> NDArray:
     """Invert :func:`distort_normalized` for distorted normalized coordinates ``xyd`` (N, 2).
 
-    Damped Newton iterations from one fixed-point step ``xyd / radial(xyd)``, which moves the start towards the
-    solution for barrel and pincushion lenses alike, away from the fold. A point whose residual does not fall
-    below ``tol`` (normalized units) gets NaN: it lies outside the region where the lens model is invertible
-    (e.g. beyond the radius where strong distortion folds back), so no trustworthy ray exists for it.
+    Damped Newton iterations (per point, compiled with numba) from one fixed-point step ``xyd / radial(xyd)``,
+    which moves the start towards the solution for barrel and pincushion lenses alike, away from the fold. A point
+    whose residual does not fall below ``tol`` (normalized units) gets NaN: it lies outside the region where the
+    lens model is invertible (e.g. beyond the radius where strong distortion folds back), so no trustworthy ray
+    exists for it; so does a point where the model's Jacobian determinant is not positive (past the fold).
     """
     xyd = np.asarray(xyd, dtype=np.float64)
     if not np.any(dist):
         return xyd.copy()
-    k1, k2, _, _, k3 = dist
-    r2d = np.sum(xyd * xyd, axis=-1)
-    radial_d = 1.0 + r2d * (k1 + r2d * (k2 + r2d * k3))
-    xy = np.where((radial_d > 0.2)[..., None], xyd / np.where(radial_d > 0.2, radial_d, 1.0)[..., None], xyd)
-    resid = distort_normalized(xy, dist) - xyd
-    err = np.hypot(resid[..., 0], resid[..., 1])
-    active = err > tol
-    for _ in range(max_iter):
-        if not active.any():
-            break
-        idx = np.nonzero(active)[0]
-        p = xy[idx]
-        r = resid[idx]
-        a, b, c, d = _distortion_jacobian(p, dist)
-        det = a * d - b * c
-        det = np.where(np.abs(det) < 1e-300, 1e-300, det)
-        step = np.stack([(d * r[:, 0] - b * r[:, 1]) / det, (-c * r[:, 0] + a * r[:, 1]) / det], axis=-1)
-        cur = err[idx]
-        scale = np.ones(idx.size)
-        new_p = p - step
-        new_r = distort_normalized(new_p, dist) - xyd[idx]
-        new_err = np.hypot(new_r[:, 0], new_r[:, 1])
-        # Backtrack where a full Newton step does not reduce the residual.
-        for _ in range(8):
-            worse = ~(new_err < cur)
-            if not worse.any():
-                break
-            scale[worse] *= 0.5
-            new_p[worse] = p[worse] - scale[worse, None] * step[worse]
-            new_r[worse] = distort_normalized(new_p[worse], dist) - xyd[idx][worse]
-            new_err[worse] = np.hypot(new_r[worse, 0], new_r[worse, 1])
-        improved = new_err < cur
-        xy[idx[improved]] = new_p[improved]
-        resid[idx[improved]] = new_r[improved]
-        err[idx[improved]] = new_err[improved]
-        # Stop points that converged or can no longer improve.
-        active[idx] = (err[idx] > tol) & improved
-    xy[err > tol] = np.nan
-    # Outside the invertible region the model folds back: require a positive Jacobian determinant.
-    a, b, c, d = _distortion_jacobian(xy, dist)
-    xy[~(a * d - b * c > 0)] = np.nan
-    return xy
+    from trafficgeo.camera._undistort import undistort_points  # numba: compiled on first use, then cached
+
+    flat = np.ascontiguousarray(xyd.reshape(-1, 2))
+    out = undistort_points(flat, np.ascontiguousarray(dist, dtype=np.float64), float(tol), int(max_iter))
+    return out.reshape(xyd.shape)
 
 
 def max_monotonic_radius(dist: NDArray, r_max: float = 4.0, samples: int = 4000) -> float:
