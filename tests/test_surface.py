@@ -266,3 +266,23 @@ def test_point_cloud_surface_maps_check_pixels_to_the_true_ground(tmp_path):
     assert np.median(dz) < 0.015
     assert np.median(err) < 0.1
     assert np.percentile(err, 95) < 0.4
+
+
+@settings(max_examples=80, deadline=None)
+@given(seed=st.integers(0, 10_000), level=st.integers(1, 4), gc=st.floats(0, 37), gr=st.floats(0, 23))
+def test_max_pyramid_bounds_the_surface_within_its_reach(seed, level, gc, gr):
+    """The invariant the ray march relies on: no surface point within the level's reach is above the stored max."""
+    from trafficgeo.geo.surface import _MaxPyramid
+
+    rng = np.random.default_rng(seed)
+    values = rng.normal(0, 1, (23, 37))
+    values[rng.random(values.shape) < 0.05] = np.nan
+    dem = DEMSurface(values, 0.0, 23.0, 1.0, 1.0)
+    pyr = _MaxPyramid(values)
+    stored = pyr.lookup(np.array([level]), np.array([min(int(gr), 22)]), np.array([min(int(gc), 36)]))[0]
+    reach = pyr.reach[level]
+    s = np.linspace(-reach, reach, 4 * int(reach) + 1)
+    C, R = np.meshgrid(gc + s, gr + s)
+    z = dem.elevation(C.ravel(), 23.0 - R.ravel())
+    if np.isfinite(z).any():
+        assert np.nanmax(z) <= stored
