@@ -1,0 +1,270 @@
+"""The demo world: a SUMO-driven road scene with every file a user would have, and the truth behind them.
+
+:func:`build_world` writes, into one folder:
+
+* ``sumo/`` - the georeferenced SUMO network, demand and FCD of the traffic (:mod:`trafficgeo.synth.sumo_world`);
+* ``ortho.tif`` - an orthophoto of the road (:mod:`trafficgeo.synth.orthophoto`), ``cloud.laz`` - lidar of it;
+* ``video.mp4`` - H.264 frames through the true camera (:mod:`trafficgeo.synth.render`) with sensor noise, a slow
+  illumination drift and a small camera shake;
+* ``gcps.csv`` - lane-marking corners and pole bases/tops with pixel and survey noise; ``camera_truth.json``;
+* ``truth_tracks.csv`` - per vehicle and frame: world position, speed, lane, class, the image ground point and box;
+  ``truth_counts.csv`` - per direction and lane, the vehicles crossing the counting line at station 0.
+
+Deterministic for a seed. The road is straight with a constant crossfall on a flat profile (SUMO's network is
+2-D; z comes from :class:`~trafficgeo.synth.gcp_scene.RoadSurface`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from trafficgeo.camera.io import write_camera_json
+from trafficgeo.camera.model import Camera
+from trafficgeo.io.atomic import atomic_path, write_text_atomic
+from trafficgeo.synth.gcp_scene import RoadSurface
+from trafficgeo.synth.orthophoto import RoadMarkings, dash_corners, render_orthophoto
+from trafficgeo.synth.sumo_world import VEHICLE_CLASSES, Demand, RoadSpec, Trajectories, run_sumo_world
+
+CLASS_PALETTE = {"car": [(200, 40, 40), (40, 70, 160), (220, 220, 220), (30, 30, 30), (150, 150, 160)],
+                 "van": [(235, 235, 235), (90, 90, 100)], "truck": [(230, 120, 30), (60, 110, 60)],
+                 "bus": [(240, 200, 40)]}
+
+
+@dataclass(frozen=True)
+class WorldOptions:
+    """Parameters of a demo world (metres, seconds, degrees, pixels)."""
+
+    seed: int = 0
+    lanes: int = 2
+    two_way: bool = True
+    length_m: float = 300.0
+    lane_width: float = 3.5
+    speed_limit_kmh: float = 50.0
+    azimuth_deg: float = 30.0
+    crossfall: float = 0.02
+    veh_per_hour_per_lane: float = 600.0
+    mix: dict[str, float] = field(default_factory=lambda: {"car": 0.8, "van": 0.1, "truck": 0.07, "bus": 0.03})
+    duration_s: float = 60.0
+    fps: float = 25.0
+    image_size: tuple[int, int] = (1920, 1080)
+    camera_height: float = 8.0
+    camera_setback: float = 5.0  # camera this far beyond the right edge of the road
+    camera_station: float = -60.0
+    focal_px: float | None = None  # default 0.9 x image width
+    dist: tuple[float, float, float, float, float] = (-0.06, 0.012, 0.0, 0.0, 0.0)
+    pixel_sigma: float = 1.0
+    survey_sigma: float = 0.02
+    sensor_noise: float = 2.0  # grey levels (1 sigma)
+    shake_px: float = 0.3
+    illumination_drift: float = 0.06  # peak relative change of brightness over the clip
+    shadows: bool = True
+    ortho_resolution: float = 0.05  # orthophoto pixel (m)
+    view_half_size: float = 100.0  # orthophoto, DEM and lidar cover this far (m) around the road at station 20
+    origin: tuple[float, float, float] = (245000.0, 5182600.0, 90.0)
+    crs: str = "EPSG:2949"
+
+
+def world_camera(road: RoadSurface, markings: RoadMarkings, opts: WorldOptions) -> Camera:
+    """The roadside camera: on a pole beyond the right edge, looking along the road at station +25 on the axis."""
+    w, _ = opts.image_size
+    pos = road.points([opts.camera_station], [markings.right_edge + opts.camera_setback])[0]
+    pos[2] += opts.camera_height
+    target = road.points([25.0], [0.0])[0]
+    d = target - pos
+    heading = float(np.degrees(np.arctan2(d[0], d[1])) % 360.0)
+    tilt = float(np.degrees(np.arctan2(-d[2], np.hypot(d[0], d[1]))))
+    f = opts.focal_px or 0.9 * w
+    return Camera.from_orientation(opts.image_size, f, pos, heading, tilt, 0.0, dist=list(opts.dist), crs=opts.crs)
+
+
+def _vehicle_colours(ids: np.ndarray, vclass: np.ndarray, seed: int) -> np.ndarray:
+    out = np.zeros((len(ids), 3))
+    for i, (vid, cls) in enumerate(zip(ids, vclass, strict=True)):
+        palette = CLASS_PALETTE.get(str(cls), [(128, 128, 128)])
+        h = (sum(ord(ch) for ch in str(vid)) * 2654435761 + seed) % (2**32)
+        out[i] = palette[h % len(palette)]
+    return out
+
+
+def make_gcps(camera: Camera, road: RoadSurface, markings: RoadMarkings, opts: WorldOptions,
+              rng: np.random.Generator) -> tuple[list[dict[str, object]], np.ndarray]:
+    """GCP rows (noisy pixels and world) at dash corners and pole bases/tops in view; returns rows and the truth."""
+    from trafficgeo.geo.surface import DEMSurface  # noqa: F401  (documented dependency of the occlusion check)
+
+    corners = dash_corners(road, markings, (-40.0, 90.0))
+    poles_s = np.arange(-30.0, 100.0, 25.0)
+    bases = road.points(poles_s, np.full(poles_s.shape, markings.left_edge - markings.shoulder - 1.0))
+    tops = bases + np.array([0.0, 0.0, 5.0])
+    world = np.vstack([corners, bases, tops])
+    uv = camera.project(world)
+    ok = camera.in_image(uv, margin=10)
+    dist = np.linalg.norm(world - camera.position, axis=1)
+    ok &= dist < 90.0
+    idx = np.flatnonzero(ok)
+    # Spread the points: keep every other dash corner beyond the first few to avoid clusters.
+    idx = idx[rng.permutation(idx.size)][: min(idx.size, 24)]
+    idx.sort()
+    rows = []
+    n_check = max(3, len(idx) // 5)
+    for k, i in enumerate(idx):
+        p = world[i] + rng.normal(0.0, opts.survey_sigma, 3)
+        q = uv[i] + rng.normal(0.0, opts.pixel_sigma, 2)
+        rows.append({"id": f"G{k + 1:02d}", "x": round(p[0], 3), "y": round(p[1], 3), "z": round(p[2], 3),
+                     "u": round(q[0], 2), "v": round(q[1], 2), "role": "check" if k % 5 == 4 and
+                     sum(r["role"] == "check" for r in rows) < n_check else "control",
+                     "sigma_px": opts.pixel_sigma})
+    return rows, world[idx]
+
+
+def build_world(out_dir: str | Path, opts: WorldOptions | None = None, *, video: bool = True,
+                progress=None) -> dict[str, object]:
+    """Build the demo world into ``out_dir`` (see the module docstring); returns a summary dictionary."""
+    import pandas as pd
+
+    from trafficgeo.geo.pointcloud import write_point_cloud
+    from trafficgeo.geo.raster import write_geotiff
+    from trafficgeo.geo.surface import DEMSurface
+    from trafficgeo.synth.terrain import road_point_cloud
+
+    opts = opts or WorldOptions()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(opts.seed)
+    spec = RoadSpec(origin=opts.origin, azimuth_deg=opts.azimuth_deg, length_m=opts.length_m, lanes=opts.lanes,
+                    two_way=opts.two_way, lane_width=opts.lane_width, speed_limit_kmh=opts.speed_limit_kmh,
+                    crs=opts.crs)
+    road = RoadSurface(origin=np.array(opts.origin), azimuth_deg=opts.azimuth_deg, crossfall=opts.crossfall)
+    markings = RoadMarkings(lanes_right=opts.lanes, lanes_left=opts.lanes if opts.two_way else 0,
+                            lane_width=opts.lane_width)
+    step = round(1000.0 / opts.fps) / 1000.0
+    run = run_sumo_world(out / "sumo", spec, Demand(opts.veh_per_hour_per_lane, dict(opts.mix)),
+                         duration_s=opts.duration_s, step_s=step, seed=opts.seed)
+    traj = run.trajectories
+    z = road.z(traj.x, traj.y)
+    camera = world_camera(road, markings, opts)
+    write_camera_json(out / "camera_truth.json", camera)
+    # Orthophoto, DEM and lidar around what the camera sees.
+    c = road.points([20.0], [0.0])[0]
+    half = opts.view_half_size
+    bounds = (c[0] - half, c[1] - half, c[0] + half, c[1] + half)
+    ortho = render_orthophoto(road, markings, bounds, resolution=opts.ortho_resolution, seed=opts.seed)
+    write_geotiff(out / "ortho.tif", ortho.data, ortho.transform, ortho.crs, descriptions=ortho.descriptions)
+    res = 0.25
+    n = int(2 * half / res)
+    gx = bounds[0] + (np.arange(n) + 0.5) * res
+    gy = bounds[3] - (np.arange(n) + 0.5) * res
+    X, Y = np.meshgrid(gx, gy)
+    dem = DEMSurface(road.z(X, Y), bounds[0], bounds[3], res, res, crs=ortho.crs)
+    write_point_cloud(out / "cloud.laz", road_point_cloud(road, c[:2], half, density=4.0, seed=opts.seed,
+                                                          crs=opts.crs))
+    rows, _truth_gcps = make_gcps(camera, road, markings, opts, rng)
+    gcp_df = pd.DataFrame(rows)
+    with atomic_path(out / "gcps.csv") as tmp:
+        gcp_df.to_csv(tmp, index=False)
+    tracks = _truth_tracks(traj, z, camera, opts, step)
+    counts = _truth_counts(traj, spec)
+    if video:
+        tracks = _render_video(out / "video.mp4", camera, dem, ortho, traj, z, tracks, opts, step, progress)
+    with atomic_path(out / "truth_tracks.csv") as tmp:
+        tracks.to_csv(tmp, index=False, float_format="%.4f")
+    with atomic_path(out / "truth_counts.csv") as tmp:
+        counts.to_csv(tmp, index=False)
+    summary = {"options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(opts).items()},
+               "vehicles": len(np.unique(traj.vehicle)), "frames": round(opts.duration_s / step),
+               "gcps": len(rows), "sumo_version": run.sumo_version}
+    write_text_atomic(out / "world.json", json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def _truth_tracks(traj: Trajectories, z: np.ndarray, camera: Camera, opts: WorldOptions, step: float):
+    import pandas as pd
+
+    frame = np.rint(traj.time / step).astype(int)
+    ground = camera.project(np.column_stack([traj.x, traj.y, z]))
+    return pd.DataFrame({
+        "frame": frame, "time": traj.time, "vehicle": traj.vehicle, "class": traj.vclass,
+        "x": traj.x, "y": traj.y, "z": z, "speed_kmh": traj.speed * 3.6, "heading_deg": traj.heading_deg,
+        "direction": traj.direction, "lane": traj.lane, "length": traj.length, "width": traj.width,
+        "height": traj.height, "u": ground[:, 0], "v": ground[:, 1],
+    })
+
+
+def _truth_counts(traj: Trajectories, spec: RoadSpec):
+    """Vehicles crossing station 0 per direction and lane (lane at the crossing), with the crossing time."""
+    import pandas as pd
+
+    rows = []
+    order = np.lexsort((traj.time, traj.vehicle))
+    veh, s, t, lane, d = (traj.vehicle[order], traj.station[order], traj.time[order], traj.lane[order],
+                          traj.direction[order])
+    same = veh[1:] == veh[:-1]
+    sign = np.where(d[1:] == 1, 1.0, -1.0)
+    cross = same & (s[:-1] * sign < 0) & (s[1:] * sign >= 0)
+    for i in np.flatnonzero(cross):
+        frac = -s[i] / (s[i + 1] - s[i])
+        rows.append({"vehicle": veh[i], "direction": int(d[i]), "lane": int(lane[i + 1]),
+                     "time": float(t[i] + frac * (t[i + 1] - t[i]))})
+    return pd.DataFrame(rows, columns=["vehicle", "direction", "lane", "time"])
+
+
+def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z: np.ndarray, tracks,
+                  opts: WorldOptions, step: float, progress):
+    """Render and encode the frames (H.264 via PyAV); adds the truth image boxes to ``tracks``."""
+    import av
+    import cv2
+
+    from trafficgeo.synth.render import Boxes, drape_orthophoto, render_frame
+
+    rng = np.random.default_rng(opts.seed + 1)
+    background = drape_orthophoto(camera, dem, ortho)
+    w, h = camera.image_size
+    frames = round(opts.duration_s / step)
+    colours = _vehicle_colours(traj.vehicle, traj.vclass, opts.seed)
+    frame_of = np.rint(traj.time / step).astype(int)
+    starts = np.searchsorted(frame_of, np.arange(frames + 1))
+    boxes_out = np.full((len(traj), 4), np.nan)
+    visible = np.zeros(len(traj))
+    noise_bank = [rng.normal(0.0, opts.sensor_noise, (h, w, 1)).astype(np.float32) for _ in range(6)]
+    shake = np.cumsum(rng.normal(0.0, opts.shake_px * 0.2, (frames, 2)), axis=0)
+    shake = np.clip(shake, -opts.shake_px * 3, opts.shake_px * 3)
+    phase = rng.uniform(0, 2 * np.pi)
+    with atomic_path(path) as tmp:
+        container = av.open(str(tmp), mode="w", format="mp4")
+        stream = container.add_stream("libx264", rate=round(opts.fps))
+        stream.width, stream.height, stream.pix_fmt = w, h, "yuv420p"
+        stream.options = {"crf": "23", "preset": "veryfast"}
+        for f in range(frames):
+            sl = slice(starts[f], starts[f + 1])
+            boxes = Boxes(centre=np.column_stack([traj.x[sl], traj.y[sl], z[sl]]),
+                          heading_deg=traj.heading_deg[sl], length=traj.length[sl], width=traj.width[sl],
+                          height=traj.height[sl], colour=colours[sl])
+            img, truth = render_frame(camera, background, boxes, shadows=opts.shadows)
+            gain = 1.0 + opts.illumination_drift * np.sin(2 * np.pi * f / max(frames, 1) + phase)
+            img = img * gain + noise_bank[f % len(noise_bank)]
+            dx, dy = shake[f]
+            if opts.shake_px > 0:
+                img = cv2.warpAffine(img, np.float32([[1, 0, dx], [0, 1, dy]]), (w, h),
+                                     borderMode=cv2.BORDER_REPLICATE)
+            boxes_out[sl] = truth.box + np.array([dx, dy, dx, dy])
+            visible[sl] = truth.visible_fraction
+            frame = av.VideoFrame.from_ndarray(np.clip(img, 0, 255).astype(np.uint8), format="rgb24")
+            for packet in stream.encode(frame):
+                container.mux(packet)
+            if progress is not None:
+                progress(f + 1, frames)
+        for packet in stream.encode():
+            container.mux(packet)
+        container.close()
+    tracks = tracks.copy()
+    tracks["x1"], tracks["y1"], tracks["x2"], tracks["y2"] = boxes_out.T
+    tracks["u"] = tracks["u"] + shake[np.clip(tracks["frame"].to_numpy(), 0, frames - 1), 0]
+    tracks["v"] = tracks["v"] + shake[np.clip(tracks["frame"].to_numpy(), 0, frames - 1), 1]
+    tracks["visible_fraction"] = visible
+    return tracks
+
+
+__all__ = ["VEHICLE_CLASSES", "WorldOptions", "build_world", "make_gcps", "world_camera"]
