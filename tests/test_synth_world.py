@@ -63,3 +63,16 @@ def test_same_seed_gives_the_same_world(world, tmp_path):
     b = pd.read_csv(tmp_path / "truth_tracks.csv")
     same = [c for c in b.columns if c not in ("u", "v")]  # the video adds the camera shake to u, v
     pd.testing.assert_frame_equal(a[same], b[same])
+
+
+def test_synth_command_writes_a_world_and_refuses_bad_options(tmp_path):
+    from cli_support import invoke
+
+    code, _, err = invoke("synth", "--out", tmp_path / "w", "--duration", "0.4", "--fps", "10", "--image-size",
+                            "320x180", "--length", "150", "--outliers", "1", "--grade", "0.02", "--no-video")
+    assert code == 0, err
+    assert (tmp_path / "w" / "gcps.csv").is_file() and (tmp_path / "w" / "truth_tracks.gpkg").is_file()
+    for bad in (["--fps", "30"], ["--lanes", "0"], ["--mix", "car=lots"], ["--mix", "plane=1"], ["--length", "-5"]):
+        code, _, err = invoke("synth", "--out", tmp_path / "bad", *bad)
+        assert code == 2 and err.startswith("trafficgeo: error:") and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / "bad").exists()

@@ -7,11 +7,13 @@
 * ``video.mp4`` - H.264 frames through the true camera (:mod:`trafficgeo.synth.render`) with sensor noise, a slow
   illumination drift and a small camera shake;
 * ``gcps.csv`` - lane-marking corners and pole bases/tops with pixel and survey noise; ``camera_truth.json``;
-* ``truth_tracks.csv`` - per vehicle and frame: world position, speed, lane, class, the image ground point and box;
+* ``truth_tracks.csv`` (and ``.gpkg``) - per vehicle and frame: world position, speed, lane, class, the image
+  ground point and box;
   ``truth_counts.csv`` - per direction and lane, the vehicles crossing the counting line at station 0.
 
-Deterministic for a seed. The road is straight with a constant crossfall on a flat profile (SUMO's network is
-2-D; z comes from :class:`~trafficgeo.synth.gcp_scene.RoadSurface`).
+Deterministic for a seed. The road is straight in plan (curved roads are not supported yet), with a crowned
+cross-section, a grade and an optional vertical crest: SUMO's network is 2-D, and z comes from
+:class:`~trafficgeo.synth.gcp_scene.RoadSurface`.
 """
 
 from __future__ import annotations
@@ -46,6 +48,8 @@ class WorldOptions:
     speed_limit_kmh: float = 50.0
     azimuth_deg: float = 30.0
     crossfall: float = 0.02
+    grade: float = 0.0  # along the road (0.03 = 3 %); SUMO drives the 2-D plan, z follows the road surface
+    crest_radius: float = 0.0  # vertical crest (m) with its apex at station 0; 0 = none
     veh_per_hour_per_lane: float = 600.0
     mix: dict[str, float] = field(default_factory=lambda: {"car": 0.8, "van": 0.1, "truck": 0.07, "bus": 0.03})
     duration_s: float = 60.0
@@ -54,10 +58,13 @@ class WorldOptions:
     camera_height: float = 8.0
     camera_setback: float = 5.0  # camera this far beyond the right edge of the road
     camera_station: float = -60.0
+    heading_deg: float | None = None  # default: looking at the road axis 25 m past the origin
+    tilt_deg: float | None = None
     focal_px: float | None = None  # default 0.9 x image width
     dist: tuple[float, float, float, float, float] = (-0.06, 0.012, 0.0, 0.0, 0.0)
     pixel_sigma: float = 1.0
     survey_sigma: float = 0.02
+    n_outliers: int = 0  # control GCPs given a gross error (a wrong click, 15-40 px)
     sensor_noise: float = 2.0  # grey levels (1 sigma)
     shake_px: float = 0.3
     illumination_drift: float = 0.06  # peak relative change of brightness over the clip
@@ -75,8 +82,8 @@ def world_camera(road: RoadSurface, markings: RoadMarkings, opts: WorldOptions) 
     pos[2] += opts.camera_height
     target = road.points([25.0], [0.0])[0]
     d = target - pos
-    heading = float(np.degrees(np.arctan2(d[0], d[1])) % 360.0)
-    tilt = float(np.degrees(np.arctan2(-d[2], np.hypot(d[0], d[1]))))
+    heading = float(np.degrees(np.arctan2(d[0], d[1])) % 360.0) if opts.heading_deg is None else opts.heading_deg
+    tilt = float(np.degrees(np.arctan2(-d[2], np.hypot(d[0], d[1])))) if opts.tilt_deg is None else opts.tilt_deg
     f = opts.focal_px or 0.9 * w
     return Camera.from_orientation(opts.image_size, f, pos, heading, tilt, 0.0, dist=list(opts.dist), crs=opts.crs)
 
@@ -117,6 +124,12 @@ def make_gcps(camera: Camera, road: RoadSurface, markings: RoadMarkings, opts: W
                      "u": round(q[0], 2), "v": round(q[1], 2), "role": "check" if k % 5 == 4 and
                      sum(r["role"] == "check" for r in rows) < n_check else "control",
                      "sigma_px": opts.pixel_sigma})
+    control = [k for k, r in enumerate(rows) if r["role"] == "control"]
+    for k in rng.permutation(control)[: opts.n_outliers]:
+        angle = rng.uniform(0, 2 * np.pi)
+        size = rng.uniform(15.0, 40.0)
+        rows[k]["u"] = round(float(rows[k]["u"]) + size * np.cos(angle), 2)
+        rows[k]["v"] = round(float(rows[k]["v"]) + size * np.sin(angle), 2)
     return rows, world[idx]
 
 
@@ -131,17 +144,20 @@ def build_world(out_dir: str | Path, opts: WorldOptions | None = None, *, video:
     from trafficgeo.synth.terrain import road_point_cloud
 
     opts = opts or WorldOptions()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(opts.seed)
+    # Every option is checked (RoadSpec, Demand) before anything is written.
     spec = RoadSpec(origin=opts.origin, azimuth_deg=opts.azimuth_deg, length_m=opts.length_m, lanes=opts.lanes,
                     two_way=opts.two_way, lane_width=opts.lane_width, speed_limit_kmh=opts.speed_limit_kmh,
                     crs=opts.crs)
-    road = RoadSurface(origin=np.array(opts.origin), azimuth_deg=opts.azimuth_deg, crossfall=opts.crossfall)
+    demand = Demand(opts.veh_per_hour_per_lane, dict(opts.mix))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(opts.seed)
+    road = RoadSurface(origin=np.array(opts.origin), azimuth_deg=opts.azimuth_deg, grade=opts.grade,
+                       crossfall=opts.crossfall, crest_radius=opts.crest_radius)
     markings = RoadMarkings(lanes_right=opts.lanes, lanes_left=opts.lanes if opts.two_way else 0,
                             lane_width=opts.lane_width)
     step = round(1000.0 / opts.fps) / 1000.0
-    run = run_sumo_world(out / "sumo", spec, Demand(opts.veh_per_hour_per_lane, dict(opts.mix)),
+    run = run_sumo_world(out / "sumo", spec, demand,
                          duration_s=opts.duration_s, step_s=step, seed=opts.seed)
     traj = run.trajectories
     z = road.z(traj.x, traj.y)
@@ -173,6 +189,9 @@ def build_world(out_dir: str | Path, opts: WorldOptions | None = None, *, video:
         tracks.to_csv(tmp, index=False, float_format="%.4f")
     with atomic_path(out / "truth_counts.csv") as tmp:
         counts.to_csv(tmp, index=False)
+    from trafficgeo.io.tables import write_point_table
+
+    write_point_table(out / "truth_tracks.gpkg", tracks, ortho.crs, layer="truth_tracks")
     summary = {"options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(opts).items()},
                "vehicles": len(np.unique(traj.vehicle)), "frames": round(opts.duration_s / step),
                "gcps": len(rows), "sumo_version": run.sumo_version}
