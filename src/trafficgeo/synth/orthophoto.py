@@ -112,8 +112,9 @@ def render_orthophoto(road: RoadSurface, markings: RoadMarkings, bounds: tuple[f
     half_px = 0.5 * resolution
 
     def paint(mask_along: np.ndarray, centre: float, width: float, colour: np.ndarray) -> None:
-        cover = np.clip((0.5 * width + half_px - np.abs(o - centre)) / resolution, 0.0, 1.0) * mask_along
-        np.copyto(img, img * (1 - cover[..., None]) + colour * cover[..., None], where=cover[..., None] > 0)
+        near = np.nonzero(np.abs(o - centre) < 0.5 * width + half_px)  # only the pixels the line can touch
+        cover = np.clip((0.5 * width + half_px - np.abs(o[near] - centre)) / resolution, 0.0, 1.0) * mask_along[near]
+        img[near] = img[near] * (1 - cover[:, None]) + colour * cover[:, None]
 
     everywhere = np.ones_like(s)
     if markings.lanes_left > 0:

@@ -85,16 +85,26 @@ def drape_orthophoto(camera: Camera, surface: Surface, ortho: GeoRaster) -> np.n
     return np.where(sky[..., None], sky_rgb, ground).astype(np.float32)
 
 
-def _fill(img: np.ndarray, poly: np.ndarray, colour: np.ndarray) -> None:
-    cv2.fillConvexPoly(img, np.round(poly * 16).astype(np.int32), colour.tolist(), lineType=cv2.LINE_AA, shift=4)
+def _fill(img: np.ndarray, poly: np.ndarray, colour: object, aa: bool = True) -> None:
+    cv2.fillConvexPoly(img, np.round(poly * 16).astype(np.int32), colour, lineType=cv2.LINE_AA if aa else cv2.LINE_8,
+                       shift=4)
+
+
+def _window(poly: np.ndarray, w: int, h: int) -> tuple[int, int, int, int] | None:
+    """Integer pixel window (x0, y0, x1, y1), exclusive ends, covering a polygon clipped to the frame."""
+    x0, y0 = np.floor(poly.min(axis=0)).astype(int) - 1
+    x1, y1 = np.ceil(poly.max(axis=0)).astype(int) + 2
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+    return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
 
 
 def render_frame(camera: Camera, background: np.ndarray, boxes: Boxes, *, sun: np.ndarray | None = None,
                  shadows: bool = True) -> tuple[np.ndarray, FrameTruth]:
-    """Draw ``boxes`` over ``background`` (H, W, 3 float32); returns the frame (float32) and the truth.
+    """Draw ``boxes`` over ``background`` (H, W, 3, uint8 or float32); returns the frame (same type) and the truth.
 
     ``sun``: unit vector towards the sun (default from the south-west, 40 deg high); faces are shaded by their
-    angle to it, and with ``shadows`` each box casts its shadow on the road plane at its footprint height.
+    angle to it, and with ``shadows`` each box casts its shadow on the road plane at its footprint height. Work is
+    confined to each box's pixel window, so the cost grows with the vehicles' image size, not the frame's.
     """
     sun = np.array([-0.45, -0.55, 0.64]) if sun is None else np.asarray(sun, dtype=np.float64)
     sun = sun / np.linalg.norm(sun)
@@ -114,7 +124,7 @@ def render_frame(camera: Camera, background: np.ndarray, boxes: Boxes, *, sun: n
     dist = np.linalg.norm(boxes.centre - camera.position, axis=1)
     order = np.argsort(-dist)  # far to near
     if shadows:
-        shade = np.ones((h, w), dtype=np.float32)
+        polys = []
         for i in order:
             if not in_front[i]:
                 continue
@@ -124,10 +134,21 @@ def render_frame(camera: Camera, background: np.ndarray, boxes: Boxes, *, sun: n
             hull = cv2.convexHull(np.vstack([corners[i, :4, :2], flat[:, :2]]).astype(np.float32))[:, 0, :]
             pts = camera.project(np.column_stack([hull, np.full(len(hull), z0)]))
             if np.all(np.isfinite(pts)):
-                _fill(shade, pts, np.array([0.55]))
-        img *= shade[..., None]
-    # Per-box id buffer for the visibility truth.
-    ids = np.full((h, w), -1, dtype=np.int32)
+                polys.append(pts)
+        if polys:
+            win = _window(np.vstack(polys), w, h)
+            if win is not None:
+                x0, y0, x1, y1 = win
+                mask = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
+                for pts in polys:
+                    _fill(mask, pts - [x0, y0], 255)
+                sub = img[y0:y1, x0:x1]
+                alpha = 1.0 - 0.45 * (mask.astype(np.float32) / 255.0)[..., None]
+                sub[:] = (sub * alpha).astype(img.dtype)
+    # Which box owns each pixel, over the window all boxes share (for the visible fractions).
+    union = _window(uv[in_front].reshape(-1, 2), w, h) if in_front.any() else None
+    ux0, uy0, ux1, uy1 = union if union is not None else (0, 0, 0, 0)
+    ids = np.full((uy1 - uy0, ux1 - ux0), -1, dtype=np.int32)
     areas = np.zeros(n)
     for i in order:
         if not in_front[i]:
@@ -135,10 +156,12 @@ def render_frame(camera: Camera, background: np.ndarray, boxes: Boxes, *, sun: n
         p = uv[i]
         x1, y1 = np.clip(p.min(axis=0), [0, 0], [w - 1, h - 1])
         x2, y2 = np.clip(p.max(axis=0), [0, 0], [w - 1, h - 1])
-        if x2 <= x1 or y2 <= y1:
+        win = _window(p, w, h)
+        if x2 <= x1 or y2 <= y1 or win is None:
             continue
         box[i] = (x1, y1, x2, y2)
-        mask = np.zeros((h, w), dtype=np.uint8)
+        wx0, wy0, wx1, wy1 = win
+        mask = np.zeros((wy1 - wy0, wx1 - wx0), dtype=np.uint8)
         for face in _FACES:
             q = corners[i, face]
             normal = np.cross(q[1] - q[0], q[3] - q[0])
@@ -146,10 +169,11 @@ def render_frame(camera: Camera, background: np.ndarray, boxes: Boxes, *, sun: n
                 continue
             normal = normal / np.linalg.norm(normal)
             light = 0.4 + 0.6 * max(0.0, float(normal @ sun))
-            _fill(img, p[face], boxes.colour[i] * light)
-            cv2.fillConvexPoly(mask, np.round(p[face] * 16).astype(np.int32), 1, shift=4)
+            _fill(img, p[face], (boxes.colour[i] * light).tolist())
+            _fill(mask, p[face] - [wx0, wy0], 1, aa=False)
         areas[i] = mask.sum()
-        ids[mask > 0] = i
-    counts = np.bincount(ids[ids >= 0].ravel(), minlength=n)
+        ids[wy0 - uy0:wy1 - uy0, wx0 - ux0:wx1 - ux0][mask > 0] = i
+    drawn = ids[ids >= 0]
+    counts = np.bincount(drawn, minlength=n) if drawn.size else np.zeros(n)
     visible = np.where(areas > 0, counts / np.maximum(areas, 1), 0.0)
     return img, FrameTruth(box, ground_pt, visible)

@@ -239,7 +239,7 @@ def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z:
     from trafficgeo.synth.render import Boxes, drape_orthophoto, render_frame
 
     rng = np.random.default_rng(opts.seed + 1)
-    background = drape_orthophoto(camera, dem, ortho)
+    background = np.clip(np.rint(drape_orthophoto(camera, dem, ortho)), 0, 255).astype(np.uint8)
     w, h = camera.image_size
     frames = round(opts.duration_s / step)
     colours = _vehicle_colours(traj.vehicle, traj.vclass, opts.seed)
@@ -247,7 +247,11 @@ def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z:
     starts = np.searchsorted(frame_of, np.arange(frames + 1))
     boxes_out = np.full((len(traj), 4), np.nan)
     visible = np.zeros(len(traj))
-    noise_bank = [rng.normal(0.0, opts.sensor_noise, (h, w, 1)).astype(np.float32) for _ in range(6)]
+    # Sensor noise: a small bank of grey noise frames, split into the parts added and subtracted (uint8, saturating).
+    bank = []
+    for _ in range(4):
+        noise = np.rint(rng.normal(0.0, opts.sensor_noise, (h, w, 1))).astype(np.int16).repeat(3, axis=2)
+        bank.append((np.clip(noise, 0, 255).astype(np.uint8), np.clip(-noise, 0, 255).astype(np.uint8)))
     shake = np.cumsum(rng.normal(0.0, opts.shake_px * 0.2, (frames, 2)), axis=0)
     shake = np.clip(shake, -opts.shake_px * 3, opts.shake_px * 3)
     phase = rng.uniform(0, 2 * np.pi)
@@ -263,15 +267,16 @@ def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z:
                           height=traj.height[sl], colour=colours[sl])
             img, truth = render_frame(camera, background, boxes, shadows=opts.shadows)
             gain = 1.0 + opts.illumination_drift * np.sin(2 * np.pi * f / max(frames, 1) + phase)
-            img = img * gain + noise_bank[f % len(noise_bank)]
+            img = cv2.convertScaleAbs(img, alpha=gain)
+            plus, minus = bank[f % len(bank)]
+            img = cv2.subtract(cv2.add(img, plus), minus)
             dx, dy = shake[f]
             if opts.shake_px > 0:
                 img = cv2.warpAffine(img, np.float32([[1, 0, dx], [0, 1, dy]]), (w, h),
                                      borderMode=cv2.BORDER_REPLICATE)
             boxes_out[sl] = truth.box + np.array([dx, dy, dx, dy])
             visible[sl] = truth.visible_fraction
-            frame = av.VideoFrame.from_ndarray(np.clip(img, 0, 255).astype(np.uint8), format="rgb24")
-            for packet in stream.encode(frame):
+            for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
                 container.mux(packet)
             if progress is not None:
                 progress(f + 1, frames)
