@@ -94,3 +94,21 @@ def test_nearer_box_hides_the_farther_one_and_faces_are_shaded():
     assert red_px.max() - red_px.min() > 40
     # The shadow darkens the road next to the boxes.
     assert img.min() < 100 * 0.6
+
+
+def test_rendered_geometry_matches_the_camera_projection_to_a_tenth_of_a_pixel():
+    """Intensity centroid of a flat box seen from above vs the centroid of its projected top face."""
+    from shapely.geometry import Polygon
+
+    cam = Camera.from_orientation(SIZE, 500.0, [E0, N0 - 5.0, Z0 + 20.0], 10.0, 60.0, 0.0,
+                                  dist=[-0.08, 0.01, 0, 0, 0], crs="EPSG:2949")
+    black = np.zeros((SIZE[1], SIZE[0], 3), dtype=np.float32)
+    for s, o in ((8.0, 1.0), (12.0, -2.5), (6.0, 3.3)):
+        boxes = one_box(s, o, colour=(255, 255, 255), length=3.3, width=2.1, height=0.002)
+        img, _ = render_frame(cam, black, boxes, sun=np.array([0.0, 0.0, 1.0]), shadows=False)
+        top = cam.project(boxes.corners()[0, 4:])
+        expected = np.array(Polygon(top).centroid.coords[0])
+        weight = img[..., 0].astype(np.float64)
+        yy, xx = np.mgrid[0:SIZE[1], 0:SIZE[0]]
+        got = np.array([(weight * xx).sum(), (weight * yy).sum()]) / weight.sum()
+        np.testing.assert_allclose(got, expected, atol=0.1)

@@ -35,6 +35,48 @@ def test_world_writes_every_file_and_a_decodable_h264_video(world):
     assert frames[0].shape == (270, 480, 3)
 
 
+def test_vehicles_in_the_video_are_where_the_truth_boxes_say(world):
+    out, _ = world
+    import av
+
+    with av.open(str(out / "video.mp4")) as container:
+        frames = np.stack([f.to_ndarray(format="rgb24") for f in container.decode(video=0)]).astype(np.float32)
+    # The empty road through the true camera: the orthophoto draped on the road surface.
+    from trafficgeo.geo.raster import read_raster
+    from trafficgeo.geo.surface import DEMSurface
+    from trafficgeo.synth.gcp_scene import RoadSurface
+    from trafficgeo.synth.render import drape_orthophoto
+
+    road = RoadSurface(origin=np.array(OPTS.origin), azimuth_deg=OPTS.azimuth_deg, grade=OPTS.grade,
+                       crossfall=OPTS.crossfall, crest_radius=OPTS.crest_radius)
+    ortho = read_raster(out / "ortho.tif")
+    left, bottom, right, top = ortho.bounds
+    res = 0.25
+    X, Y = np.meshgrid(np.arange(left + res / 2, right, res), np.arange(top - res / 2, bottom, -res))
+    dem = DEMSurface(road.z(X, Y), left, top, res, res)
+    background = drape_orthophoto(read_camera_json(out / "camera_truth.json"), dem, ortho)
+    tracks = pd.read_csv(out / "truth_tracks.csv")
+    checked = 0
+    for f in (3, 8):
+        diff = np.abs(frames[f] - background).max(axis=2)
+        rows = tracks[(tracks["frame"] == f) & (tracks["visible_fraction"] > 0.9)]
+        covered = np.zeros(diff.shape, dtype=bool)
+        for _, r in rows.iterrows():
+            if not np.isfinite(r["x1"]):
+                continue
+            x1, y1, x2, y2 = (round(r[k]) for k in ("x1", "y1", "x2", "y2"))
+            covered[max(y1 - 3, 0):y2 + 4, max(x1 - 3, 0):x2 + 4] = True
+            if (x2 - x1) * (y2 - y1) >= 60:
+                assert diff[y1:y2 + 1, x1:x2 + 1].mean() > 15, (f, r["vehicle"])
+                checked += 1
+        # Away from every vehicle (and its shadow, within a margin) the frame is the road plus noise.
+        from scipy.ndimage import binary_dilation
+
+        far = ~binary_dilation(covered, iterations=25)
+        assert np.median(diff[far]) < 10  # sensor noise, illumination drift, sub-pixel shake
+    assert checked >= 3
+
+
 def test_truth_agrees_with_the_camera_and_gcps_with_their_noise(world):
     out, _ = world
     cam = read_camera_json(out / "camera_truth.json")
