@@ -150,6 +150,12 @@ def render_frame(camera: Camera, background: np.ndarray, boxes: Boxes, *, sun: n
     ux0, uy0, ux1, uy1 = union if union is not None else (0, 0, 0, 0)
     ids = np.full((uy1 - uy0, ux1 - ux0), -1, dtype=np.int32)
     areas = np.zeros(n)
+    # Face normals, visibility (front faces) and Lambert shading for all boxes at once.
+    quads = corners[:, _FACES]  # (n, 6, 4, 3)
+    normals = np.cross(quads[:, :, 1] - quads[:, :, 0], quads[:, :, 3] - quads[:, :, 0])
+    normals /= np.linalg.norm(normals, axis=2, keepdims=True)
+    front = np.einsum("nfk,nfk->nf", normals, camera.position - quads[:, :, 0]) > 0
+    light = 0.4 + 0.6 * np.clip(normals @ sun, 0.0, None)
     for i in order:
         if not in_front[i]:
             continue
@@ -162,14 +168,10 @@ def render_frame(camera: Camera, background: np.ndarray, boxes: Boxes, *, sun: n
         box[i] = (x1, y1, x2, y2)
         wx0, wy0, wx1, wy1 = win
         mask = np.zeros((wy1 - wy0, wx1 - wx0), dtype=np.uint8)
-        for face in _FACES:
-            q = corners[i, face]
-            normal = np.cross(q[1] - q[0], q[3] - q[0])
-            if normal @ (camera.position - q[0]) <= 0:  # back face
+        for k, face in enumerate(_FACES):
+            if not front[i, k]:
                 continue
-            normal = normal / np.linalg.norm(normal)
-            light = 0.4 + 0.6 * max(0.0, float(normal @ sun))
-            _fill(img, p[face], (boxes.colour[i] * light).tolist())
+            _fill(img, p[face], (boxes.colour[i] * light[i, k]).tolist())
             _fill(mask, p[face] - [wx0, wy0], 1, aa=False)
         areas[i] = mask.sum()
         ids[wy0 - uy0:wy1 - uy0, wx0 - ux0:wx1 - ux0][mask > 0] = i

@@ -259,7 +259,7 @@ def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z:
         container = av.open(str(tmp), mode="w", format="mp4")
         stream = container.add_stream("libx264", rate=round(opts.fps))
         stream.width, stream.height, stream.pix_fmt = w, h, "yuv420p"
-        stream.options = {"crf": "23", "preset": "veryfast"}
+        stream.options = {"crf": "23", "preset": "superfast"}
         for f in range(frames):
             sl = slice(starts[f], starts[f + 1])
             boxes = Boxes(centre=np.column_stack([traj.x[sl], traj.y[sl], z[sl]]),
