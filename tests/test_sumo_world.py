@@ -286,3 +286,20 @@ def test_zero_demand_gives_empty_trajectories(tmp_path: Path) -> None:
     run = run_sumo_world(tmp_path, ROAD, Demand(0.0), duration_s=2.0, warmup_s=1.0, step_s=0.5)
     t = run.trajectories
     assert len(t) == 0 and t.vehicle.dtype.kind == "U" and t.direction.dtype == np.int64
+
+
+def test_curved_road_keeps_vehicles_on_their_lanes_and_headings(tmp_path):
+    road = RoadSpec(length_m=200.0, curve_radius=-150.0)
+    run = run_sumo_world(tmp_path, road, Demand(900.0), duration_s=20.0, step_s=0.1, warmup_s=30.0, seed=2)
+    t = run.trajectories
+    assert len(t) > 100
+    for d in road.directions:
+        for k in range(1, road.lanes + 1):
+            m = (t.direction == d) & (t.lane == k)
+            if m.any():
+                # The footprint centre of a long vehicle sits inside the curve by up to L^2 / (8 R).
+                assert np.abs(t.offset[m] - road.lane_centre_offset(d, k)).max() < 0.15
+    expect = np.array([road.heading_deg(int(d), s) for d, s in zip(t.direction, t.station, strict=True)])
+    assert np.abs((t.heading_deg - expect + 180) % 360 - 180).max() < 1.0
+    with pytest.raises(InputError):
+        RoadSpec(curve_radius=20.0)

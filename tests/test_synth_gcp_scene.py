@@ -289,3 +289,26 @@ def test_generation_succeeds(seed: int, size: tuple[int, int], n_control: int, n
     assert np.all(np.isfinite(sc.gcps.world)) and np.all(np.isfinite(sc.gcps.pixels))
     # Distinct features.
     assert len({tuple(np.round(p, 3)) for p in sc.true_world}) == n
+
+
+@settings(max_examples=80, deadline=None)
+@given(radius=st.sampled_from([-2000.0, -300.0, -60.0, 60.0, 250.0, 1500.0]), s=st.floats(-50, 50),
+       o=st.floats(-15, 15), az=st.floats(0, 360))
+def test_curved_road_points_and_station_offset_are_inverse(radius, s, o, az):
+    road = RoadSurface(origin=[245000.0, 5182600.0, 90.0], azimuth_deg=az, grade=0.01, crossfall=0.02,
+                       curve_radius=radius)
+    p = road.points([s], [o])
+    s2, o2 = road.station_offset(p[:, 0], p[:, 1])
+    assert s2[0] == pytest.approx(s, abs=1e-6) and o2[0] == pytest.approx(o, abs=1e-6)
+    # The axis leaves the origin along the azimuth and turns right for a positive radius.
+    a = road.points([0.0, 1e-3], [0.0, 0.0])
+    heading = np.degrees(np.arctan2(*(a[1, :2] - a[0, :2]))) % 360
+    assert min(abs(heading - az % 360), 360 - abs(heading - az % 360)) < 1e-3
+    h = road.heading_at(np.array([10.0]))[0]
+    b = road.points([10.0, 10.001], [0.0, 0.0])
+    h_num = np.degrees(np.arctan2(*(b[1, :2] - b[0, :2]))) % 360
+    assert min(abs(h - h_num), 360 - abs(h - h_num)) < 1e-3
+    assert (h - az) % 360 == pytest.approx(np.degrees(10.0 / radius) % 360, abs=1e-6)
+    # Offsets are lateral: a point at (s, o) lies |o| from the axis point at s.
+    axis_pt = road.points([s], [0.0])
+    assert np.hypot(*(p[0, :2] - axis_pt[0, :2])) == pytest.approx(abs(o), abs=1e-6)

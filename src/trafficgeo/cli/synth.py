@@ -34,6 +34,7 @@ def synth(
     grade: Annotated[float, typer.Option(help="grade along the road, e.g. 0.03")] = 0.0,
     crossfall: Annotated[float, typer.Option(help="crossfall each way from the crown, e.g. 0.02")] = 0.02,
     crest_radius: Annotated[float, typer.Option(help="vertical crest radius (m); 0 = none")] = 0.0,
+    curve_radius: Annotated[float, typer.Option(help="horizontal curve radius (m): > 0 right, < 0 left")] = 0.0,
     camera_height: Annotated[float, typer.Option(help="camera height above the road (m)")] = 8.0,
     heading: Annotated[float | None, typer.Option(help="camera heading (deg from north)")] = None,
     tilt: Annotated[float | None, typer.Option(help="camera tilt below the horizon (deg)")] = None,
@@ -67,7 +68,8 @@ def synth(
     if outliers < 0:
         raise InputError(f"--outliers {outliers} must be >= 0")
     opts = WorldOptions(seed=seed, lanes=lanes, two_way=not one_way, length_m=length, grade=grade,
-                        crossfall=crossfall, crest_radius=crest_radius, camera_height=camera_height,
+                        crossfall=crossfall, crest_radius=crest_radius, curve_radius=curve_radius,
+                        camera_height=camera_height,
                         heading_deg=heading, tilt_deg=tilt, focal_px=focal_px, image_size=size,
                         dist=(k1, 0.0, 0.0, 0.0, 0.0), veh_per_hour_per_lane=demand, mix=_mix(mix),
                         duration_s=duration, fps=fps, n_outliers=outliers)

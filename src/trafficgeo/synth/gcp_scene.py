@@ -82,6 +82,10 @@ class RoadSurface:
 
     (the last term only when ``crest_radius > 0``). The formula is defined everywhere, so the verges continue the
     crossfall of the carriageway.
+
+    The axis is straight, or with ``curve_radius`` a circular arc through ``origin`` that leaves it along
+    ``azimuth_deg`` and turns right (``curve_radius > 0``) or left (``< 0``): station is arc length along the axis
+    and offset is measured along the radius (valid for ``|o| < |curve_radius|``).
     """
 
     origin: np.ndarray  # (3,) world point on the road centre line at the scene centre
@@ -89,13 +93,14 @@ class RoadSurface:
     grade: float = 0.0  # dZ/ds along the axis (0.03 = 3 %)
     crossfall: float = 0.0  # fall from the crown per unit offset (0.02 = 2 % each way); 0 = flat section
     crest_radius: float = 0.0  # vertical curve radius (m); 0 = none; Z -= s^2 / (2 R)
+    curve_radius: float = 0.0  # horizontal curve radius (m): > 0 turns right, < 0 left, 0 = straight
 
     def __post_init__(self) -> None:
         origin = np.array(self.origin, dtype=np.float64).reshape(-1)
         if origin.shape != (3,) or not np.all(np.isfinite(origin)):
             raise ValueError(f"RoadSurface.origin must be 3 finite numbers, got {self.origin!r}")
         object.__setattr__(self, "origin", origin)
-        for name in ("azimuth_deg", "grade", "crossfall", "crest_radius"):
+        for name in ("azimuth_deg", "grade", "crossfall", "crest_radius", "curve_radius"):
             value = float(getattr(self, name))
             if not np.isfinite(value):
                 raise ValueError(f"RoadSurface.{name} must be finite, got {value}")
@@ -120,7 +125,17 @@ class RoadSurface:
         dx = np.asarray(x, dtype=np.float64) - self.origin[0]
         dy = np.asarray(y, dtype=np.float64) - self.origin[1]
         t, n = self.axis, self.right
-        return dx * t[0] + dy * t[1], dx * n[0] + dy * n[1]
+        if self.curve_radius == 0.0:
+            return dx * t[0] + dy * t[1], dx * n[0] + dy * n[1]
+        R = self.curve_radius
+        # Relative to the circle's centre C = origin + R * right; u0 = -right points from C to the origin.
+        cx, cy = dx - R * n[0], dy - R * n[1]
+        dist = np.hypot(cx, cy)
+        u0x, u0y = -n[0], -n[1]
+        sgn = np.sign(R)
+        ux, uy = sgn * cx, sgn * cy
+        theta = -np.arctan2(u0x * uy - u0y * ux, u0x * ux + u0y * uy)  # clockwise angle from u0 to u
+        return R * theta, R - sgn * dist
 
     def _z_local(self, s: np.ndarray, offset: np.ndarray) -> np.ndarray:
         dz = self.grade * s - self.crossfall * np.abs(offset)
@@ -138,9 +153,25 @@ class RoadSurface:
         ss, oo = np.broadcast_arrays(np.asarray(s, dtype=np.float64), np.asarray(offset, dtype=np.float64))
         ss, oo = ss.reshape(-1), oo.reshape(-1)
         t, n = self.axis, self.right
-        x = self.origin[0] + ss * t[0] + oo * n[0]
-        y = self.origin[1] + ss * t[1] + oo * n[1]
+        if self.curve_radius == 0.0:
+            x = self.origin[0] + ss * t[0] + oo * n[0]
+            y = self.origin[1] + ss * t[1] + oo * n[1]
+        else:
+            R = self.curve_radius
+            theta = ss / R
+            # u(theta): u0 = -right rotated clockwise by theta; P = C + (R - o) u(theta).
+            u0x, u0y = -n[0], -n[1]
+            ux = u0x * np.cos(theta) + u0y * np.sin(theta)
+            uy = -u0x * np.sin(theta) + u0y * np.cos(theta)
+            x = self.origin[0] + R * n[0] + (R - oo) * ux
+            y = self.origin[1] + R * n[1] + (R - oo) * uy
         return np.stack([x, y, self._z_local(ss, oo)], axis=-1)
+
+    def heading_at(self, s: object) -> np.ndarray:
+        """Azimuth (deg clockwise from north) of the axis at stations ``s``."""
+        ss = np.asarray(s, dtype=np.float64)
+        turn = np.degrees(ss / self.curve_radius) if self.curve_radius else np.zeros_like(ss)
+        return (self.azimuth_deg + turn) % 360.0
 
 
 @dataclass(frozen=True, eq=False)

@@ -155,10 +155,12 @@ def _positive(what: str, value: object, fix: str) -> float:
 
 @dataclass(frozen=True)
 class RoadSpec:
-    """A straight road with ``lanes`` lanes per direction (see the module docstring for the conventions).
+    """A road with ``lanes`` lanes per direction (see the module docstring for the conventions).
 
     ``origin`` is the world point (CRS units, metres) of the road centre line at station 0; the road runs from
-    station ``-length_m/2`` to ``+length_m/2`` along ``azimuth_deg`` (degrees clockwise from north).
+    station ``-length_m/2`` to ``+length_m/2`` along ``azimuth_deg`` (degrees clockwise from north at station 0),
+    straight or, with ``curve_radius``, on a circular arc turning right (> 0) or left (< 0); see
+    :class:`~trafficgeo.synth.gcp_scene.RoadSurface`.
     """
 
     origin: tuple[float, float, float] = (245000.0, 5182600.0, 90.0)
@@ -169,6 +171,7 @@ class RoadSpec:
     lane_width: float = 3.5
     speed_limit_kmh: float = 50.0
     crs: str = "EPSG:2949"
+    curve_radius: float = 0.0
 
     def __post_init__(self) -> None:
         try:
@@ -190,6 +193,14 @@ class RoadSpec:
                            _positive("RoadSpec.lane_width", self.lane_width, "give metres, e.g. 3.5"))
         object.__setattr__(self, "speed_limit_kmh",
                            _positive("RoadSpec.speed_limit_kmh", self.speed_limit_kmh, "give km/h, e.g. 50"))
+        radius = _finite("RoadSpec.curve_radius", self.curve_radius, "give metres (> 0 right, < 0 left, 0 straight)")
+        if radius != 0.0 and abs(radius) < 2.0 * (self.lanes * self.lane_width + _MARGIN_M / 4):
+            raise InputError(f"RoadSpec.curve_radius {radius:g} m is too tight for {self.lanes} lanes per direction; "
+                             "give at least 50 m")
+        if radius != 0.0 and (0.5 * self.length_m + _MARGIN_M) / abs(radius) > 0.9 * math.pi:
+            raise InputError(f"RoadSpec.curve_radius {radius:g} m bends a {self.length_m:g} m road (plus margins) "
+                             "by more than 160 deg; use a larger radius or a shorter road")
+        object.__setattr__(self, "curve_radius", radius)
         crs = parse_crs(self.crs)
         if crs is None or is_geographic(crs) or not math.isclose(metres_per_unit(crs), 1.0):
             raise InputError(f"RoadSpec.crs {self.crs!r} must be a projected CRS in metres (SUMO works in "
@@ -207,8 +218,8 @@ class RoadSpec:
 
     @property
     def surface(self) -> RoadSurface:
-        """The road surface (flat) with the road's origin and azimuth: ``station_offset``, ``points``, ``z``."""
-        return RoadSurface(np.array(self.origin), self.azimuth_deg)
+        """The road surface (flat) with the road's origin, azimuth and curve: ``station_offset``, ``points``, ``z``."""
+        return RoadSurface(np.array(self.origin), self.azimuth_deg, curve_radius=self.curve_radius)
 
     def _check_lane(self, direction: int, lane: int) -> None:
         if direction not in self.directions:
@@ -216,10 +227,10 @@ class RoadSpec:
         if not 1 <= lane <= self.lanes:
             raise InputError(f"lane {lane!r} does not exist; lanes are numbered 1..{self.lanes} from the centre")
 
-    def heading_deg(self, direction: int) -> float:
-        """Driving heading of ``direction`` in degrees clockwise from north, in [0, 360)."""
+    def heading_deg(self, direction: int, station: float = 0.0) -> float:
+        """Driving heading of ``direction`` at ``station`` in degrees clockwise from north, in [0, 360)."""
         self._check_lane(direction, 1)
-        return (self.azimuth_deg + (0.0 if direction == 1 else 180.0)) % 360.0
+        return float((self.surface.heading_at(station) + (0.0 if direction == 1 else 180.0)) % 360.0)
 
     def lane_centre_offset(self, direction: int, lane: int) -> float:
         """Lateral offset (m, right of the axis positive) of the centre of ``lane`` (1 = innermost)."""
@@ -234,7 +245,7 @@ class RoadSpec:
         half = 0.5 * self.lane_width
         inner, outer = (c - half, c + half) if direction == 1 else (c + half, c - half)
         s0, s1 = -0.5 * self.length_m, 0.5 * self.length_m
-        return self.surface.points([s0, s1, s1, s0], [inner, inner, outer, outer])
+        return self.surface.points([s0, s1, s1, s0], [inner, inner, outer, outer])  # corners (a chord if curved)
 
 
 @dataclass(frozen=True)
@@ -411,15 +422,20 @@ def _proj_parameter(road: RoadSpec) -> str:
     return text.replace("+type=crs", "").strip()
 
 
+def _axis_xy(road: RoadSpec, stations: np.ndarray) -> np.ndarray:
+    """Axis points (N, 2) relative to the origin (the SUMO network's own coordinates)."""
+    return road.surface.points(stations, np.zeros_like(stations))[:, :2] - np.array(road.origin[:2])
+
+
 def _nodes_xml(road: RoadSpec) -> str:
     half = 0.5 * road.length_m + _MARGIN_M
-    ax = RoadSurface(np.zeros(3), road.azimuth_deg).axis
-    a, b = -half * ax, half * ax
+    a, b = _axis_xy(road, np.array([-half, half]))
     ox, oy, _ = road.origin
-    xs, ys = [a[0], b[0]], [a[1], b[1]]
+    pts = _axis_xy(road, np.linspace(-half, half, 201))
+    (xmin, ymin), (xmax, ymax) = pts.min(axis=0), pts.max(axis=0)
     location = (f'netOffset="{_num(-ox)},{_num(-oy)}" '
-                f'convBoundary="{_num(min(xs))},{_num(min(ys))},{_num(max(xs))},{_num(max(ys))}" '
-                f'origBoundary="{_num(min(xs) + ox)},{_num(min(ys) + oy)},{_num(max(xs) + ox)},{_num(max(ys) + oy)}" '
+                f'convBoundary="{_num(xmin)},{_num(ymin)},{_num(xmax)},{_num(ymax)}" '
+                f'origBoundary="{_num(xmin + ox)},{_num(ymin + oy)},{_num(xmax + ox)},{_num(ymax + oy)}" '
                 f"projParameter={quoteattr(_proj_parameter(road))}")
     return ("<nodes>\n"
             f"    <location {location}/>\n"
@@ -430,9 +446,17 @@ def _nodes_xml(road: RoadSpec) -> str:
 
 def _edges_xml(road: RoadSpec) -> str:
     ends = {1: ("A", "B"), 2: ("B", "A")}
-    rows = [f'    <edge id="{_EDGE_IDS[d]}" from="{ends[d][0]}" to="{ends[d][1]}" numLanes="{road.lanes}" '
-            f'speed="{_num(road.speed_limit)}" width="{_num(road.lane_width)}" spreadType="right"/>\n'
-            for d in road.directions]
+    shape = ""
+    if road.curve_radius != 0.0:  # the axis as a polyline (2 m chords: < 1 cm from the arc for R >= 50 m)
+        half = 0.5 * road.length_m + _MARGIN_M
+        pts = _axis_xy(road, np.linspace(-half, half, int(np.ceil(2 * half / 2.0)) + 1))
+        shape = " ".join(f"{_num(x)},{_num(y)}" for x, y in pts)
+    rows = []
+    for d in road.directions:
+        d_shape = shape if d == 1 else " ".join(reversed(shape.split()))
+        rows.append(f'    <edge id="{_EDGE_IDS[d]}" from="{ends[d][0]}" to="{ends[d][1]}" numLanes="{road.lanes}" '
+                    f'speed="{_num(road.speed_limit)}" width="{_num(road.lane_width)}" spreadType="right"'
+                    + (f' shape="{d_shape}"' if d_shape else "") + "/>\n")
     return "<edges>\n" + "".join(rows) + "</edges>\n"
 
 

@@ -11,8 +11,8 @@
   ground point and box;
   ``truth_counts.csv`` - per direction and lane, the vehicles crossing the counting line at station 0.
 
-Deterministic for a seed. The road is straight in plan (curved roads are not supported yet), with a crowned
-cross-section, a grade and an optional vertical crest: SUMO's network is 2-D, and z comes from
+Deterministic for a seed. The road is straight or a circular arc in plan, with a crowned cross-section, a grade
+and an optional vertical crest: SUMO's network is 2-D, and z comes from
 :class:`~trafficgeo.synth.gcp_scene.RoadSurface`.
 """
 
@@ -50,6 +50,7 @@ class WorldOptions:
     crossfall: float = 0.02
     grade: float = 0.0  # along the road (0.03 = 3 %); SUMO drives the 2-D plan, z follows the road surface
     crest_radius: float = 0.0  # vertical crest (m) with its apex at station 0; 0 = none
+    curve_radius: float = 0.0  # horizontal curve (m): > 0 turns right, < 0 left, 0 = straight
     veh_per_hour_per_lane: float = 600.0
     mix: dict[str, float] = field(default_factory=lambda: {"car": 0.8, "van": 0.1, "truck": 0.07, "bus": 0.03})
     duration_s: float = 60.0
@@ -147,13 +148,13 @@ def build_world(out_dir: str | Path, opts: WorldOptions | None = None, *, video:
     # Every option is checked (RoadSpec, Demand) before anything is written.
     spec = RoadSpec(origin=opts.origin, azimuth_deg=opts.azimuth_deg, length_m=opts.length_m, lanes=opts.lanes,
                     two_way=opts.two_way, lane_width=opts.lane_width, speed_limit_kmh=opts.speed_limit_kmh,
-                    crs=opts.crs)
+                    crs=opts.crs, curve_radius=opts.curve_radius)
     demand = Demand(opts.veh_per_hour_per_lane, dict(opts.mix))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(opts.seed)
     road = RoadSurface(origin=np.array(opts.origin), azimuth_deg=opts.azimuth_deg, grade=opts.grade,
-                       crossfall=opts.crossfall, crest_radius=opts.crest_radius)
+                       crossfall=opts.crossfall, crest_radius=opts.crest_radius, curve_radius=opts.curve_radius)
     markings = RoadMarkings(lanes_right=opts.lanes, lanes_left=opts.lanes if opts.two_way else 0,
                             lane_width=opts.lane_width)
     step = round(1000.0 / opts.fps) / 1000.0
