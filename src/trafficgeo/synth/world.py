@@ -256,33 +256,59 @@ def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z:
     shake = np.cumsum(rng.normal(0.0, opts.shake_px * 0.2, (frames, 2)), axis=0)
     shake = np.clip(shake, -opts.shake_px * 3, opts.shake_px * 3)
     phase = rng.uniform(0, 2 * np.pi)
+    import queue
+    import threading
+
     with atomic_path(path) as tmp:
         container = av.open(str(tmp), mode="w", format="mp4")
         stream = container.add_stream("libx264", rate=round(opts.fps))
         stream.width, stream.height, stream.pix_fmt = w, h, "yuv420p"
         stream.options = {"crf": "23", "preset": "superfast"}
-        for f in range(frames):
-            sl = slice(starts[f], starts[f + 1])
-            boxes = Boxes(centre=np.column_stack([traj.x[sl], traj.y[sl], z[sl]]),
-                          heading_deg=traj.heading_deg[sl], length=traj.length[sl], width=traj.width[sl],
-                          height=traj.height[sl], colour=colours[sl])
-            img, truth = render_frame(camera, background, boxes, shadows=opts.shadows)
-            gain = 1.0 + opts.illumination_drift * np.sin(2 * np.pi * f / max(frames, 1) + phase)
-            img = cv2.convertScaleAbs(img, alpha=gain)
-            plus, minus = bank[f % len(bank)]
-            img = cv2.subtract(cv2.add(img, plus), minus)
-            dx, dy = shake[f]
-            if opts.shake_px > 0:
-                img = cv2.warpAffine(img, np.float32([[1, 0, dx], [0, 1, dy]]), (w, h),
-                                     borderMode=cv2.BORDER_REPLICATE)
-            boxes_out[sl] = truth.box + np.array([dx, dy, dx, dy])
-            visible[sl] = truth.visible_fraction
-            for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
-                container.mux(packet)
-            if progress is not None:
-                progress(f + 1, frames)
-        for packet in stream.encode():
-            container.mux(packet)
+        # Encoding runs in a second thread (x264 and OpenCV release the GIL), overlapping the next frame's drawing.
+        todo: queue.Queue = queue.Queue(maxsize=4)
+        failure: list[BaseException] = []
+
+        def encode() -> None:
+            try:
+                while (item := todo.get()) is not None:
+                    for packet in stream.encode(av.VideoFrame.from_ndarray(item, format="rgb24")):
+                        container.mux(packet)
+                for packet in stream.encode():
+                    container.mux(packet)
+            except BaseException as exc:  # re-raised in the caller's thread
+                failure.append(exc)
+                while todo.get() is not None:
+                    pass
+
+        worker = threading.Thread(target=encode, name="encode", daemon=True)
+        worker.start()
+        try:
+            for f in range(frames):
+                if failure:
+                    break
+                sl = slice(starts[f], starts[f + 1])
+                boxes = Boxes(centre=np.column_stack([traj.x[sl], traj.y[sl], z[sl]]),
+                              heading_deg=traj.heading_deg[sl], length=traj.length[sl], width=traj.width[sl],
+                              height=traj.height[sl], colour=colours[sl])
+                img, truth = render_frame(camera, background, boxes, shadows=opts.shadows)
+                gain = 1.0 + opts.illumination_drift * np.sin(2 * np.pi * f / max(frames, 1) + phase)
+                img = cv2.convertScaleAbs(img, alpha=gain)
+                plus, minus = bank[f % len(bank)]
+                img = cv2.subtract(cv2.add(img, plus), minus)
+                dx, dy = shake[f]
+                if opts.shake_px > 0:
+                    img = cv2.warpAffine(img, np.float32([[1, 0, dx], [0, 1, dy]]), (w, h),
+                                         borderMode=cv2.BORDER_REPLICATE)
+                boxes_out[sl] = truth.box + np.array([dx, dy, dx, dy])
+                visible[sl] = truth.visible_fraction
+                todo.put(img)
+                if progress is not None:
+                    progress(f + 1, frames)
+        finally:
+            todo.put(None)
+            worker.join()
+        if failure:
+            raise failure[0]
         container.close()
     tracks = tracks.copy()
     tracks["x1"], tracks["y1"], tracks["x2"], tracks["y2"] = boxes_out.T
