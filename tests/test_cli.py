@@ -453,14 +453,19 @@ def test_calibrate_with_chessboard_intrinsics(board_yaml: Path, tmp_path: Path) 
 
 def test_demo_writes_its_files(tmp_path: Path) -> None:
     out = tmp_path / "demo"
-    code, stdout, stderr = invoke("demo", "--out", out)
+    code, stdout, stderr = invoke("demo", "--out", out, "--quick", "--duration", "2")
     assert code == 0, stderr
     assert "Traceback" not in stderr
-    for name in ("gcps.csv", "camera.json", "report.json", "camera_truth.json"):
+    for name in ("world/gcps.csv", "world/camera_truth.json", "world/video.mp4", "camera.json", "report.json",
+                 "dem.tif", "accuracy.tif", "site.gpkg", "gcps_z.csv", "vehicles_world_dem.gpkg"):
         assert (out / name).is_file(), name
     assert read_json(out / "camera.json")["format"] == "trafficgeo.camera/1"
     assert "gcps" in read_json(out / "report.json")
-    assert stdout
+    assert "estimate vs truth" in stdout and "stops after calibration and georeferencing" in stdout.replace("\n", " ")
+    # A second run reuses the cached world.
+    code, stdout, stderr = invoke("demo", "--out", out, "--quick", "--duration", "2")
+    assert code == 0, stderr
+    assert "reusing the demo world" in stdout
 
 
 # ------------------------------------------------------------------------------------------------ 7. permissions

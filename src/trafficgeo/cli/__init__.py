@@ -166,13 +166,24 @@ def intrinsics(
 
 @app.command()
 def demo(
-    out: Annotated[Path, typer.Option(help="folder for the demo's files")] = Path("demo-out"),
-    seed: Annotated[int, typer.Option(help="scene seed")] = 7,
+    out: Annotated[Path, typer.Option(help="folder for the demo's files (the world is cached in OUT/world)")] =
+        Path("demo-out"),
+    seed: Annotated[int, typer.Option(help="world seed")] = 7,
+    duration: Annotated[float, typer.Option(help="video length of the demo world (s)")] = 60.0,
+    quick: Annotated[bool, typer.Option(help="a small, short world (10 s, 960x540) for a fast look")] = False,
+    rebuild: Annotated[bool, typer.Option(help="rebuild the world even if a cached one matches")] = False,
 ) -> None:
-    """Run the pipeline on a generated scene with known truth and compare every result with the truth."""
-    from trafficgeo.demo import run_demo
+    """Run the pipeline on the demo world (built once, then cached) and compare every result with the truth."""
+    from dataclasses import replace
 
-    run_demo(out, seed=seed, console=console)
+    from trafficgeo.demo import DEMO_WORLD, run_demo
+
+    if not duration > 0:
+        raise InputError(f"--duration {duration} must be positive (s)")
+    world = replace(DEMO_WORLD, seed=seed, duration_s=duration)
+    if quick:
+        world = replace(world, duration_s=min(duration, 10.0), image_size=(960, 540), ortho_resolution=0.1)
+    run_demo(out, seed=seed, console=console, world=world, rebuild=rebuild)
 
 
 from trafficgeo.cli import geo as _geo  # noqa: E402, F401  (registers the geospatial commands)

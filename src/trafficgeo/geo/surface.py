@@ -148,6 +148,37 @@ def _plane_lstsq(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return coef, c
 
 
+def _consensus_plane(p: np.ndarray, finite: np.ndarray, tol: float, max_triples: int = 3000) -> np.ndarray:
+    """Points within ``tol`` in Z of the plane through the triple of points that most points agree with.
+
+    Every triple is tried for up to ~26 points (else ``max_triples`` random ones, seeded): a few pole tops or wrong
+    heights cannot outvote the road the way they can bias a least-squares start.
+    """
+    from itertools import combinations
+
+    idx = np.flatnonzero(finite)
+    rel = p[idx] - p[idx].mean(axis=0)
+    if len(idx) <= 26:
+        triples = np.array(list(combinations(range(len(idx)), 3)))
+    else:
+        triples = np.random.default_rng(0).integers(0, len(idx), (max_triples, 3))
+    a, b, c = rel[triples[:, 0]], rel[triples[:, 1]], rel[triples[:, 2]]
+    normal = np.cross(b - a, c - a)
+    good = np.abs(normal[:, 2]) > 1e-9 * np.linalg.norm(normal, axis=1).clip(1e-300)
+    normal, a = normal[good], a[good]
+    if len(normal) == 0:
+        return finite.copy()
+    # Z residual of every point for every candidate plane: n . (x - a) = 0  ->  z = a_z - (nx dx + ny dy) / nz.
+    dz = rel[None, :, 2] - (a[:, None, 2] - (normal[:, None, 0] * (rel[None, :, 0] - a[:, None, 0])
+                                             + normal[:, None, 1] * (rel[None, :, 1] - a[:, None, 1]))
+                            / normal[:, None, 2])
+    votes = (np.abs(dz) <= tol).sum(axis=1)
+    best = int(np.argmax(votes))
+    use = np.zeros_like(finite)
+    use[idx[np.abs(dz[best]) <= tol]] = True
+    return use if use.sum() >= 3 else finite.copy()
+
+
 @dataclass(frozen=True, eq=False)
 class PlaneSurface:
     """Plane ``Z = point[2] + gx (x - point[0]) + gy (y - point[1])`` (gradients dZ/dx, dZ/dy, unitless)."""
@@ -166,9 +197,9 @@ class PlaneSurface:
     def fit(cls, points: object, crs: pyproj.CRS | None = None, robust: bool = True) -> PlaneSurface:
         """Least-squares plane through (N >= 3) world points (N, 3), about their centroid.
 
-        ``robust``: points off the plane by more than 3 robust sigmas (and 5 cm) are dropped and the plane refitted
-        until the set is stable, so a few pole tops or wrong heights among road points do not tilt it; see
-        ``excluded``.
+        ``robust``: the plane starts from the consensus of all point triples (within 10 cm), then points off it by
+        more than 3 robust sigmas (and 5 cm) are dropped and the plane refitted until the set is stable, so pole
+        tops or wrong heights among road points do not tilt it; see ``excluded``.
         """
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         finite = np.all(np.isfinite(p), axis=1)
@@ -178,6 +209,8 @@ class PlaneSurface:
 
         floor = 0.05 / (metres_per_unit(crs) if crs is not None else 1.0)
         use = finite.copy()
+        if robust and finite.sum() > 4:
+            use = _consensus_plane(p, finite, 2.0 * floor)
         for _ in range(10):
             coef, c = _plane_lstsq(p[use])
             resid = p[:, 2] - (c[2] + coef[2] + coef[0] * (p[:, 0] - c[0]) + coef[1] * (p[:, 1] - c[1]))

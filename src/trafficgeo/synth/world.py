@@ -66,6 +66,7 @@ class WorldOptions:
     pixel_sigma: float = 1.0
     survey_sigma: float = 0.02
     n_outliers: int = 0  # control GCPs given a gross error (a wrong click, 15-40 px)
+    n_z_outliers: int = 0  # control GCPs on the ground given a Z 3-8 m too high (a tree or a vehicle in the lidar)
     sensor_noise: float = 2.0  # grey levels (1 sigma)
     shake_px: float = 0.3
     illumination_drift: float = 0.06  # peak relative change of brightness over the clip
@@ -113,9 +114,13 @@ def make_gcps(camera: Camera, road: RoadSurface, markings: RoadMarkings, opts: W
     dist = np.linalg.norm(world - camera.position, axis=1)
     ok &= dist < 90.0
     idx = np.flatnonzero(ok)
-    # Spread the points: keep every other dash corner beyond the first few to avoid clusters.
-    idx = idx[rng.permutation(idx.size)][: min(idx.size, 24)]
-    idx.sort()
+    # Spread the points over the frame: farthest-point sampling in the image, from a random first point.
+    chosen = [int(rng.integers(idx.size))] if idx.size else []
+    d2 = np.full(idx.size, np.inf)
+    while len(chosen) < min(idx.size, 24):
+        d2 = np.minimum(d2, np.sum((uv[idx] - uv[idx[chosen[-1]]]) ** 2, axis=1))
+        chosen.append(int(np.argmax(d2)))
+    idx = np.sort(idx[chosen])
     rows = []
     n_check = max(3, len(idx) // 5)
     for k, i in enumerate(idx):
@@ -126,11 +131,16 @@ def make_gcps(camera: Camera, road: RoadSurface, markings: RoadMarkings, opts: W
                      sum(r["role"] == "check" for r in rows) < n_check else "control",
                      "sigma_px": opts.pixel_sigma})
     control = [k for k, r in enumerate(rows) if r["role"] == "control"]
-    for k in rng.permutation(control)[: opts.n_outliers]:
+    picked = rng.permutation(control)
+    for k in picked[: opts.n_outliers]:
         angle = rng.uniform(0, 2 * np.pi)
         size = rng.uniform(15.0, 40.0)
         rows[k]["u"] = round(float(rows[k]["u"]) + size * np.cos(angle), 2)
         rows[k]["v"] = round(float(rows[k]["v"]) + size * np.sin(angle), 2)
+    on_ground = [k for k in picked[opts.n_outliers:]
+                 if abs(world[idx[k], 2] - road.z(world[idx[k], 0], world[idx[k], 1])) < 0.05]
+    for k in on_ground[: opts.n_z_outliers]:
+        rows[k]["z"] = round(float(rows[k]["z"]) + rng.uniform(3.0, 8.0), 3)
     return rows, world[idx]
 
 
