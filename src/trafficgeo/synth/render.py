@@ -120,7 +120,11 @@ def render_frame(camera: Camera, background: np.ndarray, boxes: Boxes, *, sun: n
     uv = camera.project(corners.reshape(-1, 3)).reshape(n, 8, 2)
     depth = camera.world_to_camera(corners.reshape(-1, 3))[:, 2].reshape(n, 8)
     ground_pt[:] = camera.project(boxes.centre)
-    in_front = np.all(depth > 0.5, axis=1) & np.all(np.isfinite(uv), axis=(1, 2))
+    # Boxes behind the camera, or projecting absurdly far outside the frame (near the lens model's limit), are
+    # not drawn.
+    limit = 20.0 * max(w, h)
+    in_front = (np.all(depth > 0.5, axis=1) & np.all(np.isfinite(uv), axis=(1, 2))
+                & np.all(np.abs(uv) < limit, axis=(1, 2)))
     dist = np.linalg.norm(boxes.centre - camera.position, axis=1)
     order = np.argsort(-dist)  # far to near
     if shadows:
@@ -133,7 +137,7 @@ def render_frame(camera: Camera, background: np.ndarray, boxes: Boxes, *, sun: n
             flat = top - sun[None, :] * ((top[:, 2] - z0) / sun[2])[:, None]
             hull = cv2.convexHull(np.vstack([corners[i, :4, :2], flat[:, :2]]).astype(np.float32))[:, 0, :]
             pts = camera.project(np.column_stack([hull, np.full(len(hull), z0)]))
-            if np.all(np.isfinite(pts)):
+            if np.all(np.isfinite(pts)) and np.all(np.abs(pts) < limit):
                 polys.append(pts)
         if polys:
             win = _window(np.vstack(polys), w, h)
