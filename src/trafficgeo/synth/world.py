@@ -263,8 +263,14 @@ def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z:
     for _ in range(4):
         noise = np.rint(rng.normal(0.0, opts.sensor_noise, (h, w, 1))).astype(np.int16).repeat(3, axis=2)
         bank.append((np.clip(noise, 0, 255).astype(np.uint8), np.clip(-noise, 0, 255).astype(np.uint8)))
-    shake = np.cumsum(rng.normal(0.0, opts.shake_px * 0.2, (frames, 2)), axis=0)
-    shake = np.clip(shake, -opts.shake_px * 3, opts.shake_px * 3)
+    # Camera shake: a mean-reverting random walk (AR(1), ~1 s memory) with a stationary RMS of shake_px per axis.
+    a = float(np.exp(-1.0 / max(opts.fps, 1.0)))
+    shake = np.zeros((frames, 2))
+    kicks = rng.normal(0.0, opts.shake_px * np.sqrt(1 - a * a), (frames, 2))
+    if frames:
+        shake[0] = rng.normal(0.0, opts.shake_px, 2)
+    for f in range(1, frames):
+        shake[f] = a * shake[f - 1] + kicks[f]
     phase = rng.uniform(0, 2 * np.pi)
     import queue
     import threading
