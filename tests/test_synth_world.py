@@ -10,7 +10,8 @@ from trafficgeo.camera.io import read_camera_json
 from trafficgeo.synth.world import WorldOptions, build_world
 
 OPTS = WorldOptions(seed=3, duration_s=1.2, fps=10.0, image_size=(480, 270), length_m=200.0, focal_px=430.0,
-                    veh_per_hour_per_lane=1200.0, ortho_resolution=0.1, view_half_size=70.0)
+                    veh_per_hour_per_lane=1200.0, ortho_resolution=0.1, view_half_size=70.0,
+                    count_stations=(-20.0, 0.0, 30.0))
 
 
 @pytest.fixture(scope="module")
@@ -96,6 +97,28 @@ def test_truth_agrees_with_the_camera_and_gcps_with_their_noise(world):
     assert (g["role"] == "check").sum() >= 3
 
 
+def test_counts_at_every_line_match_the_tracks(world):
+    out, _ = world
+    counts = pd.read_csv(out / "truth_counts.csv")
+    tracks = pd.read_csv(out / "truth_tracks.csv")
+    from trafficgeo.synth.gcp_scene import RoadSurface
+
+    road = RoadSurface(origin=np.array(OPTS.origin), azimuth_deg=OPTS.azimuth_deg)
+    s, _ = road.station_offset(tracks["x"].to_numpy(), tracks["y"].to_numpy())
+    tracks["s"] = s
+    for line, station in ((1, -20.0), (2, 0.0), (3, 30.0)):
+        expect = set()
+        for vid, g in tracks.groupby("vehicle"):
+            g = g.sort_values("time")
+            ds = g["s"].to_numpy() - station
+            sign = 1.0 if g["direction"].iloc[0] == 1 else -1.0
+            if np.any((ds[:-1] * sign < 0) & (ds[1:] * sign >= 0)):
+                expect.add(vid)
+        got = set(counts.loc[counts["line"] == line, "vehicle"])
+        assert got == expect, line
+    assert counts["speed_kmh"].between(10, 90).all()
+
+
 def test_same_seed_gives_the_same_world(world, tmp_path):
     out, _ = world
     build_world(tmp_path, OPTS, video=False)
@@ -114,7 +137,9 @@ def test_synth_command_writes_a_world_and_refuses_bad_options(tmp_path):
                             "320x180", "--length", "150", "--outliers", "1", "--grade", "0.02", "--no-video")
     assert code == 0, err
     assert (tmp_path / "w" / "gcps.csv").is_file() and (tmp_path / "w" / "truth_tracks.gpkg").is_file()
-    for bad in (["--fps", "30"], ["--lanes", "0"], ["--mix", "car=lots"], ["--mix", "plane=1"], ["--length", "-5"]):
+    assert (tmp_path / "w" / "count_lines.gpkg").is_file()
+    for bad in (["--count-stations", "0,500"], ["--count-stations", "x"], ["--fps", "30"], ["--lanes", "0"],
+                ["--mix", "car=lots"], ["--mix", "plane=1"], ["--length", "-5"]):
         code, _, err = invoke("synth", "--out", tmp_path / "bad", *bad)
         assert code == 2 and err.startswith("trafficgeo: error:") and len(err.strip().splitlines()) == 1, err
         assert not (tmp_path / "bad").exists()

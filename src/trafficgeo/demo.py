@@ -177,7 +177,7 @@ def run_demo(out: Path, *, seed: int = 7, console: Console | None = None, world:
                       f"{np.nanmedian(errors['DEM'][band]):.3f} / {np.nanmedian(errors['GCP plane'][band]):.3f} m",
                       f"predicted {np.nanmedian(predicted[band]):.3f} m", "")
     counts = pd.read_csv(wdir / "truth_counts.csv")
-    per_lane = counts.groupby(["direction", "lane"]).size()
+    per_lane = counts[counts["line"] == 1].groupby(["direction", "lane"]).size()
     t.add_row("vehicles crossing station 0, per direction/lane", "not measured yet",
               ", ".join(f"d{d}/l{lane}: {n}" for (d, lane), n in per_lane.items()), "")
     con.print(t)

@@ -47,6 +47,7 @@ def synth(
     duration: Annotated[float, typer.Option(help="video length (s)")] = 60.0,
     fps: Annotated[float, typer.Option(help="frames per second (the SUMO step is 1/fps in whole ms)")] = 25.0,
     outliers: Annotated[int, typer.Option(help="GCPs given a gross pixel error")] = 0,
+    count_stations: Annotated[str, typer.Option(help="counting lines at these stations (m), e.g. -50,0,50")] = "0",
     no_video: Annotated[bool, typer.Option("--no-video", help="skip rendering the video")] = False,
 ) -> None:
     """Generate a demo world: SUMO traffic, orthophoto, lidar, GCPs, true camera, H.264 video and truth."""
@@ -65,6 +66,14 @@ def synth(
                          "use e.g. 25, 20, 40 or 50 (30 fps is not supported yet)")
     if lanes < 1:
         raise InputError(f"--lanes {lanes} must be at least 1")
+    try:
+        stations = tuple(float(v) for v in count_stations.split(","))
+    except ValueError:
+        raise InputError(f"--count-stations '{count_stations}' is not a comma-separated list of metres, "
+                         "e.g. -50,0,50") from None
+    if not all(abs(v) < 0.5 * length for v in stations):
+        raise InputError(f"--count-stations {count_stations}: every line must lie on the road (|station| < "
+                         f"{0.5 * length:g} m)")
     if outliers < 0:
         raise InputError(f"--outliers {outliers} must be >= 0")
     opts = WorldOptions(seed=seed, lanes=lanes, two_way=not one_way, length_m=length, grade=grade,
@@ -72,7 +81,7 @@ def synth(
                         camera_height=camera_height,
                         heading_deg=heading, tilt_deg=tilt, focal_px=focal_px, image_size=size,
                         dist=(k1, 0.0, 0.0, 0.0, 0.0), veh_per_hour_per_lane=demand, mix=_mix(mix),
-                        duration_s=duration, fps=fps, n_outliers=outliers)
+                        duration_s=duration, fps=fps, n_outliers=outliers, count_stations=stations)
     with Progress("[progress.description]{task.description}", BarColumn(), "{task.completed}/{task.total} frames",
                   TimeRemainingColumn(), console=console, transient=True) as progress:
         task = progress.add_task("rendering", total=None)

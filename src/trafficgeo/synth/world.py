@@ -9,7 +9,8 @@
 * ``gcps.csv`` - lane-marking corners and pole bases/tops with pixel and survey noise; ``camera_truth.json``;
 * ``truth_tracks.csv`` (and ``.gpkg``) - per vehicle and frame: world position, speed, lane, class, the image
   ground point and box;
-  ``truth_counts.csv`` - per direction and lane, the vehicles crossing the counting line at station 0.
+  ``truth_counts.csv`` - per counting line, direction and lane, the vehicles crossing it (time, speed), with the
+  lines in ``count_lines.gpkg``.
 
 Deterministic for a seed. The road is straight or a circular arc in plan, with a crowned cross-section, a grade
 and an optional vertical crest: SUMO's network is 2-D, and z comes from
@@ -66,6 +67,7 @@ class WorldOptions:
     pixel_sigma: float = 1.0
     survey_sigma: float = 0.02
     n_outliers: int = 0  # control GCPs given a gross error (a wrong click, 15-40 px)
+    count_stations: tuple[float, ...] = (0.0,)  # counting lines across the road at these stations (m)
     n_z_outliers: int = 0  # control GCPs on the ground given a Z 3-8 m too high (a tree or a vehicle in the lidar)
     sensor_noise: float = 2.0  # grey levels (1 sigma)
     shake_px: float = 0.3
@@ -193,7 +195,7 @@ def build_world(out_dir: str | Path, opts: WorldOptions | None = None, *, video:
     with atomic_path(out / "gcps.csv") as tmp:
         gcp_df.to_csv(tmp, index=False)
     tracks = _truth_tracks(traj, z, camera, opts, step)
-    counts = _truth_counts(traj, spec)
+    counts = _truth_counts(traj, opts.count_stations)
     if video:
         tracks = _render_video(out / "video.mp4", camera, dem, ortho, traj, z, tracks, opts, step, progress)
     with atomic_path(out / "truth_tracks.csv") as tmp:
@@ -203,6 +205,9 @@ def build_world(out_dir: str | Path, opts: WorldOptions | None = None, *, video:
     from trafficgeo.io.tables import write_point_table
 
     write_point_table(out / "truth_tracks.gpkg", tracks, ortho.crs, layer="truth_tracks")
+    from trafficgeo.io.gis import write_gis
+
+    write_gis(out / "count_lines.gpkg", [_count_lines_layer(road, markings, opts.count_stations)], ortho.crs)
     summary = {"options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(opts).items()},
                "vehicles": len(np.unique(traj.vehicle)), "frames": round(opts.duration_s / step),
                "gcps": len(rows), "sumo_version": run.sumo_version}
@@ -223,22 +228,37 @@ def _truth_tracks(traj: Trajectories, z: np.ndarray, camera: Camera, opts: World
     })
 
 
-def _truth_counts(traj: Trajectories, spec: RoadSpec):
-    """Vehicles crossing station 0 per direction and lane (lane at the crossing), with the crossing time."""
+def _truth_counts(traj: Trajectories, stations: tuple[float, ...]):
+    """Vehicles crossing each counting line (station) per direction and lane (lane at the crossing), with the
+    interpolated crossing time and speed."""
     import pandas as pd
 
     rows = []
     order = np.lexsort((traj.time, traj.vehicle))
-    veh, s, t, lane, d = (traj.vehicle[order], traj.station[order], traj.time[order], traj.lane[order],
-                          traj.direction[order])
+    veh, s, t, lane, d, v = (traj.vehicle[order], traj.station[order], traj.time[order], traj.lane[order],
+                             traj.direction[order], traj.speed[order])
     same = veh[1:] == veh[:-1]
     sign = np.where(d[1:] == 1, 1.0, -1.0)
-    cross = same & (s[:-1] * sign < 0) & (s[1:] * sign >= 0)
-    for i in np.flatnonzero(cross):
-        frac = -s[i] / (s[i + 1] - s[i])
-        rows.append({"vehicle": veh[i], "direction": int(d[i]), "lane": int(lane[i + 1]),
-                     "time": float(t[i] + frac * (t[i + 1] - t[i]))})
-    return pd.DataFrame(rows, columns=["vehicle", "direction", "lane", "time"])
+    for k, line in enumerate(stations):
+        rel = s - line
+        cross = same & (rel[:-1] * sign < 0) & (rel[1:] * sign >= 0)
+        for i in np.flatnonzero(cross):
+            frac = -rel[i] / (rel[i + 1] - rel[i])
+            rows.append({"line": k + 1, "station": float(line), "vehicle": veh[i], "direction": int(d[i]),
+                         "lane": int(lane[i + 1]), "time": float(t[i] + frac * (t[i + 1] - t[i])),
+                         "speed_kmh": float(3.6 * (v[i] + frac * (v[i + 1] - v[i])))})
+    return pd.DataFrame(rows, columns=["line", "station", "vehicle", "direction", "lane", "time", "speed_kmh"])
+
+
+def _count_lines_layer(road: RoadSurface, markings: RoadMarkings, stations: tuple[float, ...]):
+    """The counting lines as a GIS layer: straight lines across the paved road at each station."""
+    from shapely.geometry import LineString
+
+    from trafficgeo.io.gis import Layer
+
+    lo, hi = markings.left_edge - markings.shoulder, markings.right_edge + markings.shoulder
+    geoms = [LineString(road.points([st, st], [lo, hi])) for st in stations]
+    return Layer("count_lines", geoms, {"line": list(range(1, len(stations) + 1)), "station": list(stations)})
 
 
 def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z: np.ndarray, tracks,
