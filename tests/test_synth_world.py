@@ -97,6 +97,21 @@ def test_truth_agrees_with_the_camera_and_gcps_with_their_noise(world):
     assert (g["role"] == "check").sum() >= 3
 
 
+def test_thirty_fps_is_resampled_from_a_finer_simulation(tmp_path):
+    opts = WorldOptions(seed=1, duration_s=1.0, fps=30.0, image_size=(320, 180), length_m=150.0,
+                        ortho_resolution=0.2, view_half_size=60.0, veh_per_hour_per_lane=1500.0)
+    summary = build_world(tmp_path, opts, video=False)
+    assert summary["frames"] == 30
+    tracks = pd.read_csv(tmp_path / "truth_tracks.csv")
+    np.testing.assert_allclose(tracks["time"] * 30, tracks["frame"], atol=0.01)  # times written to 0.1 ms
+    assert tracks["frame"].between(0, 29).all()
+    # Positions advance by speed / fps between frames (constant-ish speed over 1/30 s).
+    for _, g in tracks.groupby("vehicle"):
+        if len(g) > 2:
+            step = np.hypot(np.diff(g["x"]), np.diff(g["y"]))
+            np.testing.assert_allclose(step, g["speed_kmh"].to_numpy()[:-1] / 3.6 / 30, rtol=0.1, atol=0.02)
+
+
 def test_counts_at_every_line_match_the_tracks(world):
     out, _ = world
     counts = pd.read_csv(out / "truth_counts.csv")
@@ -138,7 +153,7 @@ def test_synth_command_writes_a_world_and_refuses_bad_options(tmp_path):
     assert code == 0, err
     assert (tmp_path / "w" / "gcps.csv").is_file() and (tmp_path / "w" / "truth_tracks.gpkg").is_file()
     assert (tmp_path / "w" / "count_lines.gpkg").is_file()
-    for bad in (["--count-stations", "0,500"], ["--count-stations", "x"], ["--fps", "30"], ["--lanes", "0"],
+    for bad in (["--count-stations", "0,500"], ["--count-stations", "x"], ["--fps", "0"], ["--lanes", "0"],
                 ["--mix", "car=lots"], ["--mix", "plane=1"], ["--length", "-5"]):
         code, _, err = invoke("synth", "--out", tmp_path / "bad", *bad)
         assert code == 2 and err.startswith("trafficgeo: error:") and len(err.strip().splitlines()) == 1, err

@@ -45,7 +45,7 @@ def synth(
     mix: Annotated[str, typer.Option(help="class shares, e.g. car=0.8,van=0.1,truck=0.07,bus=0.03")] =
         "car=0.8,van=0.1,truck=0.07,bus=0.03",
     duration: Annotated[float, typer.Option(help="video length (s)")] = 60.0,
-    fps: Annotated[float, typer.Option(help="frames per second (the SUMO step is 1/fps in whole ms)")] = 25.0,
+    fps: Annotated[float, typer.Option(help="frames per second (e.g. 25 or 30)")] = 25.0,
     outliers: Annotated[int, typer.Option(help="GCPs given a gross pixel error")] = 0,
     count_stations: Annotated[str, typer.Option(help="counting lines at these stations (m), e.g. -50,0,50")] = "0",
     no_video: Annotated[bool, typer.Option("--no-video", help="skip rendering the video")] = False,
@@ -60,10 +60,6 @@ def synth(
                         ("--fps", fps)):
         if not value > 0:
             raise InputError(f"{name} {value} must be positive")
-    step_ms = 1000.0 / fps
-    if abs(step_ms - round(step_ms)) > 1e-9:
-        raise InputError(f"--fps {fps:g} needs a SUMO step of {step_ms:.3f} ms, but SUMO steps are whole milliseconds; "
-                         "use e.g. 25, 20, 40 or 50 (30 fps is not supported yet)")
     if lanes < 1:
         raise InputError(f"--lanes {lanes} must be at least 1")
     try:

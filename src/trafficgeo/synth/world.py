@@ -169,10 +169,12 @@ def build_world(out_dir: str | Path, opts: WorldOptions | None = None, *, video:
                        crossfall=opts.crossfall, crest_radius=opts.crest_radius, curve_radius=opts.curve_radius)
     markings = RoadMarkings(lanes_right=opts.lanes, lanes_left=opts.lanes if opts.two_way else 0,
                             lane_width=opts.lane_width)
-    step = round(1000.0 / opts.fps) / 1000.0
-    run = run_sumo_world(out / "sumo", spec, demand,
-                         duration_s=opts.duration_s, step_s=step, seed=opts.seed)
-    traj = run.trajectories
+    # SUMO steps are whole milliseconds: for frame rates like 30 fps simulate at 10 ms and resample to the frames.
+    step = 1.0 / opts.fps
+    exact = abs(1000.0 * step - round(1000.0 * step)) < 1e-9
+    run = run_sumo_world(out / "sumo", spec, demand, duration_s=opts.duration_s,
+                         step_s=round(1000.0 * step) / 1000.0 if exact else 0.01, seed=opts.seed)
+    traj = run.trajectories if exact else resample_trajectories(run.trajectories, opts.fps, opts.duration_s)
     z = road.z(traj.x, traj.y)
     camera = world_camera(road, markings, opts)
     write_camera_json(out / "camera_truth.json", camera)
@@ -209,16 +211,51 @@ def build_world(out_dir: str | Path, opts: WorldOptions | None = None, *, video:
 
     write_gis(out / "count_lines.gpkg", [_count_lines_layer(road, markings, opts.count_stations)], ortho.crs)
     summary = {"options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(opts).items()},
-               "vehicles": len(np.unique(traj.vehicle)), "frames": round(opts.duration_s / step),
+               "vehicles": len(np.unique(traj.vehicle)), "frames": _frame_count(opts),
                "gcps": len(rows), "sumo_version": run.sumo_version}
     write_text_atomic(out / "world.json", json.dumps(summary, indent=2) + "\n")
     return summary
 
 
+def _frame_count(opts: WorldOptions) -> int:
+    """Frames in the clip: one every 1/fps seconds from 0 up to (not including) the duration."""
+    return int(np.ceil(opts.duration_s * opts.fps - 1e-9))
+
+
+def resample_trajectories(traj: Trajectories, fps: float, duration_s: float) -> Trajectories:
+    """Trajectories at the frame times k / fps (linear in position, speed and unwrapped heading; lane, class and
+    size from the sample before), for each vehicle within the span it was observed."""
+    times = np.arange(_frame_count(WorldOptions(fps=fps, duration_s=duration_s))) / fps
+    parts: dict[str, list[np.ndarray]] = {name: [] for name in Trajectories.__dataclass_fields__}
+    for vid in np.unique(traj.vehicle):
+        idx = np.flatnonzero(traj.vehicle == vid)
+        idx = idx[np.argsort(traj.time[idx])]
+        t = traj.time[idx]
+        tk = times[(times >= t[0]) & (times <= t[-1])]
+        if tk.size == 0:
+            continue
+        before = np.clip(np.searchsorted(t, tk, side="right") - 1, 0, len(t) - 1)
+        for name in parts:
+            col = getattr(traj, name)[idx]
+            if name == "time":
+                parts[name].append(tk)
+            elif name == "heading_deg":
+                parts[name].append(np.degrees(np.interp(tk, t, np.unwrap(np.radians(col)))) % 360.0)
+            elif name in ("x", "y", "z", "speed", "station", "offset"):
+                parts[name].append(np.interp(tk, t, col))
+            else:
+                parts[name].append(col[before])
+    if not parts["time"]:
+        return traj
+    cols = {name: np.concatenate(v) for name, v in parts.items()}
+    order = np.lexsort((cols["vehicle"], cols["time"]))
+    return Trajectories(**{name: v[order] for name, v in cols.items()})
+
+
 def _truth_tracks(traj: Trajectories, z: np.ndarray, camera: Camera, opts: WorldOptions, step: float):
     import pandas as pd
 
-    frame = np.rint(traj.time / step).astype(int)
+    frame = np.rint(traj.time * opts.fps).astype(int)
     ground = camera.project(np.column_stack([traj.x, traj.y, z]))
     return pd.DataFrame({
         "frame": frame, "time": traj.time, "vehicle": traj.vehicle, "class": traj.vclass,
@@ -272,9 +309,9 @@ def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z:
     rng = np.random.default_rng(opts.seed + 1)
     background = np.clip(np.rint(drape_orthophoto(camera, dem, ortho)), 0, 255).astype(np.uint8)
     w, h = camera.image_size
-    frames = round(opts.duration_s / step)
+    frames = _frame_count(opts)
     colours = _vehicle_colours(traj.vehicle, traj.vclass, opts.seed)
-    frame_of = np.rint(traj.time / step).astype(int)
+    frame_of = np.rint(traj.time * opts.fps).astype(int)
     starts = np.searchsorted(frame_of, np.arange(frames + 1))
     boxes_out = np.full((len(traj), 4), np.nan)
     visible = np.zeros(len(traj))
