@@ -103,9 +103,8 @@ def _vehicle_colours(ids: np.ndarray, vclass: np.ndarray, seed: int) -> np.ndarr
 
 def make_gcps(camera: Camera, road: RoadSurface, markings: RoadMarkings, opts: WorldOptions,
               rng: np.random.Generator) -> tuple[list[dict[str, object]], np.ndarray]:
-    """GCP rows (noisy pixels and world) at dash corners and pole bases/tops in view; returns rows and the truth."""
-    from trafficgeo.geo.surface import DEMSurface  # noqa: F401  (documented dependency of the occlusion check)
-
+    """GCP rows (noisy pixels and world) at dash corners and pole bases/tops in the frame within 90 m of the camera
+    (spread by farthest-point sampling in the image); returns the rows and the true world points."""
     corners = dash_corners(road, markings, (-40.0, 90.0))
     poles_s = np.arange(-30.0, 100.0, 25.0)
     bases = road.points(poles_s, np.full(poles_s.shape, markings.left_edge - markings.shoulder - 1.0))
@@ -196,10 +195,10 @@ def build_world(out_dir: str | Path, opts: WorldOptions | None = None, *, video:
     gcp_df = pd.DataFrame(rows)
     with atomic_path(out / "gcps.csv") as tmp:
         gcp_df.to_csv(tmp, index=False)
-    tracks = _truth_tracks(traj, z, camera, opts, step)
+    tracks = _truth_tracks(traj, z, camera, opts)
     counts = _truth_counts(traj, opts.count_stations)
     if video:
-        tracks = _render_video(out / "video.mp4", camera, dem, ortho, traj, z, tracks, opts, step, progress)
+        tracks = _render_video(out / "video.mp4", camera, dem, ortho, traj, z, tracks, opts, progress)
     with atomic_path(out / "truth_tracks.csv") as tmp:
         tracks.to_csv(tmp, index=False, float_format="%.4f")
     with atomic_path(out / "truth_counts.csv") as tmp:
@@ -252,7 +251,7 @@ def resample_trajectories(traj: Trajectories, fps: float, duration_s: float) -> 
     return Trajectories(**{name: v[order] for name, v in cols.items()})
 
 
-def _truth_tracks(traj: Trajectories, z: np.ndarray, camera: Camera, opts: WorldOptions, step: float):
+def _truth_tracks(traj: Trajectories, z: np.ndarray, camera: Camera, opts: WorldOptions):
     import pandas as pd
 
     frame = np.rint(traj.time * opts.fps).astype(int)
@@ -299,7 +298,7 @@ def _count_lines_layer(road: RoadSurface, markings: RoadMarkings, stations: tupl
 
 
 def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z: np.ndarray, tracks,
-                  opts: WorldOptions, step: float, progress):
+                  opts: WorldOptions, progress):
     """Render and encode the frames (H.264 via PyAV); adds the truth image boxes to ``tracks``."""
     import av
     import cv2
