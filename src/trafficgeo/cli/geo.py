@@ -118,8 +118,11 @@ def dem(
     resolution: Annotated[float, typer.Option(help="cell size in metres (converted to the CRS's units)")] = 0.25,
     crs: Annotated[str | None, typer.Option(help="CRS of the cloud when its header has none, e.g. EPSG:2994")] = None,
 ) -> None:
-    """Ground DEM GeoTIFF from a point cloud: ground points (class 2, else a low-percentile filter), median per
-    cell, holes filled by TIN interpolation inside the ground's hull."""
+    """Ground DEM GeoTIFF from a point cloud.
+
+    Ground points are class 2, else a low-percentile filter; each cell holds their median; holes inside the
+    ground's hull are filled by TIN interpolation.
+    """
     from trafficgeo.crs import crs_label
     from trafficgeo.geo.pointcloud import cloud_to_dem, read_point_cloud
     from trafficgeo.geo.raster import write_geotiff
@@ -202,8 +205,11 @@ def accuracy(
     surface_crs: SurfaceCrsOpt = None,
     resolution: ResolutionOpt = 0.25,
 ) -> None:
-    """Map the expected ground error over the visible road (calibration covariance + pixel noise), and the camera
-    footprint."""
+    """Map the expected ground error over the visible road, and the camera footprint.
+
+    The calibration covariance stored in the camera JSON and the pixel noise are propagated to 1-sigma ground errors
+    in metres.
+    """
     from trafficgeo.geo.raster import write_geotiff
     from trafficgeo.geo.site import site_layers
     from trafficgeo.geo.uncertainty import CameraCovariance, accuracy_grid, footprint_polygon
