@@ -1,0 +1,142 @@
+"""Image-space tracks in: from any tracker, as CSV or in the MOT Challenge text format.
+
+A track point is a vehicle's ground contact point in the image (pixels, OpenCV pixel-centre convention) at a
+frame, with the time of that frame in seconds. Accepted inputs:
+
+* **CSV** with a header: ``frame, track_id`` and either ``u, v`` (the ground contact point) or a box
+  ``x1, y1, x2, y2`` (its bottom centre is taken as the ground point); optional ``class``, ``score`` and ``time``
+  (seconds; otherwise ``time = frame / fps``). Frames are numbered as in the file.
+* **MOT Challenge** ``.txt`` (no header): ``frame, id, bb_left, bb_top, bb_width, bb_height, conf, ...`` with
+  1-based frames: ``time = (frame - 1) / fps``.
+
+Each (frame, track) pair may appear once. Rows are returned sorted by track, then time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from trafficgeo.errors import InputError
+
+CSV_HINT = ("give a CSV with columns frame,track_id and u,v (ground point, px) or x1,y1,x2,y2 (box, px), optionally "
+            "class,score,time, or a MOT Challenge .txt")
+
+
+@dataclass(frozen=True)
+class ImageTracks:
+    """Track points, one row per (track, frame), sorted by track then time.
+
+    Attributes:
+        track_id: (N,) str; frame: (N,) int; time: (N,) s; u, v: (N,) ground contact point (px);
+        box: (N, 4) x1, y1, x2, y2 (px; NaN when the input had only points); vclass: (N,) str ("" if unknown);
+        score: (N,) detection score (NaN if unknown).
+    """
+
+    track_id: np.ndarray
+    frame: np.ndarray
+    time: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    box: np.ndarray
+    vclass: np.ndarray
+    score: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.frame.size)
+
+    @property
+    def track_ids(self) -> np.ndarray:
+        """The distinct track ids, in order."""
+        return np.unique(self.track_id)
+
+
+def _numeric(df: pd.DataFrame, col: str, where: str) -> np.ndarray:
+    values = pd.to_numeric(df[col], errors="coerce")
+    bad = values.isna()
+    if bad.any():
+        row = int(np.flatnonzero(bad.to_numpy())[0])
+        raise InputError(f"{where}: row {row + 2}: column {col} = {df[col].iloc[row]!r} is not a number; {CSV_HINT}")
+    return values.to_numpy(dtype=np.float64)
+
+
+def _read_mot(path: Path) -> pd.DataFrame:
+    try:
+        raw = pd.read_csv(path, header=None, skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a readable MOT file ({' '.join(str(exc).split())}); {CSV_HINT}") from None
+    if raw.shape[1] < 6:
+        raise InputError(f"{path}: a MOT line needs at least frame,id,left,top,width,height; found "
+                         f"{raw.shape[1]} columns; {CSV_HINT}")
+    df = pd.DataFrame({"frame": raw[0], "track_id": raw[1], "x1": raw[2], "y1": raw[3]})
+    w = pd.to_numeric(raw[4], errors="coerce")
+    h = pd.to_numeric(raw[5], errors="coerce")
+    df["x2"] = pd.to_numeric(df["x1"], errors="coerce") + w
+    df["y2"] = pd.to_numeric(df["y1"], errors="coerce") + h
+    df["score"] = raw[6] if raw.shape[1] > 6 else np.nan
+    return df
+
+
+def read_tracks(path: str | Path, *, fps: float | None = None) -> ImageTracks:
+    """Read tracks from a CSV or a MOT Challenge ``.txt`` (see the module docstring).
+
+    ``fps`` gives the time of each frame when the file has no ``time`` column.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: tracks file not found; {CSV_HINT}")
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise InputError(f"--fps {fps} must be a positive frame rate, e.g. 25")
+    mot = p.suffix.lower() == ".txt"
+    if mot:
+        df = _read_mot(p)
+    else:
+        try:
+            df = pd.read_csv(p, skipinitialspace=True, comment="#")
+        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+            raise InputError(f"{p}: not a readable CSV ({' '.join(str(exc).split())}); {CSV_HINT}") from None
+        df.columns = [str(c).strip().lower() for c in df.columns]
+    if df.empty:
+        raise InputError(f"{p}: no track rows; {CSV_HINT}")
+    for col in ("frame", "track_id"):
+        if col not in df.columns:
+            raise InputError(f"{p}: missing column {col} (found: {', '.join(map(str, df.columns))}); {CSV_HINT}")
+    frame_f = _numeric(df, "frame", str(p))
+    if np.any(frame_f != np.round(frame_f)) or np.any(frame_f < (1 if mot else 0)):
+        raise InputError(f"{p}: frame numbers must be whole numbers >= {1 if mot else 0}; {CSV_HINT}")
+    frame = frame_f.astype(np.int64)
+    track = df["track_id"].astype(str).str.strip().to_numpy()
+    has_box = all(c in df.columns for c in ("x1", "y1", "x2", "y2"))
+    n = len(df)
+    if has_box:
+        box = np.column_stack([_numeric(df, c, str(p)) for c in ("x1", "y1", "x2", "y2")])
+        if np.any(box[:, 2] < box[:, 0]) or np.any(box[:, 3] < box[:, 1]):
+            raise InputError(f"{p}: a box has x2 < x1 or y2 < y1; boxes are x1,y1 (top-left) to x2,y2 (bottom-right)")
+    else:
+        box = np.full((n, 4), np.nan)
+    if "u" in df.columns and "v" in df.columns:
+        u, v = _numeric(df, "u", str(p)), _numeric(df, "v", str(p))
+    elif has_box:
+        u, v = 0.5 * (box[:, 0] + box[:, 2]), box[:, 3]  # bottom centre of the box
+    else:
+        raise InputError(f"{p}: no ground point: give columns u,v or a box x1,y1,x2,y2; {CSV_HINT}")
+    if "time" in df.columns:
+        time = _numeric(df, "time", str(p))
+    elif fps is not None:
+        time = (frame - (1 if mot else 0)) / fps
+    else:
+        raise InputError(f"{p}: the file has no time column; give the frame rate with --fps (e.g. --fps 25)")
+    dup = pd.Series(list(zip(track, frame, strict=True))).duplicated()
+    if dup.any():
+        row = int(np.flatnonzero(dup.to_numpy())[0])
+        raise InputError(f"{p}: row {row + 2}: track {track[row]} appears twice in frame {frame[row]}; one point per "
+                         "track and frame")
+    vclass = df["class"].fillna("").astype(str).to_numpy() if "class" in df.columns else np.full(n, "", dtype=object)
+    score = pd.to_numeric(df["score"], errors="coerce").to_numpy(dtype=np.float64) if "score" in df.columns \
+        else np.full(n, np.nan)
+    order = np.lexsort((time, track))
+    return ImageTracks(track_id=track[order], frame=frame[order], time=time[order], u=u[order], v=v[order],
+                       box=box[order], vclass=np.asarray(vclass, dtype=object)[order], score=score[order])
