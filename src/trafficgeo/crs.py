@@ -244,11 +244,19 @@ def lonlat_to_projected(lon: ArrayLike, lat: ArrayLike, crs: pyproj.CRS) -> tupl
 def projected_to_lonlat(x: ArrayLike, y: ArrayLike, crs: pyproj.CRS) -> tuple[np.ndarray, np.ndarray]:
     """(X east, Y north) in the projected ``crs`` units to WGS 84 (longitude, latitude) in degrees.
 
+    Points with a non-finite x or y (no position) get NaN.
+
     Raises:
         InputError: ``crs`` is not projected.
     """
     _require_projected(crs, "converting map coordinates to longitude/latitude")
-    return transform_xy(x, y, crs, WGS84)
+    xa, ya = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+    lon = np.full(xa.shape, np.nan)
+    lat = np.full(xa.shape, np.nan)
+    finite = np.isfinite(xa) & np.isfinite(ya)
+    if finite.any():
+        lon[finite], lat[finite] = transform_xy(xa[finite], ya[finite], crs, WGS84)
+    return lon, lat
 
 
 def looks_like_lonlat(x: ArrayLike, y: ArrayLike) -> bool:

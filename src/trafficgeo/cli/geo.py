@@ -10,6 +10,7 @@ import typer
 
 from trafficgeo.cli import app, console
 from trafficgeo.errors import InputError
+from trafficgeo.io.tables import check_table_output
 
 SurfaceOpt = Annotated[str, typer.Option("--surface", "-s", help="number (constant Z in CRS units), 'plane' "
                                          "(GCP plane), a GeoTIFF DEM or a LAS/LAZ point cloud")]
@@ -39,14 +40,6 @@ def _check_gis_path(path: Path | None, option: str) -> None:
         raise InputError(f"{option} {path}: unknown GIS format '{path.suffix}'; use .gpkg, .geojson or .parquet")
 
 
-def _check_table_path(path: Path) -> None:
-    """Refuse an output suffix that :func:`trafficgeo.io.tables.write_point_table` cannot write, up front."""
-    from trafficgeo.io.tables import GIS_OUTPUT_SUFFIXES
-
-    if path.suffix.lower() not in (".csv", ".txt", *GIS_OUTPUT_SUFFIXES):
-        raise InputError(f"{path}: unknown output format '{path.suffix}'; use .csv, .gpkg, .geojson or .parquet")
-
-
 def _status_summary(status: np.ndarray) -> str:
     names, counts = np.unique(status.astype(str), return_counts=True)
     return ", ".join(f"{c} {n}" for n, c in sorted(zip(names, counts, strict=True), key=lambda p: -p[1]))
@@ -72,7 +65,7 @@ def georef(
 
     if not np.isfinite(height):
         raise InputError(f"--height {height} must be a finite height above the road in metres, e.g. 1.4")
-    _check_table_path(output)
+    check_table_output(output)
     cam, doc = _camera(camera)
     table = read_point_table(pixels, ("u", "v"), "pixels", "give a CSV with columns u,v (pixels, origin at the "
                              "centre of the top-left pixel)")
@@ -100,7 +93,7 @@ def project(
     from trafficgeo.geo.mapping import camera_crs
     from trafficgeo.io.tables import read_point_table, write_point_table
 
-    _check_table_path(output)
+    check_table_output(output)
     cam, doc = _camera(camera)
     table = read_point_table(world, ("x", "y", "z"), "world points",
                              "give a CSV with columns x,y,z in the camera's CRS and units")
@@ -164,7 +157,7 @@ def gcp_z(
     for name, value in (("--radius", radius), ("--tolerance", tolerance), ("--roughness", roughness)):
         if not value > 0:
             raise InputError(f"{name} {value} must be positive (metres)")
-    _check_table_path(output)
+    check_table_output(output)
     table = read_point_table(gcps, ("x", "y"), "GCP", "give a CSV with columns id,x,y[,z],u,v in the CRS of the "
                              "cloud/DEM")
     if cloud is not None:

@@ -93,12 +93,7 @@ def lonlat_of(x: np.ndarray, y: np.ndarray, crs: pyproj.CRS | None) -> tuple[np.
     """lon/lat (EPSG:4326) of projected points, NaN where x or y is NaN; (None, None) without a projected CRS."""
     if crs is None or is_geographic(crs):
         return None, None
-    lon = np.full(x.shape, np.nan)
-    lat = np.full(x.shape, np.nan)
-    fin = np.isfinite(x) & np.isfinite(y)
-    if fin.any():
-        lon[fin], lat[fin] = projected_to_lonlat(x[fin], y[fin], crs)
-    return lon, lat
+    return projected_to_lonlat(x, y, crs)
 
 
 def pixels_to_world(camera: Camera, uv: object, surface: Surface, *, height: float = 0.0,

@@ -458,12 +458,7 @@ def points_layer(
                 f"{where}: attribute {clash[0]!r} clashes with the lon/lat columns added from the CRS; rename it "
                 "or pass lonlat=False"
             )
-        lon = np.full(xa.shape, np.nan)
-        lat = np.full(xa.shape, np.nan)
-        if np.any(finite):
-            lon[finite], lat[finite] = projected_to_lonlat(xa[finite], ya[finite], parsed)
-        attrs["lon"] = lon
-        attrs["lat"] = lat
+        attrs["lon"], attrs["lat"] = projected_to_lonlat(xa, ya, parsed)
     return Layer(name=name, geometries=list(geoms), attributes=attrs)
 
 

@@ -16,7 +16,7 @@ import pyproj
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_path
 
-GIS_OUTPUT_SUFFIXES = (".gpkg", ".geojson", ".json", ".parquet")
+TABLE_SUFFIXES = (".csv", ".txt")
 _ROUNDING = {"x": 4, "y": 4, "z": 4, "lon": 9, "lat": 9, "u": 4, "v": 4}
 
 
@@ -51,6 +51,15 @@ def read_point_table(path: str | Path, columns: Sequence[str], what: str, hint: 
     return df
 
 
+def check_table_output(path: str | Path) -> None:
+    """Refuse an output name :func:`write_point_table` cannot write (call it before any work)."""
+    from trafficgeo.io.gis import GIS_SUFFIXES
+
+    p = Path(path)
+    if p.suffix.lower() not in (*TABLE_SUFFIXES, "", *GIS_SUFFIXES):
+        raise InputError(f"{p}: unknown output format '{p.suffix}'; use .csv, .gpkg, .geojson or .parquet")
+
+
 def write_point_table(path: str | Path, table: pd.DataFrame, crs: pyproj.CRS | None, *, layer: str = "points",
                       xyz: tuple[str, str, str] = ("x", "y", "z")) -> None:
     """Write a table as CSV, or as GeoPackage/GeoJSON/GeoParquet points (by suffix) with geometry from ``xyz``.
@@ -58,22 +67,21 @@ def write_point_table(path: str | Path, table: pd.DataFrame, crs: pyproj.CRS | N
     Rows without coordinates keep their attributes (empty geometry in GIS formats).
     """
     p = Path(path)
+    check_table_output(p)
     suffix = p.suffix.lower()
     out = table.copy()
     for col, digits in _ROUNDING.items():
         if col in out.columns and pd.api.types.is_float_dtype(out[col]):
             out[col] = out[col].round(digits)
-    if suffix in GIS_OUTPUT_SUFFIXES:
+    if suffix not in (*TABLE_SUFFIXES, ""):
         from trafficgeo.io.gis import points_layer, write_gis
 
         if crs is None:
-            raise InputError(f"{p}: a GIS file needs a CRS but the camera has none; write a .csv instead or "
-                             "calibrate with --crs")
+            raise InputError(f"{p}: a GIS file needs a CRS but the data have none; write a .csv instead or "
+                             "give the data a CRS (calibrate --crs, or --crs for the cloud/DEM)")
         x, y, z = (out[c].to_numpy(dtype=np.float64) if c in out.columns else None for c in xyz)
         attrs = {c: out[c].to_numpy() for c in out.columns}
         write_gis(p, [points_layer(layer, x, y, z, attributes=attrs, crs=crs, lonlat=False)], crs)
         return
-    if suffix not in (".csv", ".txt", ""):
-        raise InputError(f"{p}: unknown output format '{suffix}'; use .csv, .gpkg, .geojson or .parquet")
     with atomic_path(p) as tmp:
         out.to_csv(tmp, index=False, na_rep="")
