@@ -86,13 +86,18 @@ def test_points_lie_on_their_lanes(runs: dict[str, SumoRun]) -> None:
     assert np.all(np.diff(t.time) >= 0)
     assert set(np.unique(t.direction)) == {1, 2} and set(np.unique(t.lane)) == {1, 2}
     centre = np.array([ROAD.lane_centre_offset(int(d), int(k)) for d, k in zip(t.direction, t.lane, strict=True)])
-    assert np.max(np.abs(t.offset - centre)) <= 0.01  # default lane-change model: positions snap to lane centres
-    assert np.all(np.abs(t.offset - centre) <= 0.5 * ROAD.lane_width)
+    off = np.abs(t.offset - centre)
+    assert np.mean(off <= 0.01) > 0.9  # on their lane centres except while changing lanes
+    assert np.all(off <= 0.5 * ROAD.lane_width + 1e-9)  # the lane is the one under the footprint centre
+    # lane changes drift across over LANE_CHANGE_DURATION_S instead of jumping: no lateral step above 0.15 m/frame
+    order = np.lexsort((t.time, t.vehicle))
+    same = t.vehicle[order][1:] == t.vehicle[order][:-1]
+    assert np.max(np.abs(np.diff(t.offset[order]))[same]) < 0.15
     assert np.all(np.abs(t.station) <= 0.5 * ROAD.length_m)
     assert np.all((t.offset > 0) == (t.direction == 1))
     expected = np.where(t.direction == 1, ROAD.azimuth_deg, ROAD.azimuth_deg + 180.0)
-    dh = (t.heading_deg - expected + 180.0) % 360.0 - 180.0
-    assert np.max(np.abs(dh)) <= 2.0
+    dh = np.abs((t.heading_deg - expected + 180.0) % 360.0 - 180.0)
+    assert np.max(dh[off <= 0.01]) <= 2.0 and np.max(dh) <= 8.0  # a lane change turns the vehicle a little
     np.testing.assert_allclose(t.z, ROAD.origin[2])
     # vehicles do change lanes (LC2013 overtaking): some vehicle id appears in two lanes
     pairs = np.unique(np.char.add(np.char.add(t.vehicle, "/"), t.lane.astype(str)))
@@ -293,13 +298,18 @@ def test_curved_road_keeps_vehicles_on_their_lanes_and_headings(tmp_path):
     run = run_sumo_world(tmp_path, road, Demand(900.0), duration_s=20.0, step_s=0.1, warmup_s=30.0, seed=2)
     t = run.trajectories
     assert len(t) > 100
+    centred = np.ones(len(t), dtype=bool)
     for d in road.directions:
         for k in range(1, road.lanes + 1):
             m = (t.direction == d) & (t.lane == k)
             if m.any():
-                # The footprint centre of a long vehicle sits inside the curve by up to L^2 / (8 R).
-                assert np.abs(t.offset[m] - road.lane_centre_offset(d, k)).max() < 0.15
+                # The footprint centre of a long vehicle sits inside the curve by up to L^2 / (8 R); vehicles
+                # changing lanes are between the centres for a while.
+                dev = np.abs(t.offset[m] - road.lane_centre_offset(d, k))
+                assert np.quantile(dev, 0.9) < 0.15
+                centred[m] = dev < 0.15
     expect = np.array([road.heading_deg(int(d), s) for d, s in zip(t.direction, t.station, strict=True)])
-    assert np.abs((t.heading_deg - expect + 180) % 360 - 180).max() < 1.0
+    dh = np.abs((t.heading_deg - expect + 180) % 360 - 180)
+    assert np.quantile(dh[centred], 0.95) < 1.0 and dh.max() < 8.0  # lane changes turn vehicles a little
     with pytest.raises(InputError):
         RoadSpec(curve_radius=20.0)

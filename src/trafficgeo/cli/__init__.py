@@ -188,6 +188,7 @@ def demo(
 
 from trafficgeo.cli import geo as _geo  # noqa: E402, F401  (registers the geospatial commands)
 from trafficgeo.cli import synth as _synth  # noqa: E402, F401  (registers the synth command)
+from trafficgeo.cli import traffic as _traffic  # noqa: E402, F401  (registers analyze and compare-sumo)
 
 
 def main(argv: list[str] | None = None) -> Any:

@@ -20,6 +20,7 @@ import numpy as np
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.mapping import Surface, pixels_to_world
 from trafficgeo.geo.raster import GeoRaster
+from trafficgeo.traffic.boxes import cuboid_corners
 
 # The 6 faces of a box as corner indices, counter-clockwise seen from outside.
 _FACES = np.array([[0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7], [4, 5, 6, 7], [3, 2, 1, 0]])
@@ -43,16 +44,8 @@ class Boxes:
         return int(self.centre.shape[0])
 
     def corners(self) -> np.ndarray:
-        """World corners (N, 8, 3)."""
-        h = np.radians(self.heading_deg)
-        fwd = np.stack([np.sin(h), np.cos(h), np.zeros_like(h)], axis=1)
-        right = np.stack([np.cos(h), -np.sin(h), np.zeros_like(h)], axis=1)
-        up = np.array([0.0, 0.0, 1.0])
-        hl, hw = 0.5 * self.length[:, None], 0.5 * self.width[:, None]
-        bottom = [self.centre + hl * fwd - hw * right, self.centre + hl * fwd + hw * right,
-                  self.centre - hl * fwd + hw * right, self.centre - hl * fwd - hw * right]
-        top = [b + self.height[:, None] * up for b in bottom]
-        return np.stack(bottom + top, axis=1)
+        """World corners (N, 8, 3) (:func:`trafficgeo.traffic.boxes.cuboid_corners`)."""
+        return cuboid_corners(self.centre, self.heading_deg, self.length, self.width, self.height)
 
 
 @dataclass(frozen=True)

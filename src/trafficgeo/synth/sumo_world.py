@@ -238,14 +238,17 @@ class RoadSpec:
         o = (lane - 0.5) * self.lane_width
         return o if direction == 1 else -o
 
-    def lane_polygon(self, direction: int, lane: int) -> np.ndarray:
-        """World corners (4, 3) of a lane over the road span: (start, inner), (end, inner), (end, outer),
-        (start, outer), with start/end at stations -length/2 and +length/2."""
+    def lane_polygon(self, direction: int, lane: int, step_m: float = 2.0) -> np.ndarray:
+        """World outline (2n, 3) of a lane over the road span: its inner edge from station -length/2 to
+        +length/2, then its outer edge back. On a straight road n = 2 (four corners); on a curve the edges are
+        sampled every ``step_m`` metres."""
         c = self.lane_centre_offset(direction, lane)
         half = 0.5 * self.lane_width
         inner, outer = (c - half, c + half) if direction == 1 else (c + half, c - half)
-        s0, s1 = -0.5 * self.length_m, 0.5 * self.length_m
-        return self.surface.points([s0, s1, s1, s0], [inner, inner, outer, outer])  # corners (a chord if curved)
+        n = 2 if self.curve_radius == 0 else max(2, int(np.ceil(self.length_m / step_m)) + 1)
+        st = np.linspace(-0.5 * self.length_m, 0.5 * self.length_m, n)
+        return self.surface.points(np.concatenate([st, st[::-1]]),
+                                   np.concatenate([np.full(n, inner), np.full(n, outer)]))
 
 
 @dataclass(frozen=True)
@@ -304,7 +307,7 @@ class Trajectories:
     heading_deg: np.ndarray  # degrees clockwise from north, [0, 360)
     speed: np.ndarray  # m/s
     direction: np.ndarray  # int, 1 (along the azimuth) or 2
-    lane: np.ndarray  # int, 1..lanes from the centre line outwards
+    lane: np.ndarray  # int, 1..lanes from the centre line outwards, the lane under the footprint centre
     length: np.ndarray  # m
     width: np.ndarray  # m
     height: np.ndarray  # m
@@ -334,6 +337,9 @@ class SumoRun:
 
 
 # ---------------------------------------------------------------------------------------------------- SUMO tools
+LANE_CHANGE_DURATION_S = 3.0  # lane changes drift across over this time (SUMO's default is an instant jump)
+
+
 def _sumo_home() -> Path:
     try:
         import sumo  # the eclipse-sumo wheel
@@ -580,6 +586,9 @@ def read_fcd(path: str | os.PathLike[str], road: RoadSpec, net_path: str | os.Pa
     surface = road.surface
     station, offset = surface.station_offset(x, y)
 
+    # The lane is where the footprint centre is (during a lane change SUMO's lane attribute switches early).
+    lane = np.clip(np.ceil(np.abs(offset) / road.lane_width), 1, road.lanes).astype(np.int64)
+
     keep = np.abs(station) <= 0.5 * road.length_m
     order = np.lexsort((vehicle[keep], time[keep]))
     sel = np.flatnonzero(keep)[order]
@@ -635,6 +644,7 @@ def run_sumo_world(out_dir: str | os.PathLike[str], road: RoadSpec, demand: Dema
         _run_tool("sumo", ["--net-file", str(net), "--route-files", str(routes), "--begin", "0", "--end", repr(end),
                            "--step-length", repr(step), "--seed", str(int(seed)), "--no-step-log",
                            "--time-to-teleport", "-1", "--precision", str(_FCD_PRECISION),
+                           "--lanechange.duration", repr(LANE_CHANGE_DURATION_S),
                            "--fcd-output", str(raw), "--fcd-output.attributes", ",".join(_FCD_ATTRIBUTES),
                            "--device.fcd.begin", repr(warmup)],
                   60.0 + 0.01 * n_steps)

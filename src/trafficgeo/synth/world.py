@@ -10,7 +10,7 @@
 * ``truth_tracks.csv`` (and ``.gpkg``) - per vehicle and frame: world position, speed, lane, class, the image
   ground point and box;
   ``truth_counts.csv`` - per counting line, direction and lane, the vehicles crossing it (time, speed), with the
-  lines in ``count_lines.gpkg``.
+  lines in ``count_lines.gpkg``; ``lanes.gpkg`` - the lane polygons (named ``d<direction>_<lane>``).
 
 Deterministic for a seed. The road is straight or a circular arc in plan, with a crowned cross-section, a grade
 and an optional vertical crest: SUMO's network is 2-D, and z comes from
@@ -209,6 +209,7 @@ def build_world(out_dir: str | Path, opts: WorldOptions | None = None, *, video:
     from trafficgeo.io.gis import write_gis
 
     write_gis(out / "count_lines.gpkg", [_count_lines_layer(road, markings, opts.count_stations)], ortho.crs)
+    write_gis(out / "lanes.gpkg", [lanes_layer(spec)], ortho.crs)
     summary = {"options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(opts).items()},
                "vehicles": len(np.unique(traj.vehicle)), "frames": _frame_count(opts),
                "gcps": len(rows), "sumo_version": run.sumo_version}
@@ -295,6 +296,25 @@ def _count_lines_layer(road: RoadSurface, markings: RoadMarkings, stations: tupl
     lo, hi = markings.left_edge - markings.shoulder, markings.right_edge + markings.shoulder
     geoms = [LineString(road.points([st, st], [lo, hi])) for st in stations]
     return Layer("count_lines", geoms, {"line": list(range(1, len(stations) + 1)), "station": list(stations)})
+
+
+def truth_lane_name(direction: object, lane: object) -> np.ndarray:
+    """The name of a SUMO direction/lane pair in ``lanes.gpkg``: ``d<direction>_<lane>`` (lane 1 = innermost)."""
+    d = np.asarray(direction).astype(int).astype(str)
+    k = np.asarray(lane).astype(int).astype(str)
+    return np.char.add(np.char.add(np.char.add("d", d), "_"), k)
+
+
+def lanes_layer(spec: RoadSpec):
+    """Every lane of the road as a polygon named by :func:`truth_lane_name`."""
+    from shapely.geometry import Polygon
+
+    from trafficgeo.io.gis import Layer
+
+    keys = [(d, k) for d in spec.directions for k in range(1, spec.lanes + 1)]
+    geoms = [Polygon(spec.lane_polygon(d, k)[:, :2]) for d, k in keys]
+    return Layer("lanes", geoms, {"lane": [str(truth_lane_name(d, k)) for d, k in keys],
+                                  "direction": [d for d, _ in keys]})
 
 
 def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z: np.ndarray, tracks,

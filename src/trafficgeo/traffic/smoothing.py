@@ -2,10 +2,11 @@
 
 State ``[x, y, vx, vy]`` (metres, m/s) in a local metric frame; the motion model is constant velocity driven by
 white-noise acceleration of spectral density ``accel_sigma^2`` (m^2/s^3), which lets vehicles brake and turn. Each
-position measurement has standard deviation ``sigma`` (m, per axis; a scalar or one per point). Measurements whose
-innovation exceeds the ``gate`` (chi-square, 2 dof) are rejected as outliers (a wrong detection, an ID switch) and
-the filter coasts through them; gaps in time are handled by the model. The Rauch-Tung-Striebel backward pass then
-uses every point for every estimate.
+position measurement has standard deviation ``sigma`` (m, per axis; a scalar or one per point) or a full covariance
+(one 2x2 matrix per point, m^2: a ground point seen at a low angle is uncertain mostly along the viewing ray).
+Measurements whose innovation exceeds the ``gate`` (chi-square, 2 dof) are rejected as outliers (a wrong detection,
+an ID switch) and the filter coasts through them; gaps in time are handled by the model. The Rauch-Tung-Striebel
+backward pass then uses every point for every estimate.
 
 Conventions: heading in degrees clockwise from north (x east, y north); speed in m/s with its 1-sigma uncertainty;
 acceleration along the track in m/s^2.
@@ -47,9 +48,25 @@ def _transition(dt: float, q: float) -> tuple[np.ndarray, np.ndarray]:
     return F, Q
 
 
+def _measurement_covariance(sigma: object, n: int) -> np.ndarray:
+    """(N, 2, 2) covariances from a scalar or (N,) sigma (m) or (N, 2, 2) covariances (m^2)."""
+    arr = np.asarray(sigma, dtype=np.float64)
+    if arr.ndim == 3:
+        if arr.shape != (n, 2, 2) or not np.all(np.isfinite(arr)):
+            raise InputError(f"measurement covariance must be finite with shape ({n}, 2, 2), got {arr.shape}")
+        if not np.all(np.linalg.eigvalsh(0.5 * (arr + arr.transpose(0, 2, 1))) > 0):
+            raise InputError("measurement covariance must be positive definite")
+        return arr
+    s = np.broadcast_to(arr, (n,))
+    if not np.all(s > 0):
+        raise InputError("measurement sigma must be positive (metres)")
+    return s[:, None, None] ** 2 * np.eye(2)[None]
+
+
 def smooth_track(time: object, xy: object, sigma: object = 0.3, *, accel_sigma: float = 1.5,
                  gate: float = CHI2_2DOF_999) -> SmoothedTrack:
-    """Kalman filter + RTS smoother for one track: ``time`` (N,) s strictly increasing, ``xy`` (N, 2) metres."""
+    """Kalman filter + RTS smoother for one track: ``time`` (N,) s strictly increasing, ``xy`` (N, 2) metres,
+    ``sigma`` m (scalar or (N,)) or covariance m^2 (N, 2, 2)."""
     t = np.asarray(time, dtype=np.float64).reshape(-1)
     z = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     n = t.size
@@ -59,9 +76,7 @@ def smooth_track(time: object, xy: object, sigma: object = 0.3, *, accel_sigma: 
         raise InputError("track times must increase strictly (sort the points; one point per frame)")
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(z))):
         raise InputError("track times and positions must be finite numbers")
-    s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (n,))
-    if not np.all(s > 0):
-        raise InputError("measurement sigma must be positive (metres)")
+    R_all = _measurement_covariance(sigma, n)
     q = float(accel_sigma) ** 2
     origin = z[0].copy()
     zl = z - origin  # local frame: no precision lost on 5e6 coordinates
@@ -74,14 +89,16 @@ def smooth_track(time: object, xy: object, sigma: object = 0.3, *, accel_sigma: 
     outlier = np.zeros(n, dtype=bool)
     # Start: at the first point, speed unknown (30 m/s 1-sigma).
     x = np.array([zl[0, 0], zl[0, 1], 0.0, 0.0])
-    P = np.diag([s[0] ** 2, s[0] ** 2, 30.0**2, 30.0**2])
+    P = np.zeros((4, 4))
+    P[:2, :2] = R_all[0]
+    P[2, 2] = P[3, 3] = 30.0**2
     for k in range(n):
         if k > 0:
             F, Q = _transition(t[k] - t[k - 1], q)
             x = F @ x
             P = F @ P @ F.T + Q
         xp[k], Pp[k] = x, P
-        R = np.eye(2) * s[k] ** 2
+        R = R_all[k]
         innov = zl[k] - H @ x
         S = H @ P @ H.T + R
         d2 = float(innov @ np.linalg.solve(S, innov))

@@ -1,0 +1,172 @@
+"""``analyze``: image tracks -> world trajectories, lanes, counting-line crossings and counts, written to a folder.
+
+Outputs of :func:`write_analysis` (all written atomically):
+
+* ``vehicles.csv`` - one row per vehicle (track): class, lane(s), lane changes, first/last time, path length, mean
+  speed over the observed path (km/h), length where estimated;
+* ``counts.csv`` - per counting line, lane, direction and interval: counts (also per class), flow (veh/h),
+  time-mean and space-mean speed, headways and gaps (:func:`trafficgeo.traffic.lines.aggregate_counts`);
+* ``crossings.csv`` - every vehicle at every line: time, direction, lane, speed;
+* ``trajectories.csv``, ``trajectories.parquet`` (GeoParquet points) and ``trajectories.gpkg`` (layers ``points``,
+  ``paths`` - one line per vehicle - and, when given, ``lanes`` and ``count_lines``);
+* ``summary.json`` - totals and the options used.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyproj
+import shapely
+
+from trafficgeo.camera.model import Camera
+from trafficgeo.geo.mapping import Surface, camera_crs
+from trafficgeo.traffic.lanes import Lanes, lane_visits, main_lane
+from trafficgeo.traffic.lines import CountLine, aggregate_counts, find_crossings
+from trafficgeo.traffic.tracks import ImageTracks
+from trafficgeo.traffic.trajectories import TrajectoryOptions, WorldTracks, world_trajectories
+
+OUTPUT_FILES = ("vehicles.csv", "counts.csv", "crossings.csv", "trajectories.csv", "trajectories.parquet",
+                "trajectories.gpkg", "summary.json")
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """Everything ``analyze`` computes; tables as described in the module docstring."""
+
+    points: pd.DataFrame
+    vehicles: pd.DataFrame
+    crossings: pd.DataFrame
+    counts: pd.DataFrame
+    period: tuple[float, float]  # s, first and last time in the input tracks
+    dropped: dict[str, int]
+    lanes: Lanes | None = None
+    lines: list[CountLine] = field(default_factory=list)
+    options: dict[str, object] = field(default_factory=dict)
+
+
+def add_lanes(world: WorldTracks, lanes: Lanes, *, min_dwell_s: float = 1.0) -> None:
+    """Lane of every point, and each vehicle's main lane, lane sequence and number of lane changes (in place)."""
+    pts, veh = world.points, world.vehicles
+    pts["lane"] = lanes.assign(pts["x"].to_numpy(), pts["y"].to_numpy()) if len(pts) else ""
+    main, seq, changes = [], [], []
+    groups = dict(tuple(pts.groupby("track_id", sort=False))) if len(pts) else {}
+    for tid in veh["track_id"]:
+        g = groups.get(tid)
+        visits = lane_visits(g["time"], g["lane"], min_dwell_s=min_dwell_s) if g is not None else []
+        main.append(main_lane(visits))
+        seq.append(">".join(v.lane for v in visits))
+        changes.append(max(len(visits) - 1, 0))
+    veh["lane"], veh["lanes"], veh["lane_changes"] = main, seq, changes
+
+
+def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lanes | None = None,
+            lines: list[CountLine] | None = None, interval_s: float = 60.0,
+            options: TrajectoryOptions | None = None, progress=None) -> Analysis:
+    """The whole analysis of one set of image tracks (see the module docstring)."""
+    from trafficgeo.traffic.lines import interval_edges
+
+    opts = options or TrajectoryOptions()
+    period = (float(tracks.time.min()), float(tracks.time.max())) if len(tracks) else (0.0, 0.0)
+    interval_edges(*period, interval_s)  # checks the interval before the work
+    world = world_trajectories(camera, surface, tracks, opts, progress=progress)
+    if lanes is not None:
+        add_lanes(world, lanes)
+    else:
+        world.points["lane"] = ""
+        world.vehicles["lane"], world.vehicles["lanes"], world.vehicles["lane_changes"] = "", "", 0
+    if "length_m" in world.vehicles.columns and len(world.points):
+        world.points["length_m"] = world.points["track_id"].map(world.vehicles.set_index("track_id")["length_m"])
+    crossings = find_crossings(world.points, lines or [], lanes)
+    counts = aggregate_counts(crossings, interval_s, *period)
+    return Analysis(points=world.points, vehicles=world.vehicles, crossings=crossings, counts=counts,
+                    period=period, dropped=world.dropped, lanes=lanes, lines=list(lines or []),
+                    options={**asdict(opts), "interval_s": interval_s})
+
+
+# ------------------------------------------------------------------------------------------------ writing
+def _paths_layer(points: pd.DataFrame, vehicles: pd.DataFrame):
+    from trafficgeo.io.gis import Layer
+
+    geoms = []
+    groups = dict(tuple(points.groupby("track_id", sort=False))) if len(points) else {}
+    for tid in vehicles["track_id"]:
+        g = groups.get(tid)
+        xy = g[["x", "y"]].to_numpy() if g is not None else np.zeros((0, 2))
+        geoms.append(shapely.LineString(xy) if len(xy) >= 2 else shapely.from_wkt("LINESTRING EMPTY"))
+    return Layer("paths", geoms, {c: vehicles[c].to_numpy() for c in vehicles.columns})
+
+
+def gis_layers(analysis: Analysis, crs: pyproj.CRS) -> list:
+    """The GeoPackage layers: points, paths, and the lanes and counting lines used."""
+    from trafficgeo.io.gis import Layer, points_layer
+
+    pts = analysis.points
+    attrs = {c: pts[c].to_numpy() for c in pts.columns if c not in ("x", "y", "z", "lon", "lat")}
+    layers = [points_layer("points", pts["x"].to_numpy(), pts["y"].to_numpy(), pts["z"].to_numpy(), attrs, crs),
+              _paths_layer(pts, analysis.vehicles)]
+    if analysis.lanes is not None:
+        layers.append(Layer("lanes", list(analysis.lanes.polygons), {"lane": list(analysis.lanes.names)}))
+    if analysis.lines:
+        layers.append(Layer("count_lines", [ln.geometry for ln in analysis.lines],
+                            {"name": [ln.name for ln in analysis.lines],
+                             "lanes": [",".join(ln.lanes) for ln in analysis.lines]}))
+    return layers
+
+
+def summary(analysis: Analysis) -> dict[str, object]:
+    """Totals for the terminal and ``summary.json``."""
+    veh = analysis.vehicles
+    per_line = analysis.crossings.groupby(["line", "lane", "direction"]).size() if len(analysis.crossings) else []
+    return {
+        "period_s": list(analysis.period),
+        "vehicles": len(veh),
+        "points": len(analysis.points),
+        "dropped_points": analysis.dropped,
+        "outlier_points": int(analysis.points["outlier"].sum()) if len(analysis.points) else 0,
+        "mean_speed_kmh": float(veh["mean_speed_kmh"].mean()) if len(veh) else None,
+        "classes": {str(k): int(v) for k, v in veh["class"].value_counts().items()} if len(veh) else {},
+        "lane_changes": int(veh["lane_changes"].sum()) if len(veh) else 0,
+        "crossings": [{"line": str(k[0]), "lane": str(k[1]), "direction": int(k[2]), "count": int(v)}
+                      for k, v in (per_line.items() if len(per_line) else [])],
+        "options": analysis.options,
+    }
+
+
+def write_analysis(out_dir: str | Path, analysis: Analysis, camera: Camera) -> list[Path]:
+    """Write the outputs (module docstring) into ``out_dir``; returns the paths written."""
+    from trafficgeo.io.atomic import atomic_path, write_text_atomic
+    from trafficgeo.io.gis import write_gis
+    from trafficgeo.io.tables import write_point_table
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    crs = camera_crs(camera)
+    written = []
+    for name, table in (("vehicles.csv", analysis.vehicles), ("counts.csv", analysis.counts),
+                        ("crossings.csv", analysis.crossings)):
+        with atomic_path(out / name) as tmp:
+            table.to_csv(tmp, index=False, na_rep="", float_format="%.4f")
+        written.append(out / name)
+    write_point_table(out / "trajectories.csv", analysis.points, crs)  # lon/lat to 1e-9 degrees
+    written.append(out / "trajectories.csv")
+    if crs is not None and len(analysis.points):
+        layers = gis_layers(analysis, crs)
+        write_gis(out / "trajectories.gpkg", layers, crs)
+        write_gis(out / "trajectories.parquet", layers[:1], crs)
+        written += [out / "trajectories.gpkg", out / "trajectories.parquet"]
+    write_text_atomic(out / "summary.json", json.dumps(summary(analysis), indent=2, default=_json) + "\n")
+    written.append(out / "summary.json")
+    return written
+
+
+def _json(value: object) -> object:
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
+    return str(value)

@@ -1,0 +1,152 @@
+"""Lanes: polygons on the road, the lane of each trajectory point, and each vehicle's lanes and lane changes.
+
+Lanes come from :func:`trafficgeo.traffic.layout.read_layout` as either
+
+* **polygons** - one per lane, named by a ``lane``/``name``/``id`` column (else ``1, 2, ...`` in file order), or
+* **boundary lines** - the lane lines and road edges, in any order and drawing direction. They are ordered across
+  the road; lane ``k`` lies between the k-th and (k+1)-th boundary, numbered ``1, 2, ...`` from the left when
+  looking along the first boundary's drawing direction.
+
+A point outside every lane has lane ``""``; where polygons overlap, the first in file order wins.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import shapely
+
+from trafficgeo.camera.model import Camera
+from trafficgeo.errors import InputError
+from trafficgeo.geo.mapping import Surface
+from trafficgeo.traffic.layout import feature_names, read_layout
+
+
+@dataclass(frozen=True)
+class Lanes:
+    """Named lane polygons in the camera's CRS (units of that CRS)."""
+
+    names: tuple[str, ...]
+    polygons: tuple[shapely.Polygon, ...]
+
+    def __post_init__(self) -> None:
+        if len(self.names) != len(self.polygons) or not self.names:
+            raise ValueError("Lanes needs one name per polygon and at least one lane")
+        if len(set(self.names)) != len(self.names):
+            raise InputError(f"lane names must be unique; got {', '.join(self.names)}")
+
+    def assign(self, x: object, y: object) -> np.ndarray:
+        """The lane name of each point (N,) object array; ``""`` outside every lane or for NaN points."""
+        xa = np.asarray(x, dtype=np.float64).reshape(-1)
+        ya = np.asarray(y, dtype=np.float64).reshape(-1)
+        out = np.full(xa.size, "", dtype=object)
+        free = np.isfinite(xa) & np.isfinite(ya)
+        for name, poly in zip(self.names, self.polygons, strict=True):
+            if not free.any():
+                break
+            inside = np.zeros(xa.size, dtype=bool)
+            inside[free] = shapely.contains_xy(poly, xa[free], ya[free])
+            out[inside] = name
+            free &= ~inside
+        return out
+
+
+def lanes_from_polygons(polygons: list[shapely.Geometry], names: list[str]) -> Lanes:
+    """Lanes from (multi)polygons; multipolygons are merged into one lane shape."""
+    polys = []
+    for name, geom in zip(names, polygons, strict=True):
+        geom = shapely.make_valid(geom)
+        if geom.is_empty or geom.area <= 0:
+            raise InputError(f"lane {name}: the polygon has no area; redraw it")
+        polys.append(geom)
+    return Lanes(tuple(names), tuple(polys))
+
+
+def lanes_from_boundaries(lines: list[shapely.LineString]) -> Lanes:
+    """Lanes between consecutive boundary lines ordered across the road (see the module docstring)."""
+    if len(lines) < 2:
+        raise InputError(f"lane boundaries: got {len(lines)} line; give at least 2 (the two edges of one lane)")
+    ref = np.asarray(lines[0].coords, dtype=np.float64)
+    direction = ref[-1, :2] - ref[0, :2]
+    norm = np.hypot(*direction)
+    if norm == 0:
+        raise InputError("lane boundaries: the first line has no length; redraw it")
+    direction /= norm
+    left = np.array([-direction[1], direction[0]])
+    oriented, offsets = [], []
+    for line in lines:
+        xy = np.asarray(line.coords, dtype=np.float64)[:, :2]
+        if np.dot(xy[-1] - xy[0], direction) < 0:
+            xy = xy[::-1]
+        oriented.append(xy)
+        offsets.append(float(np.dot(xy.mean(axis=0) - ref[0, :2], left)))
+    order = np.argsort(offsets)[::-1]  # leftmost first
+    polys = []
+    for k in range(len(order) - 1):
+        a, b = oriented[order[k]], oriented[order[k + 1]]
+        if abs(offsets[order[k]] - offsets[order[k + 1]]) < 1e-9:
+            raise InputError("lane boundaries: two lines lie on top of each other; remove one")
+        poly = shapely.make_valid(shapely.Polygon(np.vstack([a, b[::-1]])))
+        if poly.area <= 0:
+            raise InputError(f"lane boundaries: lines {order[k] + 1} and {order[k + 1] + 1} enclose no area")
+        polys.append(poly)
+    return Lanes(tuple(str(k + 1) for k in range(len(polys))), tuple(polys))
+
+
+def read_lanes(path: str | Path, camera: Camera, surface: Surface | None) -> Lanes:
+    """Lanes from a GIS file of polygons or boundary lines, or a CSV of boundary lines drawn in the image."""
+    gdf = read_layout(path, camera, surface, "--lanes")
+    kinds = set(gdf.geometry.geom_type)
+    if kinds <= {"Polygon", "MultiPolygon"}:
+        return lanes_from_polygons(list(gdf.geometry), feature_names(gdf, ("lane", "name", "id")))
+    if kinds <= {"LineString"}:
+        return lanes_from_boundaries(list(gdf.geometry))
+    if kinds <= {"LineString", "MultiLineString"}:
+        raise InputError(f"--lanes {path}: multi-part lines are ambiguous boundaries; draw each boundary as one line")
+    raise InputError(f"--lanes {path}: geometries are {', '.join(sorted(kinds))}; give lane polygons or lane "
+                     "boundary lines")
+
+
+@dataclass(frozen=True)
+class LaneVisit:
+    """A stretch of a track in one lane: ``lane`` from ``start`` to ``end`` (s)."""
+
+    lane: str
+    start: float
+    end: float
+
+
+def lane_visits(time: object, lanes: object, *, min_dwell_s: float = 1.0) -> list[LaneVisit]:
+    """The lanes a track drove in, in order, ignoring points outside every lane and stays shorter than
+    ``min_dwell_s`` (jitter across a lane line is not a lane change). ``time`` (N,) s increasing."""
+    t = np.asarray(time, dtype=np.float64).reshape(-1)
+    lane = np.asarray(lanes, dtype=object).reshape(-1)
+    use = lane != ""
+    t, lane = t[use], lane[use]
+    if t.size == 0:
+        return []
+    change = np.flatnonzero(lane[1:] != lane[:-1]) + 1
+    starts = np.concatenate([[0], change])
+    ends = np.concatenate([change, [t.size]])
+    runs = [LaneVisit(str(lane[s]), float(t[s]), float(t[e - 1])) for s, e in zip(starts, ends, strict=True)]
+    longest = max(r.end - r.start for r in runs)
+    kept = [r for r in runs if r.end - r.start >= min(min_dwell_s, longest)]
+    merged: list[LaneVisit] = []
+    for r in kept:
+        if merged and merged[-1].lane == r.lane:
+            merged[-1] = LaneVisit(r.lane, merged[-1].start, r.end)
+        else:
+            merged.append(r)
+    return merged
+
+
+def main_lane(visits: list[LaneVisit]) -> str:
+    """The lane a vehicle spent the most time in (``""`` if none)."""
+    if not visits:
+        return ""
+    totals: dict[str, float] = {}
+    for v in visits:
+        totals[v.lane] = totals.get(v.lane, 0.0) + (v.end - v.start)
+    return max(totals, key=lambda k: totals[k])

@@ -1,0 +1,185 @@
+"""Counting lines (virtual detectors): where trajectories cross them, and counts, flows, speeds and headways.
+
+A counting line is a polyline in the camera's CRS. A vehicle is counted once per line, at its first crossing, with
+
+* ``direction`` ``+1`` when it crosses from the left to the right of the line, looking from the line's first vertex
+  to its last, and ``-1`` the other way;
+* the crossing time interpolated between the two trajectory points around it, and the speed there;
+* its lane at the crossing point.
+
+A line may be limited to some lanes with a ``lanes`` attribute (comma-separated lane names).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import shapely
+
+from trafficgeo.camera.model import Camera
+from trafficgeo.errors import InputError
+from trafficgeo.geo.mapping import Surface
+from trafficgeo.traffic.lanes import Lanes
+from trafficgeo.traffic.layout import feature_names, read_layout
+
+CROSSING_COLUMNS = ["line", "track_id", "class", "lane", "direction", "time", "speed_kmh", "x", "y"]
+
+
+@dataclass(frozen=True)
+class CountLine:
+    """A named counting line (CRS units); ``lanes`` limits it to those lanes (empty: all)."""
+
+    name: str
+    geometry: shapely.LineString
+    lanes: tuple[str, ...] = ()
+
+
+def read_count_lines(path: str | Path, camera: Camera, surface: Surface | None) -> list[CountLine]:
+    """Counting lines from a GIS file of lines or a CSV of lines drawn in the image."""
+    gdf = read_layout(path, camera, surface, "--lines")
+    kinds = set(gdf.geometry.geom_type)
+    if not kinds <= {"LineString"}:
+        raise InputError(f"--lines {path}: geometries are {', '.join(sorted(kinds))}; counting lines must be "
+                         "single lines (LineString)")
+    names = feature_names(gdf, ("name", "line", "id"))
+    if len(set(names)) != len(names):
+        raise InputError(f"--lines {path}: line names must be unique; got {', '.join(names)}")
+    lanes = [tuple(s.strip() for s in str(v).split(",") if s.strip()) if isinstance(v, str) else ()
+             for v in (gdf["lanes"] if "lanes" in gdf.columns else [None] * len(gdf))]
+    return [CountLine(n, g, ln) for n, g, ln in zip(names, gdf.geometry, lanes, strict=True)]
+
+
+def _segment_crossings(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where track segments p->q (M, 2) cross the line segment a->b (2,): the fraction along p->q (NaN if they do
+    not cross) and the sign of the crossing (+1 left to right of a->b).
+
+    A point exactly on the line counts as being on its left side (half-open sides), so a track with a point
+    exactly on the line is found crossing once, not twice or never.
+    """
+    d = b - a
+    side_p = d[0] * (p[:, 1] - a[1]) - d[1] * (p[:, 0] - a[0])  # > 0: left of a->b
+    side_q = d[0] * (q[:, 1] - a[1]) - d[1] * (q[:, 0] - a[0])
+    left_p, left_q = side_p >= 0, side_q >= 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.clip(side_p / (side_p - side_q), 0.0, 1.0)
+    c = p + s[:, None] * (q - p)
+    r = ((c[:, 0] - a[0]) * d[0] + (c[:, 1] - a[1]) * d[1]) / (d[0] ** 2 + d[1] ** 2)  # along a->b
+    ok = (left_p != left_q) & (r >= 0) & (r <= 1)
+    return np.where(ok, s, np.nan), np.where(left_p, 1, -1)
+
+
+def find_crossings(points: pd.DataFrame, lines: list[CountLine], lanes: Lanes | None = None) -> pd.DataFrame:
+    """Crossings of trajectories with counting lines (columns :data:`CROSSING_COLUMNS` plus ``length_m`` when the
+    points have it).
+
+    ``points`` has one row per track point, sorted by track then time, with ``track_id, time, x, y, speed_kmh``
+    and optionally ``class``, ``length_m``; positions in the lines' CRS.
+    """
+    tid = points["track_id"].to_numpy()
+    xy = points[["x", "y"]].to_numpy(dtype=np.float64)
+    t = points["time"].to_numpy(dtype=np.float64)
+    v = points["speed_kmh"].to_numpy(dtype=np.float64)
+    same = (tid[1:] == tid[:-1]) & np.all(np.isfinite(xy[1:]) & np.isfinite(xy[:-1]), axis=1)
+    i0 = np.flatnonzero(same)
+    p, q = xy[i0], xy[i0 + 1]
+    rows = []
+    for line in lines:
+        coords = np.asarray(line.geometry.coords, dtype=np.float64)[:, :2]
+        best_s = np.full(i0.size, np.nan)
+        best_sign = np.zeros(i0.size, dtype=np.int64)
+        for k in range(len(coords) - 1):
+            s, sign = _segment_crossings(p, q, coords[k], coords[k + 1])
+            new = np.isfinite(s) & ~np.isfinite(best_s)
+            best_s[new], best_sign[new] = s[new], sign[new]
+        hit = np.flatnonzero(np.isfinite(best_s))
+        if hit.size == 0:
+            continue
+        frac = best_s[hit]
+        seg = i0[hit]
+        cx = xy[seg] + frac[:, None] * (xy[seg + 1] - xy[seg])
+        table = pd.DataFrame({
+            "line": line.name, "track_id": tid[seg], "direction": best_sign[hit],
+            "time": t[seg] + frac * (t[seg + 1] - t[seg]), "speed_kmh": v[seg] + frac * (v[seg + 1] - v[seg]),
+            "x": cx[:, 0], "y": cx[:, 1],
+            "class": points["class"].to_numpy()[seg] if "class" in points.columns else "",
+            "lane": lanes.assign(cx[:, 0], cx[:, 1]) if lanes is not None else "",
+        })
+        if "length_m" in points.columns:
+            table["length_m"] = points["length_m"].to_numpy()[seg]
+        if line.lanes:
+            table = table[table["lane"].isin(line.lanes)]
+        rows.append(table.sort_values("time").drop_duplicates("track_id", keep="first"))
+    columns = CROSSING_COLUMNS + (["length_m"] if "length_m" in points.columns else [])
+    if not rows:
+        return pd.DataFrame({c: pd.Series(dtype=object if c in ("line", "track_id", "class", "lane") else float)
+                             for c in columns})
+    out = pd.concat(rows, ignore_index=True)[columns]
+    return out.sort_values(["line", "time"], kind="stable").reset_index(drop=True)
+
+
+def interval_edges(start: float, end: float, interval_s: float) -> np.ndarray:
+    """Interval boundaries (s) on multiples of ``interval_s`` covering [start, end); the first and last are
+    clipped to the observation period."""
+    if not interval_s > 0:
+        raise InputError(f"--interval {interval_s} must be a positive number of seconds, e.g. 60")
+    if not end > start:
+        return np.array([start, start])
+    k0 = np.floor(start / interval_s)
+    k1 = np.ceil(end / interval_s - 1e-9)
+    edges = np.arange(k0, k1 + 1) * interval_s
+    edges[0], edges[-1] = start, end
+    return edges
+
+
+def aggregate_counts(crossings: pd.DataFrame, interval_s: float, start: float, end: float) -> pd.DataFrame:
+    """Counts per line, lane, direction and interval over the observed period [start, end) (s).
+
+    Columns: ``line, lane, direction, interval_start, interval_end, count, count_<class>...,
+    flow_veh_h`` (count over the interval's observed duration), ``time_mean_speed_kmh`` (arithmetic mean of the
+    spot speeds), ``space_mean_speed_kmh`` (their harmonic mean), ``mean_headway_s``, ``min_headway_s`` (time
+    since the previous vehicle over the same line, in the same lane and direction) and ``mean_gap_s`` (headway less
+    the time the previous vehicle took to pass its own length; needs ``length_m``). Intervals without vehicles
+    are listed with a count of 0 for every line, lane and direction seen.
+    """
+    edges = interval_edges(start, end, interval_s)
+    classes = sorted(c for c in crossings["class"].astype(str).unique() if c) if len(crossings) else []
+    groups = crossings.groupby(["line", "lane", "direction"], sort=True) if len(crossings) else []
+    rows = []
+    for (line, lane, direction), g in groups:
+        g = g.sort_values("time")
+        t = g["time"].to_numpy(dtype=np.float64)
+        speed = g["speed_kmh"].to_numpy(dtype=np.float64)
+        headway = np.concatenate([[np.nan], np.diff(t)])
+        if "length_m" in g.columns:
+            lead_len = np.concatenate([[np.nan], g["length_m"].to_numpy(dtype=np.float64)[:-1]])
+            lead_speed = np.concatenate([[np.nan], speed[:-1]]) / 3.6
+            with np.errstate(divide="ignore", invalid="ignore"):
+                gap = headway - lead_len / lead_speed
+        else:
+            gap = np.full(t.size, np.nan)
+        which = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, len(edges) - 2)
+        for k in range(len(edges) - 1):
+            sel = which == k
+            dur = edges[k + 1] - edges[k]
+            row = {"line": line, "lane": lane, "direction": int(direction), "interval_start": edges[k],
+                   "interval_end": edges[k + 1], "count": int(sel.sum())}
+            cls = g["class"].astype(str).to_numpy()[sel]
+            for c in classes:
+                row[f"count_{c}"] = int(np.sum(cls == c))
+            s = speed[sel]
+            s = s[np.isfinite(s) & (s > 0)]
+            row["flow_veh_h"] = row["count"] * 3600.0 / dur if dur > 0 else np.nan
+            row["time_mean_speed_kmh"] = float(s.mean()) if s.size else np.nan
+            row["space_mean_speed_kmh"] = float(s.size / np.sum(1.0 / s)) if s.size else np.nan
+            h, gp = headway[sel], gap[sel]
+            row["mean_headway_s"] = float(np.nanmean(h)) if np.isfinite(h).any() else np.nan
+            row["min_headway_s"] = float(np.nanmin(h)) if np.isfinite(h).any() else np.nan
+            row["mean_gap_s"] = float(np.nanmean(gp)) if np.isfinite(gp).any() else np.nan
+            rows.append(row)
+    columns = ["line", "lane", "direction", "interval_start", "interval_end", "count",
+               *[f"count_{c}" for c in classes], "flow_veh_h", "time_mean_speed_kmh", "space_mean_speed_kmh",
+               "mean_headway_s", "min_headway_s", "mean_gap_s"]
+    return pd.DataFrame(rows, columns=columns)

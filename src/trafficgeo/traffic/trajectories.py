@@ -1,0 +1,310 @@
+"""World trajectories from image tracks: ground points through the camera, smoothing, per-point and per-vehicle
+kinematics.
+
+For each track point the ground contact pixel is mapped to the road surface (:func:`pixels_to_world`). Its
+uncertainty is the pixel noise ``pixel_sigma`` carried through the local image-to-ground Jacobian, so far points
+are trusted less, and mostly along the viewing ray. Each track is then smoothed in metres by a Kalman filter + RTS
+smoother (:mod:`trafficgeo.traffic.smoothing`) that rejects outlier points. A run of ``split_outliers`` rejected
+points in a row means the track jumped to another vehicle (an ID switch): the track is split there, as it is at
+gaps longer than ``max_gap_s``; the parts are named ``<track>.1``, ``<track>.2``, ...
+A box cut off by the left, right or bottom edge of the frame does not show where the vehicle meets the road: such
+points are not used (``box_clipped``).
+
+With boxes, the bottom centre of a box is not the footprint centre (the lowest point of a vehicle is its nearest
+bottom corner). A second pass fits a level cuboid of the class's typical size, heading along the smoothed track,
+to each box (:mod:`trafficgeo.traffic.boxes`) and smooths again; it also estimates each vehicle's length where the
+view allows.
+
+Units: positions in the camera CRS's units (columns ``x, y, z``), distances in metres, speeds in km/h, headings in
+degrees clockwise from north, accelerations in m/s^2, times in seconds.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from trafficgeo.camera.model import Camera
+from trafficgeo.crs import metres_per_unit
+from trafficgeo.errors import InputError
+from trafficgeo.geo.mapping import Surface, camera_crs, lonlat_of, pixels_to_world
+from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, smooth_track
+from trafficgeo.traffic.tracks import ImageTracks
+
+MIN_MOVING_SPEED = 1.0  # m/s: below this a smoothed heading is noise
+BOX_FIT_TOL_PX = 0.02  # the cuboid fit stops when the box's centre and bottom match to this (px): far below noise
+
+
+@dataclass(frozen=True)
+class TrajectoryOptions:
+    """How image tracks become world trajectories (see the module docstring)."""
+
+    pixel_sigma: float = 2.0  # px, 1-sigma noise of a ground contact point in the image
+    accel_sigma: float = 1.5  # m/s^2, spectral density^(1/2) of the white-noise acceleration
+    gate: float = CHI2_2DOF_999  # chi-square (2 dof) gate for outlier points
+    split_outliers: int = 5  # this many rejected points in a row split a track
+    max_gap_s: float = 5.0  # a longer gap in time splits a track
+    min_points: int = 3  # shorter tracks (after splitting) are dropped
+    box_correction: bool = True  # fit a cuboid to each box (tracks with boxes only)
+    estimate_length: bool = False  # estimate each vehicle's length from its boxes (slower)
+    frame_margin_px: float = 2.0  # boxes this close to the frame's edge are cut off by it: not used
+
+    def __post_init__(self) -> None:
+        checks = {"pixel_sigma": self.pixel_sigma > 0, "accel_sigma": self.accel_sigma > 0, "gate": self.gate > 0,
+                  "split_outliers": self.split_outliers >= 1, "max_gap_s": self.max_gap_s > 0,
+                  "min_points": self.min_points >= 2}
+        for name, ok in checks.items():
+            if not ok:
+                raise InputError(f"trajectory option {name}={getattr(self, name)!r} is out of range; it must be "
+                                 f"positive{' and at least 2' if name == 'min_points' else ''}")
+
+
+@dataclass(frozen=True)
+class WorldTracks:
+    """``points``: one row per kept track point; ``vehicles``: one row per (split) track; ``dropped``: input
+    points not used, by reason (e.g. ``{"above_horizon": 3, "short_track": 12}``)."""
+
+    points: pd.DataFrame
+    vehicles: pd.DataFrame
+    dropped: dict[str, int]
+
+
+# ------------------------------------------------------------------------------------------------ ground points
+def ground_covariance(camera: Camera, surface: Surface, uv: np.ndarray, xyz: np.ndarray, pixel_sigma: float,
+                      m_per_unit: float) -> np.ndarray:
+    """(N, 2, 2) horizontal covariance (m^2) of ground points ``xyz`` from ``pixel_sigma`` px of image noise:
+    ``pixel_sigma^2 J J^T`` with J the ground-from-pixel Jacobian by one-pixel differences. Where a neighbour pixel
+    does not reach the road, an isotropic sigma of ``pixel_sigma * range / focal / sin(incidence)`` is used."""
+    n = uv.shape[0]
+    cols = []
+    for du, dv in ((1.0, 0.0), (0.0, 1.0)):
+        nb = pixels_to_world(camera, uv + [du, dv], surface, with_lonlat=False, frame_margin_px=2.0)
+        cols.append((nb.xyz[:, :2] - xyz[:, :2]) * m_per_unit)
+    J = np.stack(cols, axis=2)  # (N, 2, 2): d(x, y) / d(u, v)
+    cov = pixel_sigma**2 * np.einsum("nij,nkj->nik", J, J) + (0.02**2) * np.eye(2)
+    bad = ~np.all(np.isfinite(cov.reshape(n, 4)), axis=1)
+    if bad.any():
+        rng = np.linalg.norm((xyz[bad] - camera.position) * m_per_unit, axis=1)
+        sin_inc = np.clip(np.abs((xyz[bad, 2] - camera.position[2]) * m_per_unit) / np.maximum(rng, 1e-9), 0.05, 1)
+        s = pixel_sigma * rng / camera.focal_px / sin_inc
+        cov[bad] = s[:, None, None] ** 2 * np.eye(2)
+    return cov
+
+
+def clipped_boxes(camera: Camera, box: np.ndarray, margin_px: float) -> np.ndarray:
+    """Boxes (N, 4) that touch the left, right or bottom edge of the frame: the vehicle is cut off there, so the
+    box's bottom centre is not its ground point. NaN boxes are not clipped."""
+    w, h = camera.image_size
+    with np.errstate(invalid="ignore"):
+        return (box[:, 0] <= margin_px) | (box[:, 2] >= w - 1 - margin_px) | (box[:, 3] >= h - 1 - margin_px)
+
+
+# ------------------------------------------------------------------------------------------------ splitting
+def _runs(mask: np.ndarray, min_len: int) -> list[int]:
+    """Start indices of runs of True at least ``min_len`` long."""
+    starts = []
+    k = 0
+    while k < mask.size:
+        if mask[k]:
+            e = k
+            while e < mask.size and mask[e]:
+                e += 1
+            if e - k >= min_len:
+                starts.append(k)
+            k = e
+        else:
+            k += 1
+    return starts
+
+
+def _smooth_segments(t: np.ndarray, xy_m: np.ndarray, cov: np.ndarray, opts: TrajectoryOptions,
+                     segments: list[np.ndarray] | None = None) -> list[tuple[np.ndarray, SmoothedTrack]]:
+    """Smooth one track's points (indices into t); split at long gaps and outlier runs unless ``segments`` are
+    given. Returns (indices, smoothed) per part of at least ``min_points`` points."""
+    if segments is None:
+        cuts = np.flatnonzero(np.diff(t) > opts.max_gap_s) + 1
+        pending = [s for s in np.split(np.arange(t.size), cuts)]
+        fixed = False
+    else:
+        pending, fixed = list(segments), True
+    done = []
+    while pending:
+        idx = pending.pop(0)
+        if idx.size < opts.min_points:
+            continue
+        sm = smooth_track(t[idx], xy_m[idx], cov[idx], accel_sigma=opts.accel_sigma, gate=opts.gate)
+        starts = [] if fixed else _runs(sm.outlier, opts.split_outliers)
+        if starts:
+            pending[:0] = [idx[: starts[0]], idx[starts[0]:]]
+            continue
+        done.append((idx, sm))
+    return done
+
+
+# ------------------------------------------------------------------------------------------------ main
+def _track_slices(track_id: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    keys, first = np.unique(track_id, return_index=True)
+    order = np.argsort(first)
+    bounds = np.append(np.sort(first), track_id.size)
+    return [(str(keys[o]), np.arange(bounds[k], bounds[k + 1])) for k, o in enumerate(order)]
+
+
+def _majority(values: np.ndarray) -> str:
+    vals = [str(v) for v in values if str(v)]
+    if not vals:
+        return ""
+    names, counts = np.unique(vals, return_counts=True)
+    return str(names[np.argmax(counts)])
+
+
+def _fill_heading(sm: SmoothedTrack) -> np.ndarray:
+    """Smoothed heading (deg) where the vehicle moves; the heading of the nearest moving point elsewhere; NaN for a
+    vehicle that never moves."""
+    moving = sm.speed > MIN_MOVING_SPEED
+    if not moving.any():
+        return np.full(sm.time.size, np.nan)
+    idx = np.flatnonzero(moving)
+    nearest = idx[np.clip(np.searchsorted(idx, np.arange(sm.time.size)), 0, idx.size - 1)]
+    return np.where(moving, sm.heading_deg, sm.heading_deg[nearest])
+
+
+def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
+                       options: TrajectoryOptions | None = None,
+                       progress: Callable[[int, int], None] | None = None) -> WorldTracks:
+    """Map, smooth and describe every track (see the module docstring). ``progress(done, total)`` is called per
+    track."""
+    opts = options or TrajectoryOptions()
+    crs = camera_crs(camera)
+    m = metres_per_unit(crs) if crs is not None else 1.0
+    uv = np.column_stack([tracks.u, tracks.v])
+    ground = pixels_to_world(camera, uv, surface, with_lonlat=False)
+    status = ground.status.copy()
+    status[ground.ok & clipped_boxes(camera, tracks.box, opts.frame_margin_px)] = "box_clipped"
+    ok = status == "ok"
+    dropped: dict[str, int] = {}
+    for name, count in zip(*np.unique(status[~ok].astype(str), return_counts=True), strict=True):
+        dropped[str(name)] = int(count)
+    cov = np.full((len(tracks), 2, 2), np.nan)
+    cov[ok] = ground_covariance(camera, surface, uv[ok], ground.xyz[ok], opts.pixel_sigma, m)
+    origin = camera.position[:2]
+    xy_m = (ground.xyz[:, :2] - origin) * m
+    has_box = np.all(np.isfinite(tracks.box), axis=1)
+    use_boxes = opts.box_correction and bool(np.any(has_box & ok))
+
+    measured = ground.xyz[:, :2].copy()  # the ground point each smoothed position was fitted to (CRS units)
+    parts = []
+    slices = _track_slices(tracks.track_id)
+    for n_done, (tid, rows) in enumerate(slices, start=1):
+        rows = rows[ok[rows]]
+        if rows.size:
+            segs = _smooth_segments(tracks.time[rows], xy_m[rows], cov[rows], opts)
+            sizes = [(float("nan"), float("nan"))] * len(segs)
+            if use_boxes and segs:
+                segs, measured[rows], sizes = _box_pass(camera, surface, tracks, rows, segs, cov, m, opts)
+            for k, ((idx, sm), size) in enumerate(zip(segs, sizes, strict=True), start=1):
+                name = tid if len(segs) == 1 else f"{tid}.{k}"
+                parts.append((name, tid, rows[idx], sm, size))
+            short = rows.size - sum(idx.size for idx, _ in segs)
+            if short:
+                dropped["short_track"] = dropped.get("short_track", 0) + int(short)
+        if progress is not None:
+            progress(n_done, len(slices))
+    return _assemble(camera, surface, tracks, ground, measured, parts, m, dropped)
+
+
+def _box_pass(camera: Camera, surface: Surface, tracks: ImageTracks, rows: np.ndarray,
+              segs: list[tuple[np.ndarray, SmoothedTrack]], cov: np.ndarray, m: float,
+              opts: TrajectoryOptions) -> tuple[list, np.ndarray, list[tuple[float, float]]]:
+    """Second pass for one track: cuboid-corrected ground points, smoothed again on the same segments. Returns
+    the parts, the ground points used (CRS units; the bottom-centre point where the fit failed) and each part's
+    length estimate (m, 1-sigma m)."""
+    from trafficgeo.traffic.boxes import box_ground_points, dimensions_for
+
+    heading = np.full(rows.size, np.nan)
+    for idx, sm in segs:
+        heading[idx] = _fill_heading(sm)
+    dims = dimensions_for(tracks.vclass[rows])
+    fit = box_ground_points(camera, surface, tracks.box[rows], heading, dims, iterations=15, tol_px=BOX_FIT_TOL_PX)
+    good = fit.status == "ok"
+    if not good.any():
+        return segs, fit.naive_xyz[:, :2], [(float("nan"), float("nan"))] * len(segs)
+    # Where the cuboid fit fails, the bottom-centre point is up to half a vehicle off: keep it in the track only
+    # as a hint (a 100 m sigma), so the smoother bridges these points from their neighbours.
+    used = np.where(good[:, None], fit.xyz[:, :2], fit.naive_xyz[:, :2])
+    cov_rows = np.where(good[:, None, None], cov[rows], (100.0**2) * np.eye(2))
+    segs = _smooth_segments(tracks.time[rows], (used - camera.position[:2]) * m, cov_rows, opts,
+                            segments=[idx for idx, _ in segs])
+    sizes = [_vehicle_length(camera, surface, heading[idx], tracks.box[rows][idx], dims[idx], good[idx], opts)
+             if opts.estimate_length else (float("nan"), float("nan")) for idx, _ in segs]
+    return segs, used, sizes
+
+
+def _vehicle_length(camera: Camera, surface: Surface, heading: np.ndarray, boxes: np.ndarray, dims: np.ndarray,
+                    good: np.ndarray, opts: TrajectoryOptions, max_frames: int = 40) -> tuple[float, float]:
+    """Length (m) and its 1-sigma (m) of one vehicle from up to ``max_frames`` of its boxes (NaN where the view
+    does not determine it, e.g. seen only from behind; see :func:`trafficgeo.traffic.boxes.estimate_length_refit`).
+    The box's top edge is not used: real roofs are shorter than their vehicles."""
+    from trafficgeo.traffic.boxes import estimate_length_refit
+
+    idx = np.flatnonzero(good)
+    if idx.size < 5:
+        return float("nan"), float("nan")
+    idx = idx[np.linspace(0, idx.size - 1, min(max_frames, idx.size)).round().astype(int)]
+    length0, width, height = np.median(dims[idx], axis=0)
+    return estimate_length_refit(camera, surface, heading[idx], boxes[idx], float(width), float(height),
+                                 length0_m=float(length0), pixel_sigma=opts.pixel_sigma, use_top=False)
+
+
+def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, measured: np.ndarray, parts: list,
+              m: float, dropped: dict[str, int]) -> WorldTracks:
+    crs = camera_crs(camera)
+    origin = camera.position[:2]
+    point_tables, vehicle_rows = [], []
+    for name, source, rows, sm, (length, length_std) in parts:
+        x = origin[0] + sm.x / m
+        y = origin[1] + sm.y / m
+        vclass = _majority(tracks.vclass[rows])
+        step = np.hypot(np.diff(sm.x), np.diff(sm.y))
+        duration = float(sm.time[-1] - sm.time[0])
+        path = float(step.sum())
+        point_tables.append(pd.DataFrame({
+            "track_id": name, "source_track": source, "frame": tracks.frame[rows], "time": sm.time,
+            "u": tracks.u[rows], "v": tracks.v[rows], "x_obs": measured[rows, 0], "y_obs": measured[rows, 1],
+            "x": x, "y": y, "speed_kmh": 3.6 * sm.speed, "speed_std_kmh": 3.6 * sm.speed_std,
+            "heading_deg": sm.heading_deg, "accel_mps2": sm.accel, "position_std_m": sm.position_std,
+            "outlier": sm.outlier, "distance_m": ground.distance_m[rows], "class": vclass,
+        }))
+        vehicle_rows.append({
+            "track_id": name, "source_track": source, "class": vclass, "first_time": float(sm.time[0]),
+            "last_time": float(sm.time[-1]), "duration_s": duration, "points": int(rows.size),
+            "outliers": int(sm.outlier.sum()), "path_length_m": path,
+            "mean_speed_kmh": 3.6 * path / duration if duration > 0 else np.nan,
+            "mean_speed_std_kmh": 3.6 * float(np.hypot(sm.position_std[0], sm.position_std[-1])) / duration
+            if duration > 0 else np.nan,
+            "median_speed_kmh": float(np.median(3.6 * sm.speed)),
+            "speed_std_kmh": float(np.sqrt(np.mean(sm.speed_std**2))) * 3.6,
+            "min_distance_m": float(np.nanmin(ground.distance_m[rows])),
+            "length_m": length, "length_std_m": length_std,
+        })
+    points = pd.concat(point_tables, ignore_index=True) if point_tables else _empty_points()
+    if len(points):
+        points["z"] = surface.elevation(points["x"].to_numpy(), points["y"].to_numpy())
+        lon, lat = lonlat_of(points["x"].to_numpy(), points["y"].to_numpy(), crs)
+        if lon is not None:
+            points["lon"], points["lat"] = lon, lat
+    vehicles = pd.DataFrame(vehicle_rows, columns=VEHICLE_COLUMNS)
+    return WorldTracks(points=points, vehicles=vehicles, dropped=dropped)
+
+
+POINT_COLUMNS = ["track_id", "source_track", "frame", "time", "u", "v", "x_obs", "y_obs", "x", "y", "speed_kmh",
+                 "speed_std_kmh", "heading_deg", "accel_mps2", "position_std_m", "outlier", "distance_m", "class"]
+VEHICLE_COLUMNS = ["track_id", "source_track", "class", "first_time", "last_time", "duration_s", "points",
+                   "outliers", "path_length_m", "mean_speed_kmh", "mean_speed_std_kmh", "median_speed_kmh",
+                   "speed_std_kmh", "min_distance_m", "length_m", "length_std_m"]
+
+
+def _empty_points() -> pd.DataFrame:
+    return pd.DataFrame({c: pd.Series(dtype=float) for c in POINT_COLUMNS})

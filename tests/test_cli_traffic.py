@@ -1,0 +1,153 @@
+"""``trafficgeo analyze`` end to end on a generated scene with known vehicles, and its bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+import pytest
+import shapely
+
+from cli_support import invoke
+from trafficgeo.camera.io import write_camera_json
+from trafficgeo.camera.model import Camera
+from trafficgeo.traffic.boxes import cuboid_boxes
+
+E0, N0, Z0 = 500000.0, 5000000.0, 100.0
+CRS = "EPSG:32633"
+FPS = 25.0
+# (track, lane centre x offset from E0, start y, speed m/s, class, dims); lanes: x in [-7, -3.5] and [-3.5, 0]
+VEHICLES = [("1", -1.75, 10.0, 50 / 3.6, "car", (4.5, 1.8, 1.5)),
+            ("2", -5.25, 5.0, 70 / 3.6, "car", (4.5, 1.8, 1.5)),
+            ("3", -1.75, -10.0, 40 / 3.6, "truck", (12.0, 2.55, 3.8))]
+
+
+def _camera() -> Camera:
+    return Camera.from_orientation((1920, 1080), 1700.0, [E0 + 5.0, N0 - 10.0, Z0 + 8.0], 350.0, 10.0, crs=CRS)
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("traffic_scene")
+    cam = _camera()
+    write_camera_json(root / "camera.json", cam)
+    rng = np.random.default_rng(0)
+    rows = []
+    t = np.arange(0.0, 6.0, 1.0 / FPS)
+    for tid, x, y0, speed, cls, (length, width, height) in VEHICLES:
+        centre = np.column_stack([np.full(t.size, E0 + x), N0 + y0 + speed * t, np.full(t.size, Z0)])
+        box = cuboid_boxes(cam, centre, np.zeros(t.size), np.full(t.size, length), np.full(t.size, width),
+                           np.full(t.size, height)) + rng.normal(0, 1.0, (t.size, 4))
+        inside = (box[:, 0] > 3) & (box[:, 2] < 1916) & (box[:, 3] < 1076) & (box[:, 1] > 0)
+        for k in np.flatnonzero(inside):
+            rows.append({"frame": k, "track_id": tid, "class": cls, "x1": box[k, 0], "y1": box[k, 1],
+                         "x2": box[k, 2], "y2": box[k, 3]})
+    pd.DataFrame(rows).to_csv(root / "tracks.csv", index=False)
+    lanes = gpd.GeoDataFrame({"lane": ["inner", "outer"]}, geometry=[
+        shapely.box(E0 - 3.5, N0 - 50, E0, N0 + 300), shapely.box(E0 - 7.0, N0 - 50, E0 - 3.5, N0 + 300)], crs=CRS)
+    lanes.to_crs("EPSG:4326").to_file(root / "lanes.geojson")  # GeoJSON is lon/lat: reprojected on reading
+    line_px = cam.project(np.array([[E0 - 8.0, N0 + 40.0, Z0], [E0 + 1.0, N0 + 40.0, Z0]]))
+    pd.DataFrame({"line": ["north40", "north40"], "u": line_px[:, 0], "v": line_px[:, 1]}).to_csv(
+        root / "lines.csv", index=False)
+    return {"root": root, "camera": root / "camera.json", "tracks": root / "tracks.csv",
+            "lanes": root / "lanes.geojson", "lines": root / "lines.csv"}
+
+
+def test_analyze_writes_vehicles_counts_and_trajectories(scene: dict[str, Path], tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    code, stdout, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
+                                  "--lanes", scene["lanes"], "--lines", scene["lines"], "--interval", 60, "--out", out)
+    assert code == 0, stderr
+    assert "3 vehicles" in stdout and "north40" in stdout
+    veh = pd.read_csv(out / "vehicles.csv", dtype={"track_id": str, "lane": str}).set_index("track_id")
+    for tid, _x, _y0, speed, cls, _dims in VEHICLES:
+        assert veh.loc[tid, "mean_speed_kmh"] == pytest.approx(3.6 * speed, abs=1.0), tid
+        assert veh.loc[tid, "class"] == cls
+    assert veh.loc["1", "lane"] == "inner" and veh.loc["2", "lane"] == "outer" and veh.loc["3", "lane"] == "inner"
+    assert (veh["lane_changes"] == 0).all()
+    cr = pd.read_csv(out / "crossings.csv", dtype={"track_id": str, "lane": str, "line": str})
+    assert sorted(cr["track_id"]) == ["1", "2", "3"]
+    c1 = cr.set_index("track_id").loc["1"]
+    assert c1["time"] == pytest.approx((40.0 - 10.0) / (50 / 3.6), abs=0.05)  # truth: 2.16 s
+    assert c1["speed_kmh"] == pytest.approx(50.0, abs=1.5)
+    counts = pd.read_csv(out / "counts.csv", dtype={"lane": str})
+    assert counts.groupby("lane")["count"].sum().to_dict() == {"inner": 2, "outer": 1}
+    assert counts["count_truck"].sum() == 1
+    pts = pd.read_csv(out / "trajectories.csv", dtype={"track_id": str})
+    assert {"x", "y", "z", "lon", "lat", "speed_kmh", "heading_deg", "lane"} <= set(pts.columns)
+    layers = set(gpd.list_layers(out / "trajectories.gpkg")["name"])
+    assert layers == {"points", "paths", "lanes", "count_lines"}
+    paths = gpd.read_file(out / "trajectories.gpkg", layer="paths")
+    assert len(paths) == 3 and paths.crs.to_epsg() == 32633
+    assert len(gpd.read_parquet(out / "trajectories.parquet")) == len(pts)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["vehicles"] == 3
+
+
+def test_box_correction_moves_points_to_the_footprint_centre(scene: dict[str, Path], tmp_path: Path) -> None:
+    """Without the cuboid fit the ground point is the box's bottom: ~half a car length short of the centre."""
+    on, off = tmp_path / "on", tmp_path / "off"
+    for out, flag in ((on, "--box-correction"), (off, "--no-box-correction")):
+        code, _, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
+                                 "--out", out, flag)
+        assert code == 0, stderr
+    err = {}
+    for name, out in (("on", on), ("off", off)):
+        pts = pd.read_csv(out / "trajectories.csv", dtype={"track_id": str})
+        car = pts[pts["track_id"] == "1"]
+        truth_y = N0 + 10.0 + 50 / 3.6 * car["frame"].to_numpy() / FPS
+        err[name] = float(np.median(np.abs(car["y"].to_numpy() - truth_y)))
+    assert err["on"] < 0.25 and err["off"] > 1.0, err
+
+
+def test_boundary_lines_and_mot_input(scene: dict[str, Path], tmp_path: Path) -> None:
+    bounds = gpd.GeoDataFrame(geometry=[shapely.LineString([(E0 + x, N0 - 50), (E0 + x, N0 + 300)])
+                                        for x in (0.0, -7.0, -3.5)], crs=CRS)
+    bounds.to_file(tmp_path / "bounds.gpkg")
+    df = pd.read_csv(scene["tracks"])
+    mot = pd.DataFrame({"frame": df["frame"] + 1, "id": df["track_id"], "x": df["x1"], "y": df["y1"],
+                        "w": df["x2"] - df["x1"], "h": df["y2"] - df["y1"], "conf": 1.0, "a": -1, "b": -1, "c": -1})
+    mot.to_csv(tmp_path / "tracks.txt", header=False, index=False)
+    out = tmp_path / "out"
+    code, _stdout, stderr = invoke("analyze", scene["camera"], tmp_path / "tracks.txt", "--fps", FPS,
+                                  "--surface", Z0, "--lanes", tmp_path / "bounds.gpkg", "--out", out)
+    assert code == 0, stderr
+    veh = pd.read_csv(out / "vehicles.csv", dtype={"track_id": str, "lane": str}).set_index("track_id")
+    # boundaries ordered left to right looking north: lane 1 is x in [-7, -3.5]
+    assert veh.loc["2", "lane"] == "1" and veh.loc["1", "lane"] == "2"
+
+
+BAD = {
+    "no_fps": (lambda s, t: [], "--fps"),
+    "bad_interval": (lambda s, t: ["--fps", 25, "--interval", 0], "--interval"),
+    "missing_lanes": (lambda s, t: ["--fps", 25, "--lanes", t / "nope.gpkg"], "not found"),
+    "points_as_lanes": (lambda s, t: ["--fps", 25, "--lanes", _points_file(t)], "lane polygons"),
+    "line_off_road": (lambda s, t: ["--fps", 25, "--lines", _sky_line(t)], "does not map to the road"),
+    "bad_sigma": (lambda s, t: ["--fps", 25, "--pixel-sigma", -1], "pixel_sigma"),
+}
+
+
+def _points_file(tmp: Path) -> Path:
+    gpd.GeoDataFrame(geometry=[shapely.Point(E0, N0)], crs=CRS).to_file(tmp / "pts.gpkg")
+    return tmp / "pts.gpkg"
+
+
+def _sky_line(tmp: Path) -> Path:
+    pd.DataFrame({"line": ["a", "a"], "u": [100.0, 900.0], "v": [5.0, 5.0]}).to_csv(tmp / "sky.csv", index=False)
+    return tmp / "sky.csv"
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_input_exits_2_with_one_line_and_nothing_written(case: str, scene: dict[str, Path],
+                                                              tmp_path: Path) -> None:
+    extra, expect = BAD[case]
+    out = tmp_path / "out"
+    code, _stdout, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--surface", Z0, "--out", out,
+                                   *extra(scene, tmp_path))
+    assert code == 2, stderr
+    assert expect in stderr and "Traceback" not in stderr
+    assert len(stderr.strip().splitlines()) == 1
+    assert not out.exists()

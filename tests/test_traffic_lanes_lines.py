@@ -1,0 +1,167 @@
+"""Lanes, counting lines, crossings and counts on hand-made geometry with known answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from trafficgeo.errors import InputError
+from trafficgeo.traffic.lanes import Lanes, lane_visits, lanes_from_boundaries, lanes_from_polygons, main_lane
+from trafficgeo.traffic.lines import CountLine, aggregate_counts, find_crossings, interval_edges
+
+E0, N0 = 500000.0, 5000000.0  # large projected coordinates: nothing may lose precision
+
+
+def _boundaries(reverse_some: bool = False) -> list[shapely.LineString]:
+    """A road along +y with boundaries at x = 0, 3.5, 7 (left to right looking north), in shuffled order."""
+    lines = []
+    for k, x in enumerate((3.5, 7.0, 0.0)):
+        a, b = (E0 + x, N0), (E0 + x, N0 + 100)
+        lines.append(shapely.LineString([b, a] if reverse_some and k == 1 else [a, b]))
+    return lines
+
+
+def test_lanes_from_boundaries_ordered_left_to_right() -> None:
+    lanes = lanes_from_boundaries(_boundaries(reverse_some=True))
+    assert lanes.names == ("1", "2")
+    got = lanes.assign([E0 + 1.0, E0 + 5.0, E0 + 8.0, np.nan], [N0 + 50] * 4)
+    assert list(got) == ["1", "2", "", ""]
+
+
+def test_lanes_from_boundaries_needs_two_distinct_lines() -> None:
+    with pytest.raises(InputError, match="at least 2"):
+        lanes_from_boundaries(_boundaries()[:1])
+    line = _boundaries()[0]
+    with pytest.raises(InputError, match="on top of each other"):
+        lanes_from_boundaries([line, line])
+
+
+def test_polygon_lanes_first_wins_and_names_unique() -> None:
+    a = shapely.box(E0, N0, E0 + 4, N0 + 10)
+    b = shapely.box(E0 + 3, N0, E0 + 7, N0 + 10)
+    lanes = lanes_from_polygons([a, b], ["a", "b"])
+    assert list(lanes.assign([E0 + 3.5, E0 + 6], [N0 + 1, N0 + 1])) == ["a", "b"]
+    with pytest.raises(InputError, match="unique"):
+        Lanes(("x", "x"), (a, b))
+    with pytest.raises(InputError, match="no area"):
+        lanes_from_polygons([shapely.LineString([(0, 0), (1, 1)]).buffer(0)], ["z"])
+
+
+def test_lane_visits_ignore_jitter_and_count_changes() -> None:
+    t = np.arange(0, 10, 0.1)
+    lane = np.where(t < 5, "1", "2").astype(object)
+    lane[20] = "2"  # one-frame jitter across the lane line
+    lane[60:63] = ""  # outside every lane for a moment
+    visits = lane_visits(t, lane, min_dwell_s=1.0)
+    assert [v.lane for v in visits] == ["1", "2"]
+    assert visits[0].start == 0.0 and visits[1].end == pytest.approx(9.9)
+    assert main_lane(visits) == "1" or main_lane(visits) == "2"
+    assert lane_visits(t, np.full(t.size, "", dtype=object)) == []
+    # a track shorter than the dwell time still gets its lane
+    assert [v.lane for v in lane_visits(t[:3], ["2", "2", "2"])] == ["2"]
+
+
+def _straight_points(track: str, x: float, speed_ms: float, t0: float, n: int = 40, dt: float = 0.1,
+                     northbound: bool = True, cls: str = "car") -> pd.DataFrame:
+    t = t0 + dt * np.arange(n)
+    y = N0 + (speed_ms * (t - t0) if northbound else 60.0 - speed_ms * (t - t0))
+    return pd.DataFrame({"track_id": track, "time": t, "x": E0 + x, "y": y, "speed_kmh": 3.6 * speed_ms,
+                         "class": cls, "length_m": 4.5})
+
+
+def test_crossings_time_direction_lane_and_once_per_line() -> None:
+    lanes = lanes_from_boundaries(_boundaries())
+    line = CountLine("L1", shapely.LineString([(E0 - 1, N0 + 20), (E0 + 8, N0 + 20)]))  # drawn west -> east
+    pts = pd.concat([
+        _straight_points("a", 1.75, 10.0, 0.0),  # northbound in lane 1: reaches y=20 at t=2.0
+        _straight_points("b", 5.25, 8.0, 1.0, n=80, northbound=False),  # southbound in lane 2: 60-8(t-1)=20 at t=6
+        _straight_points("c", 1.75, 10.0, 10.0, n=10),  # stops short of the line
+    ], ignore_index=True)
+    # "a" wobbles back and forth across the line: still counted once, at the first crossing
+    wob = _straight_points("w", 1.75, 10.0, 20.0, n=5)
+    wob["y"] = N0 + 20 + np.array([-0.5, 0.5, -0.5, 0.5, 1.5])
+    cr = find_crossings(pd.concat([pts, wob], ignore_index=True), [line], lanes)
+    assert list(cr["track_id"]) == ["a", "b", "w"]
+    a, b = cr.iloc[0], cr.iloc[1]
+    assert a["time"] == pytest.approx(2.0) and b["time"] == pytest.approx(6.0)
+    # looking along the line (west -> east), north is on its left: northbound crosses right -> left (-1)
+    assert a["direction"] == -1 and b["direction"] == +1
+    assert a["lane"] == "1" and b["lane"] == "2"
+    assert a["speed_kmh"] == pytest.approx(36.0) and a["x"] == pytest.approx(E0 + 1.75)
+
+
+def test_crossing_exactly_at_a_track_point_is_found_once() -> None:
+    line = CountLine("L", shapely.LineString([(E0 - 5, N0 + 2.0), (E0 + 5, N0 + 2.0)]))
+    pts = _straight_points("a", 0.0, 10.0, 0.0, n=10)  # y = 0, 1, 2 (exactly on the line), 3, ...
+    cr = find_crossings(pts, [line])
+    assert len(cr) == 1 and cr["time"].iloc[0] == pytest.approx(0.2)
+
+
+def test_line_limited_to_lanes_and_polyline_lines() -> None:
+    lanes = lanes_from_boundaries(_boundaries())
+    bent = shapely.LineString([(E0 - 1, N0 + 20), (E0 + 3.5, N0 + 25), (E0 + 8, N0 + 20)])
+    pts = pd.concat([_straight_points("a", 1.75, 10.0, 0.0), _straight_points("b", 5.25, 10.0, 0.0)])
+    only2 = find_crossings(pts, [CountLine("L", bent, ("2",))], lanes)
+    assert list(only2["track_id"]) == ["b"]
+    both = find_crossings(pts, [CountLine("L", bent)], lanes)
+    # above x = 1.75 the bent line is at y = 20 + 5 * 2.75 / 4.5
+    assert both.set_index("track_id").loc["a", "time"] == pytest.approx((20 + 5 * 2.75 / 4.5) / 10.0)
+
+
+def test_no_crossings_gives_empty_table_with_columns() -> None:
+    line = CountLine("L", shapely.LineString([(E0 + 100, N0), (E0 + 101, N0)]))
+    cr = find_crossings(_straight_points("a", 0.0, 10.0, 0.0), [line])
+    assert cr.empty and {"line", "track_id", "time", "direction"} <= set(cr.columns)
+    counts = aggregate_counts(cr, 60.0, 0.0, 120.0)
+    assert counts.empty
+
+
+def test_interval_edges_clip_to_period() -> None:
+    np.testing.assert_allclose(interval_edges(10.0, 130.0, 60.0), [10.0, 60.0, 120.0, 130.0])
+    np.testing.assert_allclose(interval_edges(0.0, 120.0, 60.0), [0.0, 60.0, 120.0])
+    with pytest.raises(InputError, match="interval"):
+        interval_edges(0.0, 1.0, 0.0)
+
+
+def test_aggregate_counts_flow_speeds_headways() -> None:
+    cr = pd.DataFrame({
+        "line": "L", "track_id": ["a", "b", "c", "d"], "class": ["car", "car", "truck", "car"],
+        "lane": ["1", "1", "1", "2"], "direction": [1, 1, 1, 1], "time": [5.0, 8.0, 70.0, 10.0],
+        "speed_kmh": [36.0, 72.0, 54.0, 50.0], "x": 0.0, "y": 0.0, "length_m": [4.5, 4.5, 12.0, 4.5]})
+    counts = aggregate_counts(cr, 60.0, 0.0, 90.0)
+    lane1 = counts[counts["lane"] == "1"].reset_index(drop=True)
+    assert list(lane1["count"]) == [2, 1] and list(lane1["count_car"]) == [2, 0]
+    assert list(lane1["count_truck"]) == [0, 1]
+    assert lane1["flow_veh_h"].tolist() == pytest.approx([120.0, 120.0])  # 1 vehicle in the 30 s second interval
+    assert lane1["time_mean_speed_kmh"][0] == pytest.approx(54.0)
+    assert lane1["space_mean_speed_kmh"][0] == pytest.approx(2 / (1 / 36 + 1 / 72))  # 48 km/h
+    assert lane1["mean_headway_s"][0] == pytest.approx(3.0)
+    assert lane1["mean_gap_s"][0] == pytest.approx(3.0 - 4.5 / 10.0)  # leader 4.5 m at 10 m/s
+    assert lane1["mean_headway_s"][1] == pytest.approx(62.0)
+    lane2 = counts[counts["lane"] == "2"]
+    assert list(lane2["count"]) == [1, 0] and np.isnan(lane2["mean_headway_s"].iloc[0])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-80.0, 80.0), st.floats(0.0, 359.0), st.floats(2.0, 40.0))
+def test_every_straight_track_through_the_line_is_counted_once(offset: float, heading: float, speed: float) -> None:
+    """A straight track through a long line is counted exactly once, at the right time, whatever its heading."""
+    h = np.radians(heading)
+    direction = np.array([np.sin(h), np.cos(h)])
+    line = CountLine("L", shapely.LineString([(E0 - 1000 * direction[1], N0 + 1000 * direction[0]),
+                                              (E0 + 1000 * direction[1], N0 - 1000 * direction[0])]))
+    t = np.arange(0.0, 10.0, 0.04)
+    along = speed * (t - 5.0)  # crosses the line (through E0, N0) at t = 5
+    centre = np.array([E0, N0]) + offset * np.array([direction[1], -direction[0]])
+    xy = centre + along[:, None] * direction
+    pts = pd.DataFrame({"track_id": "a", "time": t, "x": xy[:, 0], "y": xy[:, 1], "speed_kmh": 3.6 * speed})
+    cr = find_crossings(pts, [line])
+    assert len(cr) == 1
+    assert cr["time"].iloc[0] == pytest.approx(5.0, abs=1e-6)
+    # the line is drawn towards the vehicle's right, so its left side is ahead of the vehicle: the vehicle
+    # crosses from the line's right side to its left side
+    assert cr["direction"].iloc[0] == -1

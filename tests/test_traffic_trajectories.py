@@ -1,0 +1,129 @@
+"""World trajectories from image tracks: known vehicles seen through a known camera, with noise and mishaps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from trafficgeo.camera.model import Camera
+from trafficgeo.errors import InputError
+from trafficgeo.geo.surface import ConstantSurface
+from trafficgeo.traffic.tracks import ImageTracks
+from trafficgeo.traffic.trajectories import TrajectoryOptions, ground_covariance, world_trajectories
+
+E0, N0, Z0 = 500000.0, 5000000.0, 100.0
+
+
+def _camera(crs: str = "EPSG:32633", unit: float = 1.0) -> Camera:
+    """8 m up, 5 m east of a road along +y (north), looking north and down 12 degrees."""
+    return Camera.from_orientation((1920, 1080), 1700.0, [(E0 + 5.0) / unit, N0 / unit, (Z0 + 8.0) / unit], 0.0,
+                                   12.0, crs=crs)
+
+
+def _tracks_from_world(camera: Camera, tid: np.ndarray, t: np.ndarray, xyz: np.ndarray,
+                       noise_px: float = 0.0, seed: int = 0, vclass: str = "car") -> ImageTracks:
+    uv = camera.project(xyz) + np.random.default_rng(seed).normal(0, noise_px, (len(t), 2))
+    order = np.lexsort((t, tid))
+    n = len(t)
+    return ImageTracks(track_id=tid[order].astype(object), frame=np.rint(t * 25).astype(int)[order], time=t[order],
+                       u=uv[order, 0], v=uv[order, 1], box=np.full((n, 4), np.nan),
+                       vclass=np.full(n, vclass, dtype=object), score=np.full(n, np.nan))
+
+
+def _straight(track: str, x_off: float, y0: float, speed: float, duration: float, fps: float = 25.0):
+    t = np.arange(0.0, duration, 1.0 / fps)
+    xyz = np.column_stack([np.full(t.size, E0 + x_off), N0 + y0 + speed * t, np.full(t.size, Z0)])
+    return np.full(t.size, track, dtype=object), t, xyz
+
+
+def test_speed_and_path_of_noisy_straight_tracks() -> None:
+    cam = _camera()
+    parts = [_straight("a", -1.75, 15.0, 50 / 3.6, 4.0), _straight("b", -5.25, 20.0, 80 / 3.6, 3.0)]
+    tid, t, xyz = (np.concatenate(p) for p in zip(*parts, strict=True))
+    tracks = _tracks_from_world(cam, tid, t, xyz, noise_px=1.0, seed=3)
+    world = world_trajectories(cam, ConstantSurface(Z0), tracks, TrajectoryOptions(pixel_sigma=1.0))
+    veh = world.vehicles.set_index("track_id")
+    assert veh.loc["a", "mean_speed_kmh"] == pytest.approx(50.0, abs=1.0)
+    assert veh.loc["b", "mean_speed_kmh"] == pytest.approx(80.0, abs=1.5)
+    assert veh.loc["a", "path_length_m"] == pytest.approx(50 / 3.6 * (4.0 - 0.04), abs=1.0)
+    pts = world.points
+    a = pts[pts["track_id"] == "a"]
+    # smoothed positions closer to the truth than the raw ground points
+    truth_y = N0 + 15.0 + 50 / 3.6 * a["time"].to_numpy()
+    raw = np.abs(a["y_obs"].to_numpy() - truth_y)
+    smooth = np.abs(a["y"].to_numpy() - truth_y)
+    assert np.median(smooth) < 0.6 * np.median(raw)
+    assert np.all(np.abs((a["heading_deg"] + 180.0) % 360.0 - 180.0) < 2.0)  # north, either side of 0
+    assert np.all(a["speed_std_kmh"] > 0) and np.all(a["speed_std_kmh"] < 5)
+    assert {"lon", "lat", "z"} <= set(pts.columns) and np.allclose(pts["z"], Z0)
+
+
+def test_id_switch_splits_the_track_and_single_outliers_do_not() -> None:
+    cam = _camera()
+    tid_a, t, xyz_a = _straight("a", -1.75, 15.0, 12.0, 4.0)
+    _, _, xyz_b = _straight("b", -5.25, 25.0, 12.0, 4.0)
+    xyz = xyz_a.copy()
+    xyz[50:] = xyz_b[50:]  # from t = 2 s the tracker follows another vehicle, one lane over and 10 m ahead
+    xyz[20] += [0.0, 6.0, 0.0]  # and one wild point before that
+    tracks = _tracks_from_world(cam, tid_a, t, xyz, noise_px=0.5, seed=1)
+    world = world_trajectories(cam, ConstantSurface(Z0), tracks)
+    names = list(world.vehicles["track_id"])
+    assert names == ["a.1", "a.2"]
+    veh = world.vehicles.set_index("track_id")
+    assert veh.loc["a.1", "last_time"] < 2.0 <= veh.loc["a.2", "first_time"] + 0.3
+    assert veh.loc["a.1", "mean_speed_kmh"] == pytest.approx(43.2, abs=1.5)
+    first = world.points[world.points["track_id"] == "a.1"]
+    assert bool(first["outlier"].to_numpy()[20])
+
+
+def test_points_off_the_road_are_dropped_with_a_reason() -> None:
+    cam = _camera()
+    tid, t, xyz = _straight("a", -1.75, 15.0, 10.0, 2.0)
+    tracks = _tracks_from_world(cam, tid, t, xyz)
+    v = tracks.v.copy()
+    v[:3] = 10.0  # above the horizon (the camera looks down 12 degrees)
+    tracks = ImageTracks(tracks.track_id, tracks.frame, tracks.time, tracks.u, v, tracks.box, tracks.vclass,
+                         tracks.score)
+    short = _tracks_from_world(cam, np.array(["s", "s"], dtype=object), np.array([0.0, 0.04]), xyz[:2])
+    both = ImageTracks(*(np.concatenate([getattr(tracks, f), getattr(short, f)]) for f in
+                         ("track_id", "frame", "time", "u", "v", "box", "vclass", "score")))
+    world = world_trajectories(cam, ConstantSurface(Z0), both)
+    assert world.dropped == {"above_horizon": 3, "short_track": 2}
+    assert list(world.vehicles["track_id"]) == ["a"]
+
+
+def test_feet_crs_gives_the_same_metric_answer() -> None:
+    ft = 1200.0 / 3937.0  # US survey foot in metres
+    cam_m = _camera("EPSG:32633")
+    cam_ft = _camera("EPSG:2240", unit=ft)  # Georgia West, US survey feet (only the unit matters here)
+    tid, t, xyz = _straight("a", -1.75, 15.0, 60 / 3.6, 3.0)
+    tr_m = _tracks_from_world(cam_m, tid, t, xyz, noise_px=1.0, seed=5)
+    tr_ft = _tracks_from_world(cam_ft, tid, t, xyz / ft, noise_px=1.0, seed=5)
+    np.testing.assert_allclose(tr_m.u, tr_ft.u, atol=1e-6)
+    w_m = world_trajectories(cam_m, ConstantSurface(Z0), tr_m)
+    w_ft = world_trajectories(cam_ft, ConstantSurface(Z0 / ft), tr_ft)
+    np.testing.assert_allclose(w_ft.points["speed_kmh"], w_m.points["speed_kmh"], rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(w_ft.points["x"] * ft, w_m.points["x"], atol=1e-6)
+    np.testing.assert_allclose(w_ft.points["distance_m"], w_m.points["distance_m"], rtol=1e-9)
+    assert w_ft.vehicles["mean_speed_kmh"].iloc[0] == pytest.approx(60.0, abs=1.0)
+
+
+def test_ground_covariance_grows_with_range_and_along_the_ray() -> None:
+    cam = _camera()
+    uv = cam.project(np.array([[E0 - 1.75, N0 + 20.0, Z0], [E0 - 1.75, N0 + 80.0, Z0]]))
+    from trafficgeo.geo.mapping import pixels_to_world
+
+    g = pixels_to_world(cam, uv, ConstantSurface(Z0))
+    cov = ground_covariance(cam, ConstantSurface(Z0), uv, g.xyz, 1.0, 1.0)
+    near, far = np.linalg.eigvalsh(cov[0]), np.linalg.eigvalsh(cov[1])
+    assert far[1] > 10 * near[1]  # range^2 / sin(incidence)
+    assert cov[1][1, 1] > 20 * cov[1][0, 0]  # looking north: mostly along y
+    # 1 px at 80 m, 8 m up, f = 1700: about 80 / 1700 / (8.8 / 80) m along the road
+    assert np.sqrt(cov[1][1, 1]) == pytest.approx(80 / 1700 / np.sin(np.arctan2(8, 80)), rel=0.15)
+
+
+def test_options_checked() -> None:
+    with pytest.raises(InputError, match="pixel_sigma"):
+        TrajectoryOptions(pixel_sigma=0.0)
+    with pytest.raises(InputError, match="min_points"):
+        TrajectoryOptions(min_points=1)
