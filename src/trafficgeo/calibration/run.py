@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -14,8 +13,8 @@ from trafficgeo.calibration.params import FULL_NAMES, ParameterModel
 from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, calibrate
 from trafficgeo.calibration.refine import fit_camera
 from trafficgeo.calibration.validation import build_report, gcp_records, stats_record
-from trafficgeo.camera.io import to_json_safe, write_camera_json
-from trafficgeo.io.atomic import write_text_atomic
+from trafficgeo.camera.io import write_camera_json
+from trafficgeo.io.atomic import write_json_atomic
 
 
 @dataclass(frozen=True)
@@ -81,7 +80,7 @@ def run_calibration(gcps: GCPTable, image_size: tuple[int, int], options: Calibr
     cal = calibrate(gcps, image_size, options)
     report = build_report(cal)
     if report_path is not None:
-        write_text_atomic(report_path, json.dumps(to_json_safe(report), indent=2, allow_nan=False) + "\n")
+        write_json_atomic(report_path, report)
     if camera_path is not None:
         write_camera_json(camera_path, cal.camera, camera_extras(report, cal))
     return CalibrationRun(cal, report)

@@ -19,7 +19,6 @@ Only ``image_size``, ``K``, ``R`` and ``position`` are required when reading; ``
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +26,7 @@ import numpy as np
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
-from trafficgeo.io.atomic import write_text_atomic
+from trafficgeo.io.atomic import write_json_atomic
 
 FORMAT = "trafficgeo.camera/1"
 
@@ -49,31 +48,12 @@ def camera_to_dict(camera: Camera) -> dict[str, Any]:
     }
 
 
-def to_json_safe(obj: Any) -> Any:
-    """Replace non-finite floats by None so the JSON stays standard (NaN is not JSON)."""
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, dict):
-        return {k: to_json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [to_json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_json_safe(obj.tolist())
-    if isinstance(obj, np.floating):
-        return to_json_safe(float(obj))
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
-
-
 def write_camera_json(path: str | Path, camera: Camera, extra: dict[str, Any] | None = None) -> None:
     """Write ``camera`` (and extra keys) to ``path`` atomically."""
     doc = camera_to_dict(camera)
     if extra:
         doc.update(extra)
-    write_text_atomic(path, json.dumps(to_json_safe(doc), indent=2, allow_nan=False) + "\n")
+    write_json_atomic(path, doc)
 
 
 def _matrix(doc: dict[str, Any], key: str, shape: tuple[int, ...], where: str) -> np.ndarray:

@@ -68,6 +68,7 @@ def analyze(
     """Image tracks to world trajectories, true speeds (km/h), lanes and counts at counting lines."""
     from rich.progress import Progress
 
+    from trafficgeo.geo.mapping import camera_crs
     from trafficgeo.traffic.analyze import analyze as run_analysis
     from trafficgeo.traffic.analyze import write_analysis
     from trafficgeo.traffic.lanes import read_lanes
@@ -82,8 +83,9 @@ def analyze(
     cam, doc = _camera(camera)
     image_tracks = read_tracks(tracks, fps=fps)
     surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
-    lane_set = read_lanes(lanes, cam, surf) if lanes is not None else None
-    count_lines = read_count_lines(lines, cam, surf) if lines is not None else None
+    crs = camera_crs(cam)
+    lane_set = read_lanes(lanes, crs=crs, camera=cam, surface=surf) if lanes is not None else None
+    count_lines = read_count_lines(lines, crs=crs, camera=cam, surface=surf) if lines is not None else None
     console.print(f"surface: {surf.describe()}")
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task("tracks", total=len(image_tracks.track_ids))
@@ -92,3 +94,98 @@ def analyze(
     written = write_analysis(out, analysis, cam)
     print_analysis(analysis)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")
+
+
+@app.command("compare-sumo")
+def compare_sumo(
+    observed: Annotated[Path, typer.Argument(help="output folder of 'trafficgeo analyze'")],
+    fcd: Annotated[Path, typer.Argument(help="SUMO FCD output (--fcd-output) of the simulation")],
+    net: Annotated[Path | None, typer.Option(help="the simulation's .net.xml (network coordinates -> world)")] = None,
+    net_crs: Annotated[str | None, typer.Option(help="CRS of the network's projection when its PROJ string is not "
+                                                "enough, e.g. EPSG:2949")] = None,
+    lines: Annotated[Path | None, typer.Option(help="counting lines (GIS file in world coordinates); default: the "
+                                               "ones analyze used")] = None,
+    time_offset: Annotated[float, typer.Option(help="simulation time minus observed time (s)")] = 0.0,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="output folder (default: OBSERVED)")] = None,
+) -> None:
+    """Observed vs simulated traffic: per-lane counts (GEH), spot speeds (KS) and travel times."""
+    from trafficgeo.traffic.lines import read_count_lines
+    from trafficgeo.traffic.validation import (
+        compare_with_simulation,
+        read_observed_run,
+        simulated_points,
+        write_comparison,
+    )
+
+    out = out or observed
+    _check_out_dir(out)
+    run = read_observed_run(observed)
+    count_lines = read_count_lines(lines, crs=run.crs) if lines is not None else None
+    sim = simulated_points(fcd, run.crs, net=net, net_crs=net_crs, time_offset_s=time_offset)
+    comparison = compare_with_simulation(run, sim, lines=count_lines)
+    written = write_comparison(out, comparison, run.crs)
+    print_comparison(comparison)
+    console.print(f"wrote {', '.join(p.name for p in written)} in {out}")
+
+
+def print_comparison(comparison) -> None:
+    """GEH per line and lane, speeds, travel times."""
+    from rich.table import Table
+
+    s = comparison.count_summary
+    console.print(f"{s['rows']} counts (line x lane x direction x interval): {s['share_geh_below_5']:.0%} with GEH < 5 "
+                  f"(target >= 85 %), mean GEH {s['mean_geh']:.2f}; vehicles observed {s['total_observed']}, "
+                  f"simulated {s['total_simulated']}")
+    table = Table(title="per line and lane")
+    for col in ("line", "lane", "observed", "simulated", "GEH", "speed obs km/h", "speed sim km/h", "KS"):
+        table.add_column(col, justify="right")
+    speeds = comparison.speeds.set_index(["line", "lane"]) if len(comparison.speeds) else None
+    for g in s["groups"]:
+        key = (g["line"], g["lane"])
+        sp = speeds.loc[key] if speeds is not None and key in speeds.index else None
+        fmt = (lambda v: "-" if v is None or v != v else f"{v:.1f}")  # noqa: E731
+        table.add_row(str(g["line"]), str(g["lane"]) or "-", str(g["observed"]), str(g["simulated"]),
+                      f"{g['geh']:.2f}", fmt(sp["observed_mean_kmh"] if sp is not None else None),
+                      fmt(sp["simulated_mean_kmh"] if sp is not None else None),
+                      "-" if sp is None or sp["ks_statistic"] != sp["ks_statistic"] else f"{sp['ks_statistic']:.2f}")
+    console.print(table)
+    tt = comparison.travel_times
+    if tt:
+        console.print(f"travel time {tt['from_line']} -> {tt['to_line']}: observed median "
+                      f"{tt.get('observed_median_s', float('nan')):.1f} s (n {tt.get('observed_n', 0)}), simulated "
+                      f"{tt.get('simulated_median_s', float('nan')):.1f} s (n {tt.get('simulated_n', 0)}), KS "
+                      f"{tt.get('ks_statistic', float('nan')):.2f}")
+
+
+@app.command("export-fcd")
+def export_fcd(
+    run: Annotated[Path, typer.Argument(help="output folder of 'trafficgeo analyze'")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="SUMO FCD file to write (.xml)")],
+    net: Annotated[Path | None, typer.Option(help="write in this SUMO network's coordinates (.net.xml)")] = None,
+    net_crs: Annotated[str | None, typer.Option(help="CRS of the network's projection, e.g. EPSG:2949")] = None,
+    geo: Annotated[bool, typer.Option(help="write lon/lat (like sumo --fcd-output.geo)")] = False,
+) -> None:
+    """Export the observed trajectories as SUMO FCD (front bumpers, m/s) for replay and comparison in SUMO."""
+    import numpy as np
+    import pandas as pd
+
+    from trafficgeo.io.sumo import write_fcd
+    from trafficgeo.traffic.boxes import dimensions_for
+    from trafficgeo.traffic.validation import read_observed_run
+
+    if output.suffix.lower() != ".xml":
+        raise InputError(f"--output {output}: SUMO FCD is XML; name it .xml (e.g. observed.fcd.xml)")
+    observed = read_observed_run(run)
+    path = run / "trajectories.csv"
+    if not path.is_file():
+        raise InputError(f"{run}: no trajectories.csv; give the --out folder of 'trafficgeo analyze'")
+    pts = pd.read_csv(path, dtype={"track_id": str, "class": str, "lane": str}, keep_default_na=False,
+                      na_values=[""])
+    pts["class"] = pts["class"].fillna("")
+    half = 0.5 * dimensions_for(pts["class"].to_numpy())[:, 0]
+    if "length_m" in pts.columns:
+        half = np.where(np.isfinite(pts["length_m"]), 0.5 * pts["length_m"], half)
+    cols = ["track_id", "time", "x", "y", "z", "speed_kmh", "heading_deg", "class", "lane"]
+    write_fcd(output, pts[[c for c in cols if c in pts.columns]], crs=observed.crs, net=net, net_crs=net_crs,
+              geo=geo, front_offset_m=half)
+    console.print(f"{pts['track_id'].nunique()} vehicles, {len(pts)} points -> wrote {output}")

@@ -14,7 +14,6 @@ Outputs of :func:`write_analysis` (all written atomically):
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -139,7 +138,7 @@ def summary(analysis: Analysis) -> dict[str, object]:
 
 def write_analysis(out_dir: str | Path, analysis: Analysis, camera: Camera) -> list[Path]:
     """Write the outputs (module docstring) into ``out_dir``; returns the paths written."""
-    from trafficgeo.io.atomic import atomic_path, write_text_atomic
+    from trafficgeo.io.atomic import atomic_path, write_json_atomic
     from trafficgeo.io.gis import write_gis
     from trafficgeo.io.tables import write_point_table
 
@@ -159,14 +158,7 @@ def write_analysis(out_dir: str | Path, analysis: Analysis, camera: Camera) -> l
         write_gis(out / "trajectories.gpkg", layers, crs)
         write_gis(out / "trajectories.parquet", layers[:1], crs)
         written += [out / "trajectories.gpkg", out / "trajectories.parquet"]
-    write_text_atomic(out / "summary.json", json.dumps(summary(analysis), indent=2, default=_json) + "\n")
+    doc = {**summary(analysis), "crs": crs.to_wkt() if crs is not None else None}
+    write_json_atomic(out / "summary.json", doc)
     written.append(out / "summary.json")
     return written
-
-
-def _json(value: object) -> object:
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating):
-        return float(value)
-    return str(value)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pyproj
 import shapely
 
 from trafficgeo.camera.model import Camera
@@ -95,9 +96,10 @@ def lanes_from_boundaries(lines: list[shapely.LineString]) -> Lanes:
     return Lanes(tuple(str(k + 1) for k in range(len(polys))), tuple(polys))
 
 
-def read_lanes(path: str | Path, camera: Camera, surface: Surface | None) -> Lanes:
+def read_lanes(path: str | Path, *, crs: pyproj.CRS | None, camera: Camera | None = None,
+               surface: Surface | None = None) -> Lanes:
     """Lanes from a GIS file of polygons or boundary lines, or a CSV of boundary lines drawn in the image."""
-    gdf = read_layout(path, camera, surface, "--lanes")
+    gdf = read_layout(path, "--lanes", crs=crs, camera=camera, surface=surface)
     kinds = set(gdf.geometry.geom_type)
     if kinds <= {"Polygon", "MultiPolygon"}:
         return lanes_from_polygons(list(gdf.geometry), feature_names(gdf, ("lane", "name", "id")))

@@ -19,6 +19,7 @@ from pathlib import Path
 import geopandas as gpd
 import numpy as np
 import pandas as pd
+import pyproj
 import shapely
 
 from trafficgeo.camera.model import Camera
@@ -29,29 +30,31 @@ from trafficgeo.geo.mapping import Surface, camera_crs, pixels_to_world
 IMAGE_LINES_HINT = "give a CSV with columns line,u,v (the vertices of each line in pixels, in drawing order)"
 
 
-def read_layout(path: str | Path, camera: Camera, surface: Surface | None, what: str) -> gpd.GeoDataFrame:
-    """Features of a GIS file, or image polylines from a CSV, as a GeoDataFrame in the camera's CRS.
+def read_layout(path: str | Path, what: str, *, crs: pyproj.CRS | None, camera: Camera | None = None,
+                surface: Surface | None = None) -> gpd.GeoDataFrame:
+    """Features of a GIS file, or image polylines from a CSV, as a GeoDataFrame in ``crs`` (the camera's).
 
-    ``what`` names the input in messages (e.g. ``"--lanes"``). ``surface`` is needed for image CSVs only.
+    ``what`` names the input in messages (e.g. ``"--lanes"``). ``camera`` and ``surface`` are needed for image
+    CSVs only.
     """
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{what} {p}: file not found; give a GIS file (.gpkg, .geojson, .parquet) or a CSV of "
                          "image lines")
     if p.suffix.lower() == ".csv":
-        if surface is None:
-            raise InputError(f"{what} {p}: image lines need a surface to be mapped to the ground")
+        if camera is None or surface is None:
+            raise InputError(f"{what} {p}: lines drawn in the image need the camera and a surface; give the lines "
+                             "in world coordinates (a GIS file)")
         return image_lines_to_world(p, camera, surface, what)
     from trafficgeo.io.gis import read_gis
 
     gdf = read_gis(p)
-    cam_crs = camera_crs(camera)
-    if gdf.crs is not None and cam_crs is not None:
+    if gdf.crs is not None and crs is not None:
         try:
-            gdf = gdf.to_crs(cam_crs)
+            gdf = gdf.to_crs(crs)
         except Exception as exc:  # pyproj raises several types for impossible transforms
             raise InputError(f"{what} {p}: cannot reproject from {crs_label(gdf.crs)} to the camera's "
-                             f"{crs_label(cam_crs)} ({' '.join(str(exc).split())})") from None
+                             f"{crs_label(crs)} ({' '.join(str(exc).split())})") from None
     gdf = gdf[~(gdf.geometry.isna() | gdf.geometry.is_empty)].reset_index(drop=True)
     if gdf.empty:
         raise InputError(f"{what} {p}: no features with a geometry; draw at least one")

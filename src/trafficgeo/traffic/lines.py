@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyproj
 import shapely
 
 from trafficgeo.camera.model import Camera
@@ -37,9 +38,10 @@ class CountLine:
     lanes: tuple[str, ...] = ()
 
 
-def read_count_lines(path: str | Path, camera: Camera, surface: Surface | None) -> list[CountLine]:
+def read_count_lines(path: str | Path, *, crs: pyproj.CRS | None, camera: Camera | None = None,
+                     surface: Surface | None = None) -> list[CountLine]:
     """Counting lines from a GIS file of lines or a CSV of lines drawn in the image."""
-    gdf = read_layout(path, camera, surface, "--lines")
+    gdf = read_layout(path, "--lines", crs=crs, camera=camera, surface=surface)
     kinds = set(gdf.geometry.geom_type)
     if not kinds <= {"LineString"}:
         raise InputError(f"--lines {path}: geometries are {', '.join(sorted(kinds))}; counting lines must be "

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trafficgeo.errors import InputError
+from trafficgeo.traffic._kalman import kalman_rts
 
 CHI2_2DOF_999 = 13.815510557964274  # 99.9 % quantile of chi-square with 2 degrees of freedom
 
@@ -38,14 +39,6 @@ class SmoothedTrack:
     heading_deg: np.ndarray
     accel: np.ndarray  # m/s^2 along the track
     outlier: np.ndarray
-
-
-def _transition(dt: float, q: float) -> tuple[np.ndarray, np.ndarray]:
-    F = np.eye(4)
-    F[0, 2] = F[1, 3] = dt
-    q11, q12, q22 = q * dt**3 / 3.0, q * dt**2 / 2.0, q * dt
-    Q = np.array([[q11, 0, q12, 0], [0, q11, 0, q12], [q12, 0, q22, 0], [0, q12, 0, q22]])
-    return F, Q
 
 
 def _measurement_covariance(sigma: object, n: int) -> np.ndarray:
@@ -80,42 +73,12 @@ def smooth_track(time: object, xy: object, sigma: object = 0.3, *, accel_sigma: 
     q = float(accel_sigma) ** 2
     origin = z[0].copy()
     zl = z - origin  # local frame: no precision lost on 5e6 coordinates
-    H = np.zeros((2, 4))
-    H[0, 0] = H[1, 1] = 1.0
-    xf = np.zeros((n, 4))
-    Pf = np.zeros((n, 4, 4))
-    xp = np.zeros((n, 4))
-    Pp = np.zeros((n, 4, 4))
-    outlier = np.zeros(n, dtype=bool)
     # Start: at the first point, speed unknown (30 m/s 1-sigma).
-    x = np.array([zl[0, 0], zl[0, 1], 0.0, 0.0])
-    P = np.zeros((4, 4))
-    P[:2, :2] = R_all[0]
-    P[2, 2] = P[3, 3] = 30.0**2
-    for k in range(n):
-        if k > 0:
-            F, Q = _transition(t[k] - t[k - 1], q)
-            x = F @ x
-            P = F @ P @ F.T + Q
-        xp[k], Pp[k] = x, P
-        R = R_all[k]
-        innov = zl[k] - H @ x
-        S = H @ P @ H.T + R
-        d2 = float(innov @ np.linalg.solve(S, innov))
-        if k > 0 and d2 > gate:
-            outlier[k] = True  # coast: keep the prediction
-        else:
-            K = P @ H.T @ np.linalg.inv(S)
-            x = x + K @ innov
-            P = (np.eye(4) - K @ H) @ P
-            P = 0.5 * (P + P.T)
-        xf[k], Pf[k] = x, P
-    xs, Ps = xf.copy(), Pf.copy()
-    for k in range(n - 2, -1, -1):
-        F, _ = _transition(t[k + 1] - t[k], q)
-        C = Pf[k] @ F.T @ np.linalg.inv(Pp[k + 1])
-        xs[k] = xf[k] + C @ (xs[k + 1] - xp[k + 1])
-        Ps[k] = Pf[k] + C @ (Ps[k + 1] - Pp[k + 1]) @ C.T
+    P0 = np.zeros((4, 4))
+    P0[:2, :2] = R_all[0] * 1e6  # the first measurement alone sets the position
+    P0[2, 2] = P0[3, 3] = 30.0**2
+    x0 = np.array([zl[0, 0], zl[0, 1], 0.0, 0.0])
+    xs, Ps, outlier = kalman_rts(t, np.ascontiguousarray(zl), np.ascontiguousarray(R_all), q, float(gate), x0, P0)
     vx, vy = xs[:, 2], xs[:, 3]
     speed = np.hypot(vx, vy)
     with np.errstate(invalid="ignore", divide="ignore"):

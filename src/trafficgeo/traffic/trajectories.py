@@ -194,52 +194,65 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     has_box = np.all(np.isfinite(tracks.box), axis=1)
     use_boxes = opts.box_correction and bool(np.any(has_box & ok))
 
-    measured = ground.xyz[:, :2].copy()  # the ground point each smoothed position was fitted to (CRS units)
-    parts = []
+    # Pass 1: bottom-centre (or given) ground points, smoothed per track; split at ID switches and long gaps.
+    tracks_segs = []
     slices = _track_slices(tracks.track_id)
     for n_done, (tid, rows) in enumerate(slices, start=1):
         rows = rows[ok[rows]]
-        if rows.size:
-            segs = _smooth_segments(tracks.time[rows], xy_m[rows], cov[rows], opts)
-            sizes = [(float("nan"), float("nan"))] * len(segs)
-            if use_boxes and segs:
-                segs, measured[rows], sizes = _box_pass(camera, surface, tracks, rows, segs, cov, m, opts)
-            for k, ((idx, sm), size) in enumerate(zip(segs, sizes, strict=True), start=1):
-                name = tid if len(segs) == 1 else f"{tid}.{k}"
-                parts.append((name, tid, rows[idx], sm, size))
-            short = rows.size - sum(idx.size for idx, _ in segs)
-            if short:
-                dropped["short_track"] = dropped.get("short_track", 0) + int(short)
+        segs = _smooth_segments(tracks.time[rows], xy_m[rows], cov[rows], opts) if rows.size else []
+        tracks_segs.append((tid, rows, segs))
+        short = rows.size - sum(idx.size for idx, _ in segs)
+        if short:
+            dropped["short_track"] = dropped.get("short_track", 0) + int(short)
         if progress is not None:
-            progress(n_done, len(slices))
-    return _assemble(camera, surface, tracks, ground, measured, parts, m, dropped)
+            progress(n_done, 2 * len(slices) if use_boxes else len(slices))
+    measured = ground.xyz[:, :2].copy()  # the ground point each smoothed position was fitted to (CRS units)
+    no_size = (float("nan"), float("nan"))
+    if not use_boxes:
+        parts = [(tid, rows, segs, [no_size] * len(segs)) for tid, rows, segs in tracks_segs]
+    else:
+        # Pass 2: one cuboid fit for every box (heading from pass 1), then each track smoothed again.
+        heading = np.full(len(tracks), np.nan)
+        for _tid, rows, segs in tracks_segs:
+            for idx, sm in segs:
+                heading[rows[idx]] = _fill_heading(sm)
+        good, dims = _fit_boxes(camera, surface, tracks, heading, ok, measured)
+        cov2 = np.where(good[:, None, None], cov, (100.0**2) * np.eye(2))
+        xy2_m = (measured - origin) * m
+        parts = []
+        for n_done, (tid, rows, segs) in enumerate(tracks_segs, start=len(slices) + 1):
+            segs = _smooth_segments(tracks.time[rows], xy2_m[rows], cov2[rows], opts,
+                                    segments=[idx for idx, _ in segs])
+            sizes = [_vehicle_length(camera, surface, heading[rows[idx]], tracks.box[rows[idx]], dims[rows[idx]],
+                                     good[rows[idx]], opts) if opts.estimate_length else no_size
+                     for idx, _ in segs]
+            parts.append((tid, rows, segs, sizes))
+            if progress is not None:
+                progress(n_done, 2 * len(slices))
+    named = []
+    for tid, rows, segs, sizes in parts:
+        for k, ((idx, sm), size) in enumerate(zip(segs, sizes, strict=True), start=1):
+            named.append((tid if len(segs) == 1 else f"{tid}.{k}", tid, rows[idx], sm, size))
+    return _assemble(camera, surface, tracks, ground, measured, named, m, dropped)
 
 
-def _box_pass(camera: Camera, surface: Surface, tracks: ImageTracks, rows: np.ndarray,
-              segs: list[tuple[np.ndarray, SmoothedTrack]], cov: np.ndarray, m: float,
-              opts: TrajectoryOptions) -> tuple[list, np.ndarray, list[tuple[float, float]]]:
-    """Second pass for one track: cuboid-corrected ground points, smoothed again on the same segments. Returns
-    the parts, the ground points used (CRS units; the bottom-centre point where the fit failed) and each part's
-    length estimate (m, 1-sigma m)."""
+def _fit_boxes(camera: Camera, surface: Surface, tracks: ImageTracks, heading: np.ndarray, ok: np.ndarray,
+               measured: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cuboid-fitted footprint centres of all usable boxes, written into ``measured`` (CRS units) where the fit
+    succeeds. Where it fails, the bottom-centre point is up to half a vehicle off; it stays in its track only as
+    a hint (the caller gives it a 100 m sigma) so that the smoother bridges it from its neighbours. Returns the
+    success mask (N,) and the class dimensions used (N, 3) m."""
     from trafficgeo.traffic.boxes import box_ground_points, dimensions_for
 
-    heading = np.full(rows.size, np.nan)
-    for idx, sm in segs:
-        heading[idx] = _fill_heading(sm)
-    dims = dimensions_for(tracks.vclass[rows])
-    fit = box_ground_points(camera, surface, tracks.box[rows], heading, dims, iterations=15, tol_px=BOX_FIT_TOL_PX)
-    good = fit.status == "ok"
-    if not good.any():
-        return segs, fit.naive_xyz[:, :2], [(float("nan"), float("nan"))] * len(segs)
-    # Where the cuboid fit fails, the bottom-centre point is up to half a vehicle off: keep it in the track only
-    # as a hint (a 100 m sigma), so the smoother bridges these points from their neighbours.
-    used = np.where(good[:, None], fit.xyz[:, :2], fit.naive_xyz[:, :2])
-    cov_rows = np.where(good[:, None, None], cov[rows], (100.0**2) * np.eye(2))
-    segs = _smooth_segments(tracks.time[rows], (used - camera.position[:2]) * m, cov_rows, opts,
-                            segments=[idx for idx, _ in segs])
-    sizes = [_vehicle_length(camera, surface, heading[idx], tracks.box[rows][idx], dims[idx], good[idx], opts)
-             if opts.estimate_length else (float("nan"), float("nan")) for idx, _ in segs]
-    return segs, used, sizes
+    dims = dimensions_for(tracks.vclass)
+    good = np.zeros(len(tracks), dtype=bool)
+    use = np.flatnonzero(ok & np.all(np.isfinite(tracks.box), axis=1))
+    if use.size:
+        fit = box_ground_points(camera, surface, tracks.box[use], heading[use], dims[use], iterations=15,
+                                tol_px=BOX_FIT_TOL_PX)
+        good[use] = fit.status == "ok"
+        measured[use[good[use]]] = fit.xyz[good[use], :2]
+    return good, dims
 
 
 def _vehicle_length(camera: Camera, surface: Surface, heading: np.ndarray, boxes: np.ndarray, dims: np.ndarray,
