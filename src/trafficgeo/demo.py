@@ -5,8 +5,11 @@ change): SUMO traffic on a crowned road, an orthophoto, lidar, a roadside 1080p 
 H.264 video, noisy GCPs with planted blunders (wrong clicks and a lidar Z from a tree), and the truth. The demo
 then checks the GCP heights against the lidar, calibrates the camera from the GCPs, builds a ground DEM from the
 lidar, maps the vehicles' true ground points (as a perfect detector would report them) to the ground on the DEM
-and on the GCP plane, writes the accuracy map and the site as GIS layers, and prints every result next to the
-truth. The video pipeline and traffic counts will extend it as they land.
+and on the GCP plane, and writes the accuracy map and the site as GIS layers. Then traffic: simulated tracker
+output (truth boxes with a detector's and tracker's faults, :mod:`trafficgeo.synth.detections`) goes through
+``analyze`` (speeds, lanes, counts at three counting lines) and ``compare-sumo`` against the world's SUMO run.
+Every result is printed next to the truth. Detection and tracking in the video will replace the simulated tracker
+output when they land.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from trafficgeo.camera.io import read_camera_document, read_camera_json
 from trafficgeo.report.terminal import print_calibration_report
 from trafficgeo.synth.world import WorldOptions, build_world
 
-DEMO_WORLD = WorldOptions(seed=7, n_outliers=2, n_z_outliers=1)
+DEMO_WORLD = WorldOptions(seed=7, n_outliers=2, n_z_outliers=1, count_stations=(-20.0, 20.0, 60.0))
 
 
 def _angle_diff(a: float, b: float) -> float:
@@ -176,11 +179,85 @@ def run_demo(out: Path, *, seed: int = 7, console: Console | None = None, world:
             t.add_row(f"  same, as seen in the video (shake {shake_rms:.2f} px RMS): DEM / GCP plane",
                       f"{np.nanmedian(errors['DEM'][band]):.3f} / {np.nanmedian(errors['GCP plane'][band]):.3f} m",
                       f"predicted {np.nanmedian(predicted[band]):.3f} m", "")
-    counts = pd.read_csv(wdir / "truth_counts.csv")
-    per_lane = counts[counts["line"] == 1].groupby(["direction", "lane"]).size()
-    t.add_row("vehicles crossing station 0, per direction/lane", "not measured yet",
-              ", ".join(f"d{d}/l{lane}: {n}" for (d, lane), n in per_lane.items()), "")
     con.print(t)
-    con.print("Video processing and traffic counts are not built yet: the demo stops after calibration and "
-              "georeferencing.")
+    cmp.update(_traffic(out, wdir, cam, surf, opts, con))
+    con.print("Detection and tracking in the video are not built yet: the traffic step starts from simulated "
+              "tracker output (the truth boxes with a detector's and a tracker's faults).")
     return cmp
+
+
+def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console) -> dict[str, float]:
+    """Step 5: tracker output -> analyze -> speeds, lanes and counts against the truth, and compare-sumo."""
+    from trafficgeo.cli.traffic import print_analysis, print_comparison
+    from trafficgeo.synth.detections import noisy_tracks
+    from trafficgeo.synth.sumo_world import WARMUP_S
+    from trafficgeo.synth.world import truth_lane_name
+    from trafficgeo.traffic.analyze import analyze, write_analysis
+    from trafficgeo.traffic.lanes import read_lanes
+    from trafficgeo.traffic.lines import read_count_lines
+    from trafficgeo.traffic.tracks import read_tracks
+    from trafficgeo.traffic.validation import (
+        compare_with_simulation,
+        read_observed_run,
+        simulated_points,
+        write_comparison,
+    )
+
+    truth = pd.read_csv(wdir / "truth_tracks.csv")
+    noisy = noisy_tracks(truth, cam.image_size, seed=opts.seed)
+    noisy.drop(columns="vehicle").to_csv(out / "tracks.csv", index=False, float_format="%.2f")
+    con.print(f"\n$ trafficgeo analyze {out / 'camera.json'} {out / 'tracks.csv'} --fps {opts.fps:g} --surface "
+              f"{out / 'dem.tif'} --lanes {wdir / 'lanes.gpkg'} --lines {wdir / 'count_lines.gpkg'} "
+              f"--out {out / 'traffic'}")
+    lanes = read_lanes(wdir / "lanes.gpkg", crs=surf.crs)
+    lines = read_count_lines(wdir / "count_lines.gpkg", crs=surf.crs)
+    result = analyze(cam, surf, read_tracks(out / "tracks.csv", fps=opts.fps), lanes=lanes, lines=lines)
+    write_analysis(out / "traffic", result, cam)
+    print_analysis(result)
+    # against the truth
+    vehicle_of = noisy.set_index(["track_id", "frame"])["vehicle"]
+    truth["lane_name"] = truth_lane_name(truth["direction"], truth["lane"])
+    by_frame = truth.set_index(["vehicle", "frame"])
+    pts = result.points
+    veh = [vehicle_of.get(k, "") for k in zip(pts["source_track"], pts["frame"], strict=True)]
+    keys = list(zip(veh, pts["frame"], strict=True))
+    true_lane = np.array([by_frame["lane_name"].get(k, "") for k in keys], dtype=object)
+    true_speed = np.array([by_frame["speed_kmh"].get(k, np.nan) for k in keys])
+    tc = pd.read_csv(wdir / "truth_counts.csv")
+    tc["lane_name"] = truth_lane_name(tc["direction"], tc["lane"])
+    true_counts = tc.groupby([tc["line"].astype(str), "lane_name"]).size()
+    counted = result.crossings.groupby(["line", "lane"]).size()
+    both = pd.concat([true_counts.rename("true"), counted.rename("counted")], axis=1).fillna(0)
+    major = noisy.groupby("track_id")["vehicle"].agg(lambda s: s.value_counts().index[0])
+    spot_true = tc.set_index([tc["line"].astype(str), "vehicle"])["speed_kmh"]
+    cr = result.crossings
+    spot = cr["speed_kmh"].to_numpy() - np.array([spot_true.get((ln, major.get(t)), np.nan) for ln, t in
+                                                   zip(cr["line"], cr["track_id"], strict=True)])
+    m = {
+        "point_speed_mae_kmh": float(np.nanmean(np.abs(pts["speed_kmh"].to_numpy() - true_speed))),
+        "spot_speed_mae_kmh": float(np.nanmean(np.abs(spot))),
+        "lane_accuracy": float(np.mean((pts["lane"].to_numpy() == true_lane)[true_lane != ""])),
+        "count_accuracy": float(1 - np.abs(both["counted"] - both["true"]).sum() / both["true"].sum()),
+    }
+    t = Table(title="Demo world traffic: measured vs truth")
+    for col in ("quantity", "measured", "truth"):
+        t.add_column(col, justify="right" if col != "quantity" else "left")
+    t.add_row("vehicles counted at the lines (all lanes)", str(int(both["counted"].sum())),
+              str(int(both["true"].sum())))
+    t.add_row("per-lane counts, 1 - sum |error| / sum true", f"{m['count_accuracy']:.1%}", "")
+    t.add_row("lane of each track point", f"{m['lane_accuracy']:.1%} right", "")
+    t.add_row("speed at the lines, mean abs error", f"{m['spot_speed_mae_kmh']:.2f} km/h", "")
+    t.add_row("speed of every track point, mean abs error", f"{m['point_speed_mae_kmh']:.2f} km/h", "")
+    con.print(t)
+    # the simulation (here the world's own SUMO run) against the observation
+    net = wdir / "sumo" / "road.net.xml"
+    con.print(f"$ trafficgeo compare-sumo {out / 'traffic'} {wdir / 'sumo' / 'fcd.xml'} --net {net} --net-crs "
+              f"{opts.crs} --time-offset {WARMUP_S:g}")
+    run = read_observed_run(out / "traffic")
+    sim = simulated_points(wdir / "sumo" / "fcd.xml", run.crs, net=net, net_crs=opts.crs,
+                           time_offset_s=WARMUP_S)
+    comparison = compare_with_simulation(run, sim)
+    write_comparison(out / "traffic", comparison, run.crs)
+    print_comparison(comparison)
+    m["share_geh_below_5"] = float(comparison.count_summary["share_geh_below_5"])
+    return m

@@ -337,6 +337,7 @@ class SumoRun:
 
 
 # ---------------------------------------------------------------------------------------------------- SUMO tools
+WARMUP_S = 60.0  # simulated before the trajectories start: SUMO time = trajectory time + WARMUP_S
 LANE_CHANGE_DURATION_S = 3.0  # lane changes drift across over this time (SUMO's default is an instant jump)
 
 
@@ -619,7 +620,7 @@ def _check_run_options(duration_s: float, step_s: float, warmup_s: float, seed: 
 
 
 def run_sumo_world(out_dir: str | os.PathLike[str], road: RoadSpec, demand: Demand, *, duration_s: float = 60.0,
-                   step_s: float = 0.04, warmup_s: float = 60.0, seed: int = 0) -> SumoRun:
+                   step_s: float = 0.04, warmup_s: float = WARMUP_S, seed: int = 0) -> SumoRun:
     """Simulate ``warmup_s + duration_s`` seconds of traffic on ``road`` with SUMO; trajectories of the last
     ``duration_s`` seconds every ``step_s`` seconds (0.04 s = 25 fps).
 

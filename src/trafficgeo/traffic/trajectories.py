@@ -8,7 +8,8 @@ smoother (:mod:`trafficgeo.traffic.smoothing`) that rejects outlier points. A ru
 points in a row means the track jumped to another vehicle (an ID switch): the track is split there, as it is at
 gaps longer than ``max_gap_s``; the parts are named ``<track>.1``, ``<track>.2``, ...
 A box cut off by the left, right or bottom edge of the frame does not show where the vehicle meets the road: such
-points are not used (``box_clipped``).
+points are not used (``box_clipped``). Nor are points within two pixel sigmas of the end of the surface (a DEM's
+edge, the horizon: ``surface_edge``), whose errors are no longer symmetric.
 
 With boxes, the bottom centre of a box is not the footprint centre (the lowest point of a vehicle is its nearest
 bottom corner). A second pass fits a level cuboid of the class's typical size, heading along the smoothed track,
@@ -35,6 +36,7 @@ from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, smooth_tr
 from trafficgeo.traffic.tracks import ImageTracks
 
 MIN_MOVING_SPEED = 1.0  # m/s: below this a smoothed heading is noise
+EDGE_SIGMAS = 2.0  # points within this many pixel sigmas of the end of the surface are not used
 BOX_FIT_TOL_PX = 0.02  # the cuboid fit stops when the box's centre and bottom match to this (px): far below noise
 
 
@@ -47,7 +49,7 @@ class TrajectoryOptions:
     gate: float = CHI2_2DOF_999  # chi-square (2 dof) gate for outlier points
     split_outliers: int = 5  # this many rejected points in a row split a track
     max_gap_s: float = 5.0  # a longer gap in time splits a track
-    min_points: int = 3  # shorter tracks (after splitting) are dropped
+    min_points: int = 5  # shorter tracks (after splitting) are dropped
     box_correction: bool = True  # fit a cuboid to each box (tracks with boxes only)
     estimate_length: bool = False  # estimate each vehicle's length from its boxes (slower)
     frame_margin_px: float = 2.0  # boxes this close to the frame's edge are cut off by it: not used
@@ -100,6 +102,14 @@ def clipped_boxes(camera: Camera, box: np.ndarray, margin_px: float) -> np.ndarr
     w, h = camera.image_size
     with np.errstate(invalid="ignore"):
         return (box[:, 0] <= margin_px) | (box[:, 2] >= w - 1 - margin_px) | (box[:, 3] >= h - 1 - margin_px)
+
+
+def near_surface_edge(camera: Camera, surface: Surface, uv: np.ndarray, shift_px: float) -> np.ndarray:
+    """Pixels whose ray meets the surface but would not ``shift_px`` higher in the image (farther away): the
+    surface ends (a DEM's edge, the horizon) within their noise. Such points are biased towards the camera,
+    because their farther noisy neighbours are lost, so they are not used."""
+    far = pixels_to_world(camera, uv - [0.0, shift_px], surface, with_lonlat=False, frame_margin_px=1e6)
+    return ~far.ok
 
 
 # ------------------------------------------------------------------------------------------------ splitting
@@ -183,6 +193,7 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     ground = pixels_to_world(camera, uv, surface, with_lonlat=False)
     status = ground.status.copy()
     status[ground.ok & clipped_boxes(camera, tracks.box, opts.frame_margin_px)] = "box_clipped"
+    status[ground.ok & near_surface_edge(camera, surface, uv, EDGE_SIGMAS * opts.pixel_sigma)] = "surface_edge"
     ok = status == "ok"
     dropped: dict[str, int] = {}
     for name, count in zip(*np.unique(status[~ok].astype(str), return_counts=True), strict=True):
