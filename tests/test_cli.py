@@ -457,12 +457,14 @@ def test_demo_writes_its_files(tmp_path: Path) -> None:
     assert code == 0, stderr
     assert "Traceback" not in stderr
     for name in ("world/gcps.csv", "world/camera_truth.json", "world/video.mp4", "camera.json", "report.json",
-                 "dem.tif", "accuracy.tif", "site.gpkg", "gcps_z.csv", "vehicles_world_dem.gpkg"):
+                 "dem.tif", "accuracy.tif", "site.gpkg", "gcps_z.csv", "vehicles_world_dem.gpkg", "tracks.csv",
+                 "traffic/vehicles.csv", "traffic/counts.csv", "traffic/trajectories.gpkg",
+                 "traffic/compare_counts.csv"):
         assert (out / name).is_file(), name
     assert read_json(out / "camera.json")["format"] == "trafficgeo.camera/1"
     assert "gcps" in read_json(out / "report.json")
     words = " ".join(stdout.split())
-    assert "estimate vs truth" in words and "stops after calibration and georeferencing" in words
+    assert "estimate vs truth" in words and "traffic: measured vs truth" in words and "GEH" in words
     # A second run reuses the cached world.
     code, stdout, stderr = invoke("demo", "--out", out, "--quick", "--duration", "2")
     assert code == 0, stderr

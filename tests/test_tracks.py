@@ -68,3 +68,11 @@ def test_missing_file_and_bad_fps(tmp_path):
         read_tracks(p, fps=0)
     with pytest.raises(InputError, match="at least frame,id"):
         read_tracks(write(tmp_path, "short.txt", "1,2,3\n"), fps=10)
+
+
+def test_track_ids_may_contain_hash(tmp_path) -> None:
+    """A '#' is an ordinary character in a track id, not the start of a comment."""
+    p = tmp_path / "t.csv"
+    p.write_text("frame,track_id,u,v\n0,car#1,10,20\n1,car#1,11,21\n")
+    t = read_tracks(p, fps=10)
+    assert list(t.track_id) == ["car#1", "car#1"] and np.isfinite(t.v).all()

@@ -115,7 +115,7 @@ def noisy_tracks(truth: pd.DataFrame, image_size: tuple[int, int], noise: Detect
             if rows.size >= 4:
                 cut = rows[rng.integers(1, rows.size - 1)]
                 frames = df["frame"].to_numpy()
-                df.loc[rows[frames[rows] >= frames[cut]], "track_id"] = f"{vid}#f{k}"
+                df.loc[rows[frames[rows] >= frames[cut]], "track_id"] = f"{vid}-f{k}"
     df = _swap_ids(df.sort_values(["frame", "vehicle"]).reset_index(drop=True), noise, rng)
     return df[["frame", "track_id", "class", "x1", "y1", "x2", "y2", "vehicle"]].sort_values(
         ["track_id", "frame"], kind="stable").reset_index(drop=True)

@@ -64,7 +64,7 @@ def read_layout(path: str | Path, what: str, *, crs: pyproj.CRS | None, camera: 
 def image_lines_to_world(path: Path, camera: Camera, surface: Surface, what: str) -> gpd.GeoDataFrame:
     """Polylines drawn in the image (CSV ``line, u, v``) mapped to the surface; one LineString per line."""
     try:
-        df = pd.read_csv(path, skipinitialspace=True, comment="#")
+        df = pd.read_csv(path, skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise InputError(f"{what} {path}: not a readable CSV ({' '.join(str(exc).split())}); "
                          f"{IMAGE_LINES_HINT}") from None

@@ -95,7 +95,7 @@ def read_tracks(path: str | Path, *, fps: float | None = None) -> ImageTracks:
         df = _read_mot(p)
     else:
         try:
-            df = pd.read_csv(p, skipinitialspace=True, comment="#")
+            df = pd.read_csv(p, skipinitialspace=True)
         except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
             raise InputError(f"{p}: not a readable CSV ({' '.join(str(exc).split())}); {CSV_HINT}") from None
         df.columns = [str(c).strip().lower() for c in df.columns]

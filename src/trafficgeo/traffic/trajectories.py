@@ -9,7 +9,9 @@ points in a row means the track jumped to another vehicle (an ID switch): the tr
 gaps longer than ``max_gap_s``; the parts are named ``<track>.1``, ``<track>.2``, ...
 A box cut off by the left, right or bottom edge of the frame does not show where the vehicle meets the road: such
 points are not used (``box_clipped``). Nor are points within two pixel sigmas of the end of the surface (a DEM's
-edge, the horizon: ``surface_edge``), whose errors are no longer symmetric.
+edge, the horizon: ``surface_edge``), whose errors are no longer symmetric, nor points so far away that one pixel
+spans more than ``max_metres_per_px`` of road (``too_far``): their noise is no longer small against the
+curvature of the image-to-ground map, so it biases positions and speeds.
 
 With boxes, the bottom centre of a box is not the footprint centre (the lowest point of a vehicle is its nearest
 bottom corner). A second pass fits a level cuboid of the class's typical size, heading along the smoothed track,
@@ -53,10 +55,12 @@ class TrajectoryOptions:
     box_correction: bool = True  # fit a cuboid to each box (tracks with boxes only)
     estimate_length: bool = False  # estimate each vehicle's length from its boxes (slower)
     frame_margin_px: float = 2.0  # boxes this close to the frame's edge are cut off by it: not used
+    max_metres_per_px: float = 1.5  # farther points, where one pixel spans more of the road (m), are not used
 
     def __post_init__(self) -> None:
         checks = {"pixel_sigma": self.pixel_sigma > 0, "accel_sigma": self.accel_sigma > 0, "gate": self.gate > 0,
                   "split_outliers": self.split_outliers >= 1, "max_gap_s": self.max_gap_s > 0,
+                  "max_metres_per_px": self.max_metres_per_px > 0,
                   "min_points": self.min_points >= 2}
         for name, ok in checks.items():
             if not ok:
@@ -185,7 +189,7 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
                        options: TrajectoryOptions | None = None,
                        progress: Callable[[int, int], None] | None = None) -> WorldTracks:
     """Map, smooth and describe every track (see the module docstring). ``progress(done, total)`` is called per
-    track."""
+    track and pass."""
     opts = options or TrajectoryOptions()
     crs = camera_crs(camera)
     m = metres_per_unit(crs) if crs is not None else 1.0
@@ -193,58 +197,83 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     ground = pixels_to_world(camera, uv, surface, with_lonlat=False)
     status = ground.status.copy()
     status[ground.ok & clipped_boxes(camera, tracks.box, opts.frame_margin_px)] = "box_clipped"
-    status[ground.ok & near_surface_edge(camera, surface, uv, EDGE_SIGMAS * opts.pixel_sigma)] = "surface_edge"
     ok = status == "ok"
-    dropped: dict[str, int] = {}
-    for name, count in zip(*np.unique(status[~ok].astype(str), return_counts=True), strict=True):
-        dropped[str(name)] = int(count)
     cov = np.full((len(tracks), 2, 2), np.nan)
     cov[ok] = ground_covariance(camera, surface, uv[ok], ground.xyz[ok], opts.pixel_sigma, m)
     origin = camera.position[:2]
-    xy_m = (ground.xyz[:, :2] - origin) * m
-    has_box = np.all(np.isfinite(tracks.box), axis=1)
-    use_boxes = opts.box_correction and bool(np.any(has_box & ok))
-
-    # Pass 1: bottom-centre (or given) ground points, smoothed per track; split at ID switches and long gaps.
-    tracks_segs = []
     slices = _track_slices(tracks.track_id)
-    for n_done, (tid, rows) in enumerate(slices, start=1):
-        rows = rows[ok[rows]]
-        segs = _smooth_segments(tracks.time[rows], xy_m[rows], cov[rows], opts) if rows.size else []
-        tracks_segs.append((tid, rows, segs))
-        short = rows.size - sum(idx.size for idx, _ in segs)
-        if short:
-            dropped["short_track"] = dropped.get("short_track", 0) + int(short)
+    n_steps = 2 * len(slices)
+
+    def tick(k: int) -> None:
         if progress is not None:
-            progress(n_done, 2 * len(slices) if use_boxes else len(slices))
+            progress(k, n_steps)
+
+    # Pass 1: the ground points as given (or the boxes' bottom centres), smoothed per track; split at ID switches
+    # and long gaps.
+    pass1, smoothed = [], np.full((len(tracks), 2), np.nan)
+    for k, (tid, rows) in enumerate(slices, start=1):
+        rows = rows[ok[rows]]
+        segs = _smooth_segments(tracks.time[rows], (ground.xyz[rows, :2] - origin) * m, cov[rows], opts) \
+            if rows.size else []
+        for idx, sm in segs:
+            smoothed[rows[idx]] = origin + np.column_stack([sm.x, sm.y]) / m
+        pass1.append((tid, rows, segs))
+        tick(k)
+    # Which points to use is judged at the smoothed positions, not at the noisy points themselves: a cut on the
+    # noisy points would keep those whose noise pulls them towards the camera and bias the rest.
+    have = ok & np.isfinite(smoothed[:, 0])
+    status[ok & ~have] = "short_track"
+    status[have] = _usable(camera, surface, smoothed[have], opts, m)
+    ok = status == "ok"
+    # Pass 2: the measurements (cuboid-fitted footprint centres with boxes), smoothed again on the same parts.
     measured = ground.xyz[:, :2].copy()  # the ground point each smoothed position was fitted to (CRS units)
-    no_size = (float("nan"), float("nan"))
-    if not use_boxes:
-        parts = [(tid, rows, segs, [no_size] * len(segs)) for tid, rows, segs in tracks_segs]
-    else:
-        # Pass 2: one cuboid fit for every box (heading from pass 1), then each track smoothed again.
-        heading = np.full(len(tracks), np.nan)
-        for _tid, rows, segs in tracks_segs:
+    use_boxes = opts.box_correction and bool(np.any(ok & np.all(np.isfinite(tracks.box), axis=1)))
+    heading = np.full(len(tracks), np.nan)
+    good, dims = np.ones(len(tracks), dtype=bool), np.full((len(tracks), 3), np.nan)
+    if use_boxes:
+        for _tid, rows, segs in pass1:
             for idx, sm in segs:
                 heading[rows[idx]] = _fill_heading(sm)
         good, dims = _fit_boxes(camera, surface, tracks, heading, ok, measured)
-        cov2 = np.where(good[:, None, None], cov, (100.0**2) * np.eye(2))
-        xy2_m = (measured - origin) * m
-        parts = []
-        for n_done, (tid, rows, segs) in enumerate(tracks_segs, start=len(slices) + 1):
-            segs = _smooth_segments(tracks.time[rows], xy2_m[rows], cov2[rows], opts,
-                                    segments=[idx for idx, _ in segs])
-            sizes = [_vehicle_length(camera, surface, heading[rows[idx]], tracks.box[rows[idx]], dims[rows[idx]],
-                                     good[rows[idx]], opts) if opts.estimate_length else no_size
-                     for idx, _ in segs]
-            parts.append((tid, rows, segs, sizes))
-            if progress is not None:
-                progress(n_done, 2 * len(slices))
+    cov2 = np.where(good[:, None, None], cov, (100.0**2) * np.eye(2))
+    xy2_m = (measured - origin) * m
     named = []
-    for tid, rows, segs, sizes in parts:
-        for k, ((idx, sm), size) in enumerate(zip(segs, sizes, strict=True), start=1):
-            named.append((tid if len(segs) == 1 else f"{tid}.{k}", tid, rows[idx], sm, size))
+    no_size = (float("nan"), float("nan"))
+    for k, (tid, rows, segs) in enumerate(pass1, start=len(slices) + 1):
+        parts = [idx[ok[rows[idx]]] for idx, _ in segs]
+        segs = _smooth_segments(tracks.time[rows], xy2_m[rows], cov2[rows], opts, segments=parts)
+        used = np.zeros(len(tracks), dtype=bool)
+        for j, (idx, sm) in enumerate(segs, start=1):
+            size = _vehicle_length(camera, surface, heading[rows[idx]], tracks.box[rows[idx]], dims[rows[idx]],
+                                   good[rows[idx]], opts) if use_boxes and opts.estimate_length else no_size
+            named.append((tid if len(segs) == 1 else f"{tid}.{j}", tid, rows[idx], sm, size))
+            used[rows[idx]] = True
+        short = rows[ok[rows] & ~used[rows]]
+        status[short] = "short_track"
+        tick(k)
+    kept = np.zeros(len(tracks), dtype=bool)
+    for _name, _tid, rows, _sm, _size in named:
+        kept[rows] = True
+    dropped = {str(k): int(c) for k, c in zip(*np.unique(status[~kept].astype(str), return_counts=True),
+                                               strict=True)}
     return _assemble(camera, surface, tracks, ground, measured, named, m, dropped)
+
+
+def _usable(camera: Camera, surface: Surface, xy: np.ndarray, opts: TrajectoryOptions, m: float) -> np.ndarray:
+    """``ok``, ``too_far`` or ``surface_edge`` for ground positions (N, 2) (CRS units): too far where one pixel
+    spans more than ``max_metres_per_px`` of road, at the edge where the surface ends within two pixel sigmas."""
+    xyz = np.column_stack([xy, surface.elevation(xy[:, 0], xy[:, 1])])
+    uv = camera.project(xyz)
+    out = np.full(xy.shape[0], "ok", dtype=object)
+    edge = near_surface_edge(camera, surface, uv, EDGE_SIGMAS * opts.pixel_sigma)
+    g = pixels_to_world(camera, uv, surface, with_lonlat=False, frame_margin_px=1e6)
+    edge |= ~g.ok
+    cov = ground_covariance(camera, surface, uv[~edge], g.xyz[~edge], 1.0, m)
+    far = np.zeros(xy.shape[0], dtype=bool)
+    far[~edge] = np.sqrt(np.linalg.eigvalsh(cov)[:, 1]) > opts.max_metres_per_px
+    out[edge] = "surface_edge"
+    out[far] = "too_far"
+    return out
 
 
 def _fit_boxes(camera: Camera, surface: Surface, tracks: ImageTracks, heading: np.ndarray, ok: np.ndarray,
