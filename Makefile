@@ -27,6 +27,7 @@ test: $(VENV)/.installed lint
 bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_calibration.py
 	$(BIN)/python benchmarks/bench_geo.py
+	$(BIN)/python benchmarks/bench_traffic.py
 
 clean:
 	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache

@@ -151,3 +151,53 @@ def test_bad_input_exits_2_with_one_line_and_nothing_written(case: str, scene: d
     assert expect in stderr and "Traceback" not in stderr
     assert len(stderr.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_export_fcd_and_compare_sumo_round_trip(scene: dict[str, Path], tmp_path: Path) -> None:
+    """The observed trajectories exported as SUMO FCD and compared with themselves: every GEH is 0, speeds agree;
+    a simulation shifted by 30 s in time no longer matches."""
+    run = tmp_path / "run"
+    code, _, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
+                             "--lanes", scene["lanes"], "--lines", scene["lines"], "--interval", 2, "--out", run)
+    assert code == 0, stderr
+    fcd = tmp_path / "observed.fcd.xml"
+    code, stdout, stderr = invoke("export-fcd", run, "-o", fcd)
+    assert code == 0, stderr
+    assert "3 vehicles" in stdout
+    assert fcd.read_text().startswith("<?xml") and "<fcd-export" in fcd.read_text()
+    from trafficgeo.io.sumo import read_fcd
+
+    back = read_fcd(fcd, crs=CRS)
+    pts = pd.read_csv(run / "trajectories.csv", dtype={"track_id": str})
+    assert len(back) == len(pts) and set(back["track_id"]) == {"1", "2", "3"}
+    # SUMO positions are front bumpers: half a car (truck) length ahead of the footprint centre, northbound
+    first = back[back["track_id"] == "1"].iloc[0]
+    p0 = pts[pts["track_id"] == "1"].iloc[0]
+    assert first["y"] - p0["y"] == pytest.approx(2.25, abs=0.05)
+    cmp_dir = tmp_path / "cmp"
+    code, stdout, stderr = invoke("compare-sumo", run, fcd, "--out", cmp_dir)
+    assert code == 0, stderr
+    table = pd.read_csv(cmp_dir / "compare_counts.csv", dtype={"lane": str})
+    assert (table["geh"] == 0).all() and table["observed"].sum() == 3 == table["simulated"].sum()
+    speeds = pd.read_csv(cmp_dir / "compare_speeds.csv", dtype={"lane": str})
+    assert np.allclose(speeds["observed_mean_kmh"], speeds["simulated_mean_kmh"], atol=0.5)
+    code, stdout, stderr = invoke("compare-sumo", run, fcd, "--time-offset", 30, "--out", tmp_path / "cmp2")
+    assert code == 0, stderr
+    assert pd.read_csv(tmp_path / "cmp2" / "compare_counts.csv")["simulated"].sum() == 0
+
+
+@pytest.mark.parametrize("case", ["not_a_run", "bad_suffix", "missing_fcd"])
+def test_sumo_commands_bad_input(case: str, scene: dict[str, Path], tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    code, _, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
+                             "--lines", scene["lines"], "--out", run)
+    assert code == 0, stderr
+    if case == "not_a_run":
+        args = ("compare-sumo", tmp_path, tmp_path / "x.xml")
+    elif case == "bad_suffix":
+        args = ("export-fcd", run, "-o", tmp_path / "out.csv")
+    else:
+        args = ("compare-sumo", run, tmp_path / "missing.fcd.xml", "--out", tmp_path / "cmp")
+    code, _, stderr = invoke(*args)
+    assert code == 2 and len(stderr.strip().splitlines()) == 1 and "Traceback" not in stderr, stderr
+    assert not (tmp_path / "out.csv").exists() and not (tmp_path / "cmp").exists()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
@@ -246,21 +248,21 @@ def test_length_from_an_oblique_drive_by():
     length, std = estimate_length(cam, centres, heading, boxes, 1.8, 1.5, length0_m=5.5)
     assert abs(length - 4.5) < 0.2 and std < 0.1  # measured 4.516 +- 0.023 m
     length, std = estimate_length_refit(cam, surf, heading, boxes, 1.8, 1.5, length0_m=5.5)
-    assert abs(length - 4.5) < 0.2 and std < 0.15  # measured 4.521 +- 0.073 m (centres refitted)
+    assert abs(length - 4.5) < 0.2 and std < 0.15  # measured 4.509 +- 0.121 m (centres and headings fitted)
 
 
 def test_length_is_undetermined_seen_from_behind():
     # Straight below the camera's line of sight (the camera is at offset +4), driving away.
     cam, surf, _, heading, boxes = drive_by(4.0, np.linspace(20.0, 21.0, 5))
     length, std = estimate_length_refit(cam, surf, heading, boxes, 1.8, 1.5)
-    assert np.isnan(length) and std > 0.5  # measured std 0.74 m: length and height trade off in the top edge
+    assert np.isnan(length) and std > 0.5  # measured std 0.75 m: length and height trade off in the top edge
     # Over 12-60 m the top edge's changing trade-off separates them...
     cam, surf, _, heading, boxes = drive_by(4.0, np.linspace(12.0, 60.0, 40))
     length, std = estimate_length_refit(cam, surf, heading, boxes, 1.8, 1.5)
-    assert abs(length - 4.5) < 0.2  # measured 4.524 +- 0.069 m
+    assert abs(length - 4.5) < 0.2  # measured 4.529 +- 0.085 m
     # ...but without trusting the top edge nothing shows the length.
     length, std = estimate_length_refit(cam, surf, heading, boxes, 1.8, 1.5, use_top=False)
-    assert np.isnan(length) and std > 0.5  # measured std 29 m
+    assert np.isnan(length) and std > 0.5  # measured std 23 m
 
 
 def test_length_without_usable_boxes_is_nan():
@@ -280,3 +282,142 @@ def test_the_renderers_truth_boxes_give_back_the_rendered_centres():
     got = box_ground_points(cam, surf, truth.box, h, dims)
     assert np.all(got.ok)
     assert horizontal_error(got.xyz, boxes.centre).max() < 0.01
+
+
+# ---------------------------------------------------------------------------------------------------- length bias
+# The demo world's view (trafficgeo.synth.world): 1920x1080 at f = 1728 px with barrel distortion, 8 m up beside a
+# road at azimuth 30 deg whose carriageway falls 2 % across it, traffic seen from 20 to 120 m: nearly end-on, so
+# the length shows in a box's width only through L sin(a), a the small angle between line of sight and heading.
+ROAD_AZIMUTH = 30.0
+ROAD_AHEAD = np.array([np.sin(np.radians(ROAD_AZIMUTH)), np.cos(np.radians(ROAD_AZIMUTH))])
+ROAD_RIGHT = np.array([np.cos(np.radians(ROAD_AZIMUTH)), -np.sin(np.radians(ROAD_AZIMUTH))])
+WORLD_SIZE = (1920, 1080)
+
+
+def world_camera(origin=(0.0, 0.0, 0.0), crs: str | None = None, unit: float = 1.0) -> Camera:
+    """8 m up, looking 22 deg east of north and 5.2 deg down; ``unit`` metres per CRS unit."""
+    pos = np.asarray(origin, float) + np.array([0.0, 0.0, 8.0]) / unit
+    return Camera.from_orientation(WORLD_SIZE, 1728.0, pos, 22.0, 5.2, 0.0, dist=[-0.06, 0.012, 0, 0, 0], crs=crs)
+
+
+def crossfall_road(origin=(0.0, 0.0, 0.0)) -> PlaneSurface:
+    """The camera's ground, falling 2 % to the left of the road's direction."""
+    return PlaneSurface(point=np.asarray(origin, float), gx=0.02 * ROAD_RIGHT[0], gy=0.02 * ROAD_RIGHT[1])
+
+
+def drive_past(cam: Camera, surf, vclass: str, offset_m: float, seed: int = 0, n: int = 40, unit: float = 1.0):
+    """A vehicle driving along the road ``offset_m`` right of the camera from 20 to 120 m: its dimensions, true
+    centres, and its boxes with 0.3 px of noise, clipped to the frame as a detector gives them."""
+    dims = dimensions_for([vclass])[0]
+    xy = cam.position[:2] + (np.linspace(20.0, 120.0, n)[:, None] * ROAD_AHEAD + offset_m * ROAD_RIGHT) / unit
+    centres = np.column_stack([xy, surf.elevation(xy[:, 0], xy[:, 1])])
+    boxes = cuboid_boxes(cam, centres, np.full(n, ROAD_AZIMUTH), *(dims / unit))
+    boxes += np.random.default_rng(seed).normal(0.0, 0.3, boxes.shape)
+    w, h = cam.image_size
+    return dims, centres, np.clip(boxes, 0.0, [w - 1, h - 1, w - 1, h - 1])
+
+
+def bottom_centre_heading(cam: Camera, surf, boxes: np.ndarray, dims: np.ndarray) -> np.ndarray:
+    """The heading a tracker smoothing the boxes' bottom centres on the road gives (a cubic fit of that track)."""
+    naive = box_ground_points(cam, surf, boxes, np.full(len(boxes), ROAD_AZIMUTH), dims).naive_xyz
+    k = np.arange(len(boxes))
+    dx, dy = (np.polyval(np.polyder(np.polyfit(k, naive[:, i], 3)), k) for i in range(2))
+    return np.degrees(np.arctan2(dx, dy))
+
+
+@pytest.mark.parametrize(("vclass", "offset_m"), [("car", -13.75), ("truck", -17.25)])
+def test_length_is_unbiased_with_the_heading_of_the_bottom_centres_track(vclass, offset_m):
+    cam, surf = world_camera(), crossfall_road()
+    dims, _, boxes = drive_past(cam, surf, vclass, offset_m)
+    assert not np.all(free_edges(cam, boxes)), "the nearest boxes run out of the frame"
+    heading = bottom_centre_heading(cam, surf, boxes, dims)
+    # The bottom centre lies towards the nearest corner, whose offset from the centre turns as the vehicle
+    # passes: the track of bottom centres bends, its heading is off by degrees near the camera, always one way.
+    # Measured: -2.0 deg (car) and -10.9 deg (truck) at 20 m, -0.2 to -0.4 deg at 60-90 m.
+    assert (heading - ROAD_AZIMUTH)[0] < -1.5 and np.all(heading[:20] < ROAD_AZIMUTH)
+    args = (cam, surf, heading, boxes, dims[1], dims[2])
+    kwargs = dict(length0_m=dims[0], pixel_sigma=2.0, use_top=False)
+    # Taking that heading as exact, the length comes out long (the bias of the demo world): measured +6.9 % for
+    # the car; the truck's 0.76 m standard deviation makes it NaN.
+    biased, _ = estimate_length_refit(*args, refine_heading=False, **kwargs)
+    assert not abs(biased / dims[0] - 1) < 0.05
+    t0 = time.perf_counter()
+    length, std = estimate_length_refit(*args, **kwargs)
+    elapsed = time.perf_counter() - t0
+    # Measured: car 4.521 +- 0.17 m (+0.5 %), truck 12.06 +- 0.31 m (+0.5 %); 10-20 ms for the 40 frames.
+    assert abs(length / dims[0] - 1) < 0.03
+    assert std < 0.5
+    assert elapsed < 2.0  # a loose sanity bound: ~10 ms on a laptop
+
+
+@pytest.mark.parametrize("start", [0.8, 1.25])
+def test_length_does_not_depend_on_where_the_fit_starts(start):
+    cam, surf = world_camera(), crossfall_road()
+    dims, _, boxes = drive_past(cam, surf, "truck", -13.75, seed=3)
+    heading = bottom_centre_heading(cam, surf, boxes, dims)
+    kwargs = dict(pixel_sigma=2.0, use_top=False)
+    length, _ = estimate_length_refit(cam, surf, heading, boxes, dims[1], dims[2], length0_m=dims[0], **kwargs)
+    other, _ = estimate_length_refit(cam, surf, heading, boxes, dims[1], dims[2], length0_m=start * dims[0],
+                                     **kwargs)
+    assert abs(length / dims[0] - 1) < 0.03
+    assert abs(other - length) < 0.01
+
+
+def test_length_with_the_true_heading_is_unbiased_with_or_without_refining_it():
+    cam, surf = world_camera(), crossfall_road()
+    dims, _, boxes = drive_past(cam, surf, "car", -13.75, seed=5)
+    heading = np.full(len(boxes), ROAD_AZIMUTH)
+    for refine in (True, False):
+        length, _ = estimate_length_refit(cam, surf, heading, boxes, dims[1], dims[2], length0_m=5.0,
+                                          pixel_sigma=2.0, use_top=False, refine_heading=refine)
+        assert abs(length / dims[0] - 1) < 0.03
+
+
+def test_length_in_a_us_feet_crs_is_the_metric_length():
+    metric_cam, metric_road = world_camera(), crossfall_road()
+    dims, _, boxes = drive_past(metric_cam, metric_road, "van", -13.75, seed=2)
+    heading = bottom_centre_heading(metric_cam, metric_road, boxes, dims)
+    origin_ft = np.array([2_200_000.0, 1_400_000.0, 900.0])
+    feet_cam = world_camera(origin_ft, crs="EPSG:2240", unit=US_FOOT)
+    feet_road = crossfall_road(origin_ft)
+    _, _, feet_boxes = drive_past(feet_cam, feet_road, "van", -13.75, seed=2, unit=US_FOOT)
+    np.testing.assert_allclose(feet_boxes, boxes, atol=1e-6)  # the same images
+    kwargs = dict(length0_m=dims[0], pixel_sigma=2.0, use_top=False)
+    metric = estimate_length_refit(metric_cam, metric_road, heading, boxes, dims[1], dims[2], **kwargs)
+    feet = estimate_length_refit(feet_cam, feet_road, heading, feet_boxes, dims[1], dims[2], **kwargs)
+    np.testing.assert_allclose(feet, metric, rtol=1e-4)
+    assert abs(metric[0] / dims[0] - 1) < 0.03
+
+
+def test_box_derivatives_match_finite_differences():
+    from trafficgeo.traffic.boxes import _Cuboids
+
+    cam, surf = world_camera(), crossfall_road()
+    rng = np.random.default_rng(4)
+    n = 12
+    heading = rng.uniform(0.0, 360.0, n)
+    xy = np.column_stack([rng.uniform(-6.0, 6.0, n), rng.uniform(15.0, 60.0, n)])
+    dims = dimensions_for(rng.choice(["car", "van", "truck"], n))
+    model = _Cuboids.at(cam, surf, heading)
+    _, j_xy, j_more = model.boxes_jac(xy, dims)
+    e = 1e-5
+
+    def central(f):
+        return (f(e) - f(-e)) / (2 * e)
+
+    for c in range(2):
+        np.testing.assert_allclose(central(lambda d, c=c: model.boxes(xy + d * np.eye(2)[c], dims)), j_xy[..., c],
+                                   atol=2e-3 * np.abs(j_xy).max())
+    for p in range(3):
+        np.testing.assert_allclose(central(lambda d, p=p: model.boxes(xy, dims + d * np.eye(3)[p])), j_more[..., p],
+                                   atol=2e-3 * np.abs(j_more[..., p]).max())
+    turned = central(lambda d: _Cuboids.at(cam, surf, heading + np.degrees(d)).boxes(xy, dims))
+    np.testing.assert_allclose(turned, j_more[..., 3], atol=2e-3 * np.abs(j_more[..., 3]).max())
+
+
+def test_length_with_headings_either_side_of_north():
+    cam, surf, _, heading, boxes = drive_by(-8.0, np.linspace(12.0, 60.0, 40))  # heading 0: north
+    wrapped = np.where(np.arange(heading.size) % 2, 359.9, 0.1)
+    got = estimate_length_refit(cam, surf, wrapped, boxes, 1.8, 1.5, length0_m=5.5)
+    np.testing.assert_allclose(got, estimate_length_refit(cam, surf, heading, boxes, 1.8, 1.5, length0_m=5.5),
+                               atol=1e-3)

@@ -188,7 +188,7 @@ def run_demo(out: Path, *, seed: int = 7, console: Console | None = None, world:
 
 def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console) -> dict[str, float]:
     """Step 5: tracker output -> analyze -> speeds, lanes and counts against the truth, and compare-sumo."""
-    from trafficgeo.cli.traffic import print_analysis, print_comparison
+    from trafficgeo.report.traffic import print_analysis, print_comparison
     from trafficgeo.synth.detections import noisy_tracks
     from trafficgeo.synth.sumo_world import WARMUP_S
     from trafficgeo.synth.world import truth_lane_name
@@ -213,7 +213,7 @@ def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console)
     lines = read_count_lines(wdir / "count_lines.gpkg", crs=surf.crs)
     result = analyze(cam, surf, read_tracks(out / "tracks.csv", fps=opts.fps), lanes=lanes, lines=lines)
     write_analysis(out / "traffic", result, cam)
-    print_analysis(result)
+    print_analysis(result, con)
     # against the truth
     vehicle_of = noisy.set_index(["track_id", "frame"])["vehicle"]
     truth["lane_name"] = truth_lane_name(truth["direction"], truth["lane"])
@@ -258,6 +258,6 @@ def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console)
                            time_offset_s=WARMUP_S)
     comparison = compare_with_simulation(run, sim)
     write_comparison(out / "traffic", comparison, run.crs)
-    print_comparison(comparison)
+    print_comparison(comparison, con)
     m["share_geh_below_5"] = float(comparison.count_summary["share_geh_below_5"])
     return m

@@ -18,33 +18,6 @@ def _check_out_dir(out: Path) -> None:
         raise InputError(f"--out {out}: exists and is not a folder; give a folder for the outputs")
 
 
-def print_analysis(analysis) -> None:
-    """Totals and per-line counts on the terminal."""
-    from rich.table import Table
-
-    from trafficgeo.traffic.analyze import summary
-
-    s = summary(analysis)
-    t0, t1 = s["period_s"]
-    dropped = ", ".join(f"{k} {v}" for k, v in s["dropped_points"].items()) or "none"
-    speed = f"{s['mean_speed_kmh']:.1f} km/h" if s["mean_speed_kmh"] is not None else "-"
-    classes = ", ".join(f"{k or 'unknown'} {v}" for k, v in s["classes"].items())
-    console.print(f"{s['vehicles']} vehicles ({classes}) in {t1 - t0:.1f} s; {s['points']} track points, "
-                  f"{s['outlier_points']} rejected as outliers; not used: {dropped}")
-    console.print(f"mean speed over the observed paths: {speed}; lane changes: {s['lane_changes']}")
-    if s["crossings"]:
-        table = Table(title="crossings per counting line")
-        for col in ("line", "lane", "direction", "vehicles", "flow veh/h", "mean speed km/h"):
-            table.add_column(col, justify="right")
-        dur = max(t1 - t0, 1e-9)
-        cr = analysis.crossings
-        for row in s["crossings"]:
-            sel = cr[(cr["line"] == row["line"]) & (cr["lane"] == row["lane"]) & (cr["direction"] == row["direction"])]
-            table.add_row(row["line"], row["lane"] or "-", f"{row['direction']:+d}", str(row["count"]),
-                          f"{row['count'] * 3600.0 / dur:.0f}", f"{sel['speed_kmh'].mean():.1f}")
-        console.print(table)
-
-
 @app.command()
 def analyze(
     camera: Annotated[Path, typer.Argument(help="camera JSON from 'trafficgeo calibrate'")],
@@ -69,6 +42,7 @@ def analyze(
     from rich.progress import Progress
 
     from trafficgeo.geo.mapping import camera_crs
+    from trafficgeo.report.traffic import print_analysis
     from trafficgeo.traffic.analyze import analyze as run_analysis
     from trafficgeo.traffic.analyze import write_analysis
     from trafficgeo.traffic.lanes import read_lanes
@@ -92,7 +66,7 @@ def analyze(
         analysis = run_analysis(cam, surf, image_tracks, lanes=lane_set, lines=count_lines, interval_s=interval,
                                 options=opts, progress=lambda i, n: progress.update(task, completed=i))
     written = write_analysis(out, analysis, cam)
-    print_analysis(analysis)
+    print_analysis(analysis, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")
 
 
@@ -109,6 +83,7 @@ def compare_sumo(
     out: Annotated[Path | None, typer.Option("--out", "-o", help="output folder (default: OBSERVED)")] = None,
 ) -> None:
     """Observed vs simulated traffic: per-lane counts (GEH), spot speeds (KS) and travel times."""
+    from trafficgeo.report.traffic import print_comparison
     from trafficgeo.traffic.lines import read_count_lines
     from trafficgeo.traffic.validation import (
         compare_with_simulation,
@@ -124,37 +99,8 @@ def compare_sumo(
     sim = simulated_points(fcd, run.crs, net=net, net_crs=net_crs, time_offset_s=time_offset)
     comparison = compare_with_simulation(run, sim, lines=count_lines)
     written = write_comparison(out, comparison, run.crs)
-    print_comparison(comparison)
+    print_comparison(comparison, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")
-
-
-def print_comparison(comparison) -> None:
-    """GEH per line and lane, speeds, travel times."""
-    from rich.table import Table
-
-    s = comparison.count_summary
-    console.print(f"{s['rows']} counts (line x lane x direction x interval): {s['share_geh_below_5']:.0%} with GEH < 5 "
-                  f"(target >= 85 %), mean GEH {s['mean_geh']:.2f}; vehicles observed {s['total_observed']}, "
-                  f"simulated {s['total_simulated']}")
-    table = Table(title="per line and lane")
-    for col in ("line", "lane", "observed", "simulated", "GEH", "speed obs km/h", "speed sim km/h", "KS"):
-        table.add_column(col, justify="right")
-    speeds = comparison.speeds.set_index(["line", "lane"]) if len(comparison.speeds) else None
-    for g in s["groups"]:
-        key = (g["line"], g["lane"])
-        sp = speeds.loc[key] if speeds is not None and key in speeds.index else None
-        fmt = (lambda v: "-" if v is None or v != v else f"{v:.1f}")  # noqa: E731
-        table.add_row(str(g["line"]), str(g["lane"]) or "-", str(g["observed"]), str(g["simulated"]),
-                      f"{g['geh']:.2f}", fmt(sp["observed_mean_kmh"] if sp is not None else None),
-                      fmt(sp["simulated_mean_kmh"] if sp is not None else None),
-                      "-" if sp is None or sp["ks_statistic"] != sp["ks_statistic"] else f"{sp['ks_statistic']:.2f}")
-    console.print(table)
-    tt = comparison.travel_times
-    if tt:
-        console.print(f"travel time {tt['from_line']} -> {tt['to_line']}: observed median "
-                      f"{tt.get('observed_median_s', float('nan')):.1f} s (n {tt.get('observed_n', 0)}), simulated "
-                      f"{tt.get('simulated_median_s', float('nan')):.1f} s (n {tt.get('simulated_n', 0)}), KS "
-                      f"{tt.get('ks_statistic', float('nan')):.2f}")
 
 
 @app.command("export-fcd")

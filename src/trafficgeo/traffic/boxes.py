@@ -8,8 +8,8 @@ not its footprint centre: it lies up to half the vehicle's length or width (1-2 
 With a calibrated camera, a road surface and the vehicle's heading (from its track), :func:`box_ground_points`
 models the vehicle as a level cuboid of typical size (:data:`VEHICLE_DIMENSIONS`) and solves for the footprint
 centre whose projected cuboid matches the observed box's horizontal centre and bottom edge, the two box quantities
-least sensitive to the size being a bit wrong. :func:`estimate_length_refit` (centres refitted) and
-:func:`estimate_length` (centres known) recover one vehicle's length from many frames.
+least sensitive to the size being a bit wrong. :func:`estimate_length_refit` (centres and headings fitted with the
+size) and :func:`estimate_length` (centres and headings known) recover one vehicle's length from many frames.
 
 Conventions (those of :mod:`trafficgeo.synth.render`, whose boxes :func:`cuboid_corners` builds):
 
@@ -27,6 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
@@ -141,12 +142,21 @@ class BoxGroundPoints:
         return self.status == "ok"
 
 
-def _targets(boxes: np.ndarray, use_x1: np.ndarray, use_x2: np.ndarray) -> np.ndarray:
-    """The two fitted box quantities (N, 2) px: the horizontal centre (or the one side edge the frame leaves),
-    and the bottom edge."""
+def _selection(free: np.ndarray) -> np.ndarray:
+    """Weights (N, 2, 4) that take the two fitted box quantities from a box ``x1, y1, x2, y2``: the horizontal
+    centre (or the one side edge the frame leaves) and the bottom edge."""
+    use_x1, use_x2 = free[:, 0], free[:, 2]
     both = use_x1 & use_x2
-    horizontal = np.where(both, 0.5 * (boxes[:, 0] + boxes[:, 2]), np.where(use_x1, boxes[:, 0], boxes[:, 2]))
-    return np.column_stack([horizontal, boxes[:, 3]])
+    T = np.zeros((free.shape[0], 2, 4))
+    T[:, 0, 0] = np.where(both, 0.5, use_x1)
+    T[:, 0, 2] = np.where(both, 0.5, ~use_x1)
+    T[:, 1, 3] = 1.0
+    return T
+
+
+def _apply(T: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """The fitted quantities (N, 2) of boxes (N, 4) (``T`` from :func:`_selection`)."""
+    return np.einsum("nqe,ne->nq", T, boxes)
 
 
 def _solve2(J: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -164,40 +174,125 @@ def _norm(r: np.ndarray) -> np.ndarray:
     return np.nan_to_num(np.linalg.norm(r, axis=1), nan=np.inf)
 
 
-def _gauss_newton_xy(residual: Callable[[np.ndarray], np.ndarray], xy: np.ndarray, step: float, iterations: int,
-                     tol_px: float) -> tuple[np.ndarray, np.ndarray]:
-    """Newton iterations on (N, 2) horizontal positions for the (N, 2) pixel residuals, with a forward-difference
-    Jacobian (steps of ``step`` CRS units) and step halving when a full step does not reduce the residual.
-    Returns the positions and their final residual norms (px)."""
-    r = residual(xy)
-    for _ in range(iterations):
-        todo = _norm(r) > tol_px
-        if not todo.any():
-            break
-        J = np.stack([(residual(xy + step * e) - r) / step for e in np.eye(2)], axis=2)  # (N, 2 px, 2 xy)
-        delta = -_solve2(J, r)
-        delta[~todo] = 0.0
-        xy, r = _line_search(residual, xy, r, delta)
-    return xy, _norm(r)
+# Corner k of a cuboid is centre + sum_p _SIGNS[k, p] * dims[p] * axis[p] with the axes forward, right and up; the
+# order is that of cuboid_corners.
+_SIGNS = np.array([[1, -1, 0], [1, 1, 0], [-1, 1, 0], [-1, -1, 0],
+                   [1, -1, 1], [1, 1, 1], [-1, 1, 1], [-1, -1, 1]], dtype=np.float64) * [0.5, 0.5, 1.0]
+_EDGE_COMPONENT = np.array([0, 1, 0, 1])  # x1, y1, x2, y2 are extremes of u, v, u, v
 
 
-def _line_search(residual: Callable[[np.ndarray], np.ndarray], xy: np.ndarray, r: np.ndarray, delta: np.ndarray,
-                 halvings: int = 5) -> tuple[np.ndarray, np.ndarray]:
-    """Take, per row, the longest of the steps ``delta / 2^k`` that reduces its residual; rows with none stay put."""
-    xy, r = xy.copy(), r.copy()
-    delta = np.where(np.isfinite(delta), delta, 0.0)
-    pending = np.any(delta != 0.0, axis=1)
-    t = 1.0
-    for _ in range(halvings + 1):
-        if not pending.any():
+@dataclass(frozen=True)
+class _Cuboids:
+    """Level cuboids standing on ``surface`` in N frames at fixed headings: their boxes as functions of the
+    footprint centres' (x, y) and of the dimensions, with derivatives.
+
+    A box edge is the extreme of its 8 projected corners, so it is piecewise smooth; its derivatives are those of
+    the extreme corner (exact on either side of a switch, where forward differences of the box would straddle the
+    kink and mislead Newton steps). The projection and the surface are differentiated numerically, by central and
+    forward differences of ``step`` CRS units.
+    """
+
+    camera: Camera
+    surface: Surface
+    axes: np.ndarray  # (N, 3, 3): unit forward, right and up vectors
+    step: float
+
+    @classmethod
+    def at(cls, camera: Camera, surface: Surface, heading_deg: np.ndarray) -> _Cuboids:
+        h = np.radians(np.asarray(heading_deg, dtype=np.float64))
+        zero = np.zeros_like(h)
+        axes = np.stack([np.stack([np.sin(h), np.cos(h), zero], axis=1),
+                         np.stack([np.cos(h), -np.sin(h), zero], axis=1),
+                         np.stack([zero, zero, zero + 1.0], axis=1)], axis=1)
+        return cls(camera, surface, axes, 1e-3 * _units_per_metre(camera))
+
+    def take(self, rows: np.ndarray) -> _Cuboids:
+        """The cuboids of some frames."""
+        return _Cuboids(self.camera, self.surface, self.axes[rows], self.step)
+
+    def centres(self, xy: np.ndarray) -> np.ndarray:
+        return np.column_stack([xy, self.surface.elevation(xy[:, 0], xy[:, 1])])
+
+    def _corners(self, centres: np.ndarray, dims: np.ndarray) -> np.ndarray:
+        return centres[:, None, :] + np.einsum("kp,np,npx->nkx", _SIGNS, dims, self.axes)
+
+    def boxes(self, xy: np.ndarray, dims: np.ndarray) -> np.ndarray:
+        """Boxes (N, 4) of the cuboids with footprint centres at ``xy`` (N, 2) and ``dims`` (N, 3), CRS units."""
+        n = xy.shape[0]
+        uv = self.camera.project(self._corners(self.centres(xy), dims).reshape(-1, 3)).reshape(n, 8, 2)
+        return np.concatenate([uv.min(axis=1), uv.max(axis=1)], axis=1)
+
+    def boxes_jac(self, xy: np.ndarray, dims: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Boxes (N, 4) and their derivatives by the centres' (x, y), (N, 4, 2) px per CRS unit, and by the
+        dimensions and the heading, (N, 4, 4): px per CRS unit of length, width and height, px per radian."""
+        n, s = xy.shape[0], self.step
+        probe = np.concatenate([xy, xy + [s, 0.0], xy + [0.0, s]])
+        z = self.surface.elevation(probe[:, 0], probe[:, 1]).reshape(3, n)
+        slope = ((z[1:] - z[0]) / s).T  # (N, 2): dz/dx, dz/dy
+        corners = self._corners(np.column_stack([xy, z[0]]), dims)
+        uv = self.camera.project(corners.reshape(-1, 3)).reshape(n, 8, 2)
+        boxes = np.concatenate([uv.min(axis=1), uv.max(axis=1)], axis=1)
+        filled = np.nan_to_num(uv, nan=0.0)
+        active = np.concatenate([filled.argmin(axis=1), filled.argmax(axis=1)], axis=1)  # (N, 4) corner per edge
+        rows = np.arange(n)[:, None]
+        extreme = corners[rows, active]  # (N, 4, 3)
+        d = s * np.concatenate([np.eye(3), -np.eye(3)])
+        uvd = self.camera.project((extreme[:, :, None, :] + d).reshape(-1, 3)).reshape(n, 4, 6, 2)
+        uvd = uvd[:, np.arange(4), :, _EDGE_COMPONENT]  # (4, N, 6) -> the edge's coordinate
+        grad = np.moveaxis((uvd[:, :, :3] - uvd[:, :, 3:]) / (2 * s), 0, 1)  # (N, 4, 3): d edge / d corner
+        j_xy = grad[:, :, :2] + grad[:, :, 2:] * slope[:, None, :]
+        signs = _SIGNS[active]  # (N, 4, 3)
+        d_dims = signs[..., None] * self.axes[:, None, :, :]  # (N, 4, 3, 3): d corner / d (length, width, height)
+        # Turning clockwise by dh moves the forward axis by dh * right and the right axis by -dh * forward.
+        d_heading = (signs[..., 0, None] * dims[:, None, 0, None] * self.axes[:, None, 1]
+                     - signs[..., 1, None] * dims[:, None, 1, None] * self.axes[:, None, 0])
+        j_dims = np.einsum("nex,nepx->nep", grad, np.concatenate([d_dims, d_heading[:, :, None]], axis=2))
+        return boxes, j_xy, j_dims
+
+
+def _newton_centres(model: _Cuboids, xy: np.ndarray, dims: np.ndarray, T: np.ndarray, target: np.ndarray,
+                    iterations: int, tol_px: float,
+                    halvings: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Newton iterations on the footprint centres (N, 2) so that the cuboids' fitted box quantities (``T``, from
+    :func:`_selection`) match ``target`` (N, 2) px, halving a step that does not reduce a row's residual. Rows
+    stop once their residual is within ``tol_px``.
+
+    Returns the centres' (x, y), and at them the boxes, their derivatives (:meth:`_Cuboids.boxes_jac`) and the
+    residual norms (px)."""
+    n = xy.shape[0]
+    xy = xy.copy()
+    dims = np.broadcast_to(dims, (n, 3))
+    boxes, j_xy, j_dims = np.full((n, 4), np.nan), np.full((n, 4, 2), np.nan), np.full((n, 4, 4), np.nan)
+    rnorm = np.full(n, np.inf)
+    rows = np.arange(n)
+    for it in range(iterations + 1):
+        sub = model.take(rows)
+        boxes[rows], j_xy[rows], j_dims[rows] = sub.boxes_jac(xy[rows], dims[rows])
+        r = _apply(T[rows], boxes[rows]) - target[rows]
+        rnorm[rows] = _norm(r)
+        todo = rnorm[rows] > tol_px
+        if it == iterations or not todo.any():
             break
-        cand = xy + t * np.where(pending[:, None], delta, 0.0)
-        rc = residual(cand)
-        better = pending & (_norm(rc) < _norm(r))
-        xy[better], r[better] = cand[better], rc[better]
-        pending &= ~better
-        t *= 0.5
-    return xy, r
+        rows, r, sub = rows[todo], r[todo], sub.take(np.flatnonzero(todo))
+        delta = -_solve2(np.einsum("nqe,nej->nqj", T[rows], j_xy[rows]), r)
+        ok = np.all(np.isfinite(delta), axis=1)
+        rows, delta, sub = rows[ok], delta[ok], sub.take(np.flatnonzero(ok))
+        pending = np.ones(rows.size, dtype=bool)
+        t = 1.0
+        for _ in range(halvings + 1):
+            if not pending.any():
+                break
+            idx = np.flatnonzero(pending)
+            cand = xy[rows[idx]] + t * delta[idx]
+            pred = sub.take(idx).boxes(cand, dims[rows[idx]])
+            better = _norm(_apply(T[rows[idx]], pred) - target[rows[idx]]) < rnorm[rows[idx]]
+            xy[rows[idx[better]]] = cand[better]
+            pending[idx[better]] = False
+            t *= 0.5
+        rows = rows[~pending]  # a row no step improves is stuck (e.g. a bump of the surface): it would stay so
+        if not rows.size:
+            break
+    return xy, boxes, j_xy, j_dims, rnorm
 
 
 def _naive_points(camera: Camera, surface: Surface, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -248,16 +343,19 @@ def box_ground_points(camera: Camera, surface: Surface, boxes: object, heading_d
             120 m from an 8 m high camera).
         border_px: box edges within this of the outermost pixel centres are taken as clipped (:func:`free_edges`).
 
-    Method: starting from the naive point (the bottom centre mapped to ``surface``), Newton iterations on the
-    footprint centre (x, y), with ``z = surface.elevation(x, y)``, match the projected cuboid's box to the observed
-    one in two quantities: its horizontal centre (or, when the frame clips one side, the other side edge) and its
-    bottom edge ``y2``. These two depend least on the dimensions being exact: the centre is symmetric in them and
-    the bottom edge sees only the footprint. A box clipped at one side is fitted with the other side edge and its
-    bottom, provided the fitted cuboid's lowest corner is in the frame (else the box's bottom is where the frame
-    cuts the vehicle). A box clipped at the bottom (or whose lowest corner is out of the frame), or at both sides,
-    keeps its naive point (status ``clipped_bottom`` / ``clipped_sides``), as does one without heading
-    (``no_heading``): without the heading the direction from the nearest corner to the centre is unknown, so no
-    correction is attempted.
+    Method: starting from the naive point (the bottom centre mapped to ``surface``) moved away from the camera by
+    the footprint's reach along the line of sight, Newton iterations on the footprint centre (x, y), with
+    ``z = surface.elevation(x, y)``, match the projected cuboid's box to the observed one in two quantities: its
+    horizontal centre (or, when the frame clips one side, the other side edge) and its bottom edge ``y2``. These
+    two depend least on the dimensions being exact: the centre is symmetric in them and the bottom edge sees only
+    the footprint. (The derivatives are those of the corners that make the box's edges.) A box clipped at one side
+    is fitted with the other side edge and its bottom, provided the fitted cuboid's lowest corner is in the frame
+    (else the box's bottom is where the frame cuts the vehicle). A box clipped at the bottom (or whose lowest
+    corner is out of the frame), or at both sides, keeps its naive point (status ``clipped_bottom`` /
+    ``clipped_sides``), as does one without heading (``no_heading``): without the heading the direction from the
+    nearest corner to the centre is unknown, so no correction is attempted. Over a rough surface (a DEM from
+    lidar) the bottom edge can stop moving monotonically along the line of sight far away: a box whose fit cannot
+    get within ``tol_px`` there is ``not_converged``.
     """
     b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
     n = b.shape[0]
@@ -298,21 +396,18 @@ def _fit_centres(camera: Camera, surface: Surface, boxes: np.ndarray, heading: n
                  start: np.ndarray, free: np.ndarray, iterations: int,
                  tol_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fitted centres (N, 3), converged (N,) and all-edge RMS residuals (N,) px; ``dims`` in CRS units."""
-    use_x1, use_x2 = free[:, 0], free[:, 2]
-    observed = _targets(boxes, use_x1, use_x2)
-
-    def predicted_boxes(xy: np.ndarray) -> np.ndarray:
-        centre = np.column_stack([xy, surface.elevation(xy[:, 0], xy[:, 1])])
-        return cuboid_boxes(camera, centre, heading, dims[:, 0], dims[:, 1], dims[:, 2])
-
-    def residual(xy: np.ndarray) -> np.ndarray:
-        return _targets(predicted_boxes(xy), use_x1, use_x2) - observed
-
-    step = 1e-3 * _units_per_metre(camera)  # 1 mm
-    xy, rnorm = _gauss_newton_xy(residual, start[:, :2].copy(), step, iterations, tol_px)
+    model = _Cuboids.at(camera, surface, heading)
+    T = _selection(free)
+    # The box's bottom is the footprint's corner nearest the camera: start from its centre seen from there.
+    ray = start[:, :2] - camera.position[:2]
+    norm = np.linalg.norm(ray, axis=1, keepdims=True)
+    ray = np.divide(ray, norm, out=np.zeros_like(ray), where=norm > 0)
+    reach = (0.5 * dims[:, 0] * np.abs(np.einsum("ni,ni->n", ray, model.axes[:, 0, :2]))
+             + 0.5 * dims[:, 1] * np.abs(np.einsum("ni,ni->n", ray, model.axes[:, 1, :2])))
+    xy0 = start[:, :2] + reach[:, None] * ray
+    xy, pred, _, _, rnorm = _newton_centres(model, xy0, dims, T, _apply(T, boxes), iterations, tol_px)
     converged = rnorm <= tol_px
-    xyz = np.column_stack([xy, surface.elevation(xy[:, 0], xy[:, 1])])
-    return xyz, converged, _edge_rms(predicted_boxes(xy), boxes, free)
+    return model.centres(xy), converged, _edge_rms(pred, boxes, free)
 
 
 # ---------------------------------------------------------------------------------------------------- length
@@ -348,7 +443,9 @@ def estimate_length(camera: Camera, centres: object, heading_deg: object, boxes:
 
     The centres must not come from these boxes with an assumed length: :func:`box_ground_points` places the
     centre so that the box's bottom edge and centre match the assumed size, and this fit would then mostly return
-    the assumed length. Use :func:`estimate_length_refit` for that case.
+    the assumed length. Use :func:`estimate_length_refit` for that case. The headings are taken as exact: seen
+    nearly end-on, a heading error ``e`` biases the length by ``L e / tan(a)``, ``a`` the angle between line of
+    sight and heading (see :func:`estimate_length_refit`).
 
     Args:
         camera: the calibrated camera.
@@ -390,19 +487,26 @@ def estimate_length(camera: Camera, centres: object, heading_deg: object, boxes:
 def estimate_length_refit(camera: Camera, surface: Surface, heading_deg: object, boxes: object, width_m: float,
                           height_m: float, *, length0_m: float = 4.5, width_sigma_m: float = 0.1,
                           height_sigma_m: float = 0.2, pixel_sigma: float = 1.0, max_std_m: float = 0.5,
-                          border_px: float = 2.0, use_top: bool = True) -> tuple[float, float]:
+                          border_px: float = 2.0, use_top: bool = True,
+                          refine_heading: bool = True) -> tuple[float, float]:
     """Length (m) and its 1-sigma uncertainty (m) of ONE vehicle seen in M frames, its footprint centres unknown.
 
-    For every trial size the centres are refitted as :func:`box_ground_points` does (matching each box's centre
-    and bottom edge), so the length is judged only by what the centres cannot absorb: the box's horizontal
-    extent and its top edge.
+    The centres are fitted with the size, so the length is judged only by what they cannot absorb: the box's
+    horizontal extent and its top edge.
 
     Args:
         camera: the calibrated camera.
         surface: the road surface.
         heading_deg: (M,) heading in each frame, degrees clockwise from north.
-        boxes: (M, 4) observed boxes ``x1, y1, x2, y2`` px; frames :func:`box_ground_points` cannot correct are
-            left out.
+        boxes: (M, 4) observed boxes ``x1, y1, x2, y2`` px, in time order; frames :func:`box_ground_points`
+            cannot correct are left out.
+        refine_heading: fit each frame's heading too, the vehicle moving along it (the given headings are a
+            prior of +-``HEADING_PRIOR_DEG``). Seen nearly end-on the length shows in the box's width only through
+            ``L sin(a)``, ``a`` the angle between the line of sight and the heading, so a heading error ``e``
+            biases it by ``L e / tan(a)``: 0.5 deg at ``a`` = 5 deg is 10 %. A heading smoothed from the boxes'
+            bottom centres is off by that much, and always the same way (the bottom centre lies towards the
+            nearest corner, whose offset from the centre turns as the vehicle passes the camera); the fitted
+            centres' motion is not. Off, the headings are taken as exact.
 
     The other arguments and the result are those of :func:`estimate_length`.
 
@@ -411,24 +515,185 @@ def estimate_length_refit(camera: Camera, surface: Surface, heading_deg: object,
     the height (about 7 m of length per metre of height at 20 m from an 8 m high camera); only the change of that
     trade-off with distance separates them, so the standard deviation is large and the length NaN unless the
     boxes are very precise.
+
+    Method: Gauss-Newton least squares over the size (length, width, height; Gaussian priors on width and height),
+    every frame's footprint centre (x, y) on the surface and, with ``refine_heading``, its heading, against the
+    free box edges (``pixel_sigma`` px each) and the motion: the step between consecutive centres lies along
+    their mean heading (to ``MOTION_SIGMA_M``, 1 sigma), and the heading turns by about ``TURN_SIGMA_DEG`` per
+    frame. Without ``refine_heading`` and the top edge, each centre then meets its box's horizontal centre and
+    bottom exactly, as in :func:`box_ground_points`, and only the box's width judges the size. The centres start
+    from :func:`box_ground_points` with the given headings and the prior size; the derivatives of the boxes are
+    those of the corners that make their edges, and the normal equations (block-tridiagonal in the frames) are
+    solved as a band matrix. About 10 ms for 40 frames.
     """
     b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
     heading = np.broadcast_to(np.asarray(heading_deg, dtype=np.float64), (b.shape[0],))
     prior = _SizePrior(width_m, height_m, width_sigma_m, height_sigma_m, length0_m)
-    first = box_ground_points(camera, surface, b, heading, prior.start(), border_px=border_px)
+    first = box_ground_points(camera, surface, b, heading, prior.start(), border_px=border_px,
+                              tol_px=_FIRST_TOL_PX)
     use = first.ok
-    b, heading, start = b[use], heading[use], first.xyz[use]
+    b, heading, xy = b[use], heading[use], first.xyz[use, :2]
     free = free_edges(camera, b, border_px)
-    fit_free = free.copy()
-    fit_free[:, 1] &= use_top
-    upm = _units_per_metre(camera)
+    free[:, 1] &= use_top
+    if not free.any():
+        return float("nan"), float("inf")
+    fit = _VehicleFit(camera, surface, b, free, heading, prior, pixel_sigma, refine_heading)
+    return fit.solve(xy, max_std_m)
 
-    def predict(theta: np.ndarray) -> np.ndarray:
-        dims = np.tile(theta * upm, (b.shape[0], 1))
-        xyz, _, _ = _fit_centres(camera, surface, b, heading, dims, start, free, iterations=30, tol_px=1e-8)
-        return cuboid_boxes(camera, xyz, heading, *dims.T)
 
-    return _fit_length(predict, b, fit_free, prior, pixel_sigma, max_std_m, nuisance=2 * b.shape[0])
+_FIRST_TOL_PX = 0.02  # the first centres (which frames are usable, and where the fit starts)
+HEADING_PRIOR_DEG = 10.0  # standard deviation of a given heading (estimate_length_refit, refine_heading)
+MOTION_SIGMA_M = 0.05  # how far the step between two frames' centres may stray from their mean heading (m)
+TURN_SIGMA_DEG = 2.0  # how far the heading may turn from one frame to the next (deg)
+
+
+class _VehicleFit:
+    """The least-squares problem of :func:`estimate_length_refit`. Parameters: the free sizes (m), and per frame
+    the centre's (x, y) (CRS units) and, with ``refine_heading``, the heading (radians). Residuals are whitened.
+
+    Its normal equations are block-tridiagonal in the frames (the motion ties neighbours) with a border for the
+    sizes: :func:`_solve_bordered` solves them as a band matrix (fast, and free of multi-threaded BLAS, which
+    slows small problems down on a busy machine)."""
+
+    def __init__(self, camera: Camera, surface: Surface, obs: np.ndarray, free: np.ndarray, heading_deg: np.ndarray,
+                 prior: _SizePrior, pixel_sigma: float, refine_heading: bool) -> None:
+        self.camera, self.surface, self.obs, self.free, self.prior = camera, surface, obs, free, prior
+        self.heading0 = np.unwrap(np.radians(heading_deg))  # no jumps at north: mean headings and turns
+        self.pixel_sigma, self.refine = float(pixel_sigma), refine_heading
+        self.upm = _units_per_metre(camera)
+        self.sizes = np.flatnonzero(~prior.fixed())
+        self.m = obs.shape[0]
+        self.prior_jac = np.zeros((2, 3))
+        for i, sigma in enumerate((prior.width_sigma_m, prior.height_sigma_m)):
+            if sigma > 0:
+                self.prior_jac[i, i + 1] = 1.0 / sigma
+        self.prior_jac = self.prior_jac[:, self.sizes]
+
+    def normal_equations(self, theta: np.ndarray, xy: np.ndarray, h: np.ndarray) -> tuple:
+        """Cost, data cost and count (box edges and motion, not priors), and the Gauss-Newton normal equations:
+        per-frame diagonal blocks D (M, q, q), blocks E (M-1, q, q) between neighbours, frame-size blocks
+        C (M, q, k), the sizes' block G (k, k), and the gradients a (M, q) and g (k,) (J^T r)."""
+        m, upm = self.m, self.upm
+        model = _Cuboids.at(self.camera, self.surface, np.degrees(h))
+        pred, j_xy, j_more = model.boxes_jac(xy, np.broadcast_to(theta * upm, (m, 3)))
+        w = np.where(self.free, 1.0 / self.pixel_sigma, 0.0)  # (M, 4)
+        r = np.where(self.free, pred - self.obs, 0.0) * w
+        Jp = (np.concatenate([j_xy, j_more[:, :, 3:]], axis=2) if self.refine else j_xy) * w[..., None]
+        Jg = j_more[:, :, self.sizes] * upm * w[..., None]
+        D = np.einsum("nep,neq->npq", Jp, Jp)
+        E = np.zeros((max(m - 1, 0),) + D.shape[1:])
+        C = np.einsum("nep,neg->npg", Jp, Jg)
+        G = np.einsum("neg,nef->gf", Jg, Jg)
+        a = np.einsum("nep,ne->np", Jp, r)
+        g = np.einsum("neg,ne->g", Jg, r)
+        data_cost, n_data = float(np.sum(r * r)), int(self.free.sum())
+        prior_cost = 0.0
+        if self.refine and m > 1:
+            mid = 0.5 * (h[:-1] + h[1:])
+            ahead = np.column_stack([np.sin(mid), np.cos(mid)])
+            right = np.column_stack([np.cos(mid), -np.sin(mid)])
+            step = np.diff(xy, axis=0)
+            s = MOTION_SIGMA_M * upm
+            along = np.sum(step * ahead, axis=1)
+            zero = np.zeros(m - 1)
+            # The step between frames i and i+1 across their mean heading; then the turn between them.
+            rows = [(np.sum(step * right, axis=1) / s,
+                     np.column_stack([-right / s, -0.5 * along / s]), np.column_stack([right / s, -0.5 * along / s])),
+                    (np.diff(h) / np.radians(TURN_SIGMA_DEG),
+                     np.column_stack([zero, zero, zero - 1.0 / np.radians(TURN_SIGMA_DEG)]),
+                     np.column_stack([zero, zero, zero + 1.0 / np.radians(TURN_SIGMA_DEG)]))]
+            for k, (res, u, v) in enumerate(rows):
+                D[:-1] += np.einsum("np,nq->npq", u, u)
+                D[1:] += np.einsum("np,nq->npq", v, v)
+                E += np.einsum("np,nq->npq", u, v)
+                a[:-1] += u * res[:, None]
+                a[1:] += v * res[:, None]
+                if k == 0:
+                    data_cost, n_data = data_cost + float(res @ res), n_data + m - 1
+                else:
+                    prior_cost += float(res @ res)
+        if self.refine:
+            given = np.radians(HEADING_PRIOR_DEG)
+            res = (h - self.heading0) / given
+            D[:, 2, 2] += given**-2
+            a[:, 2] += res / given
+            prior_cost += float(res @ res)
+        res = self.prior.residual(theta)
+        G += self.prior_jac.T @ self.prior_jac
+        g += self.prior_jac.T @ res
+        prior_cost += float(res @ res)
+        return data_cost + prior_cost, data_cost, n_data, D, E, C, G, a, g
+
+    def solve(self, xy: np.ndarray, max_std_m: float, iterations: int = 20,
+              step_tol_m: float = 1e-3) -> tuple[float, float]:
+        """Gauss-Newton from the prior size, the centres ``xy`` and the given headings; a step that raises the cost
+        is halved. Stops when the size moves by under ``step_tol_m`` or nothing improves. Returns the length and
+        its standard deviation (scaled up by the data's residuals when they exceed their sigmas)."""
+        theta, h = self.prior.start(), self.heading0.copy()
+        cost, data_cost, n_data, *system = self.normal_equations(theta, xy, h)
+        for _ in range(iterations):
+            if not np.isfinite(cost):
+                return float("nan"), float("inf")
+            step_p, step_g, S = _solve_bordered(*system)
+            if not (np.all(np.isfinite(step_p)) and np.all(np.isfinite(step_g))):
+                return float("nan"), float("inf")
+            t = 1.0
+            for _ in range(6):
+                trial_theta = theta.copy()
+                trial_theta[self.sizes] -= t * step_g
+                trial_xy = xy - t * step_p[:, :2]
+                trial_h = h - t * step_p[:, 2] if self.refine else h
+                trial = self.normal_equations(trial_theta, trial_xy, trial_h)
+                if trial[0] <= cost:
+                    break
+                t *= 0.5
+            else:
+                break
+            gain = cost - trial[0]
+            theta, xy, h = trial_theta, trial_xy, trial_h
+            cost, data_cost, n_data, *system = trial
+            if np.max(np.abs(t * step_g)) < step_tol_m or gain < 1e-9 * cost:
+                break
+        _, _, S = _solve_bordered(*system)
+        with np.errstate(invalid="ignore"):
+            var = float(np.linalg.inv(S)[0, 0]) if np.all(np.isfinite(S)) and np.linalg.cond(S) < 1e12 else np.inf
+        n_par = self.sizes.size + self.m * (3 if self.refine else 2)
+        dof = n_data - n_par
+        scale = max(1.0, data_cost / dof) if dof > 0 else 1.0
+        length_std = float(np.sqrt(var * scale)) if var >= 0 else float("inf")
+        length = abs(float(theta[0]))
+        return (length if length_std <= max_std_m else float("nan")), length_std
+
+
+def _solve_bordered(D: np.ndarray, E: np.ndarray, C: np.ndarray, G: np.ndarray, a: np.ndarray,
+                    g: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Solve ``[[B, C], [C^T, G]] [u; v] = [a; g]`` for a symmetric positive definite block-tridiagonal ``B``
+    (diagonal blocks D (M, q, q), upper blocks E (M-1, q, q)) bordered by C (M, q, k) and G (k, k), ``B`` as a
+    band matrix. Returns u (M, q), v (k,) and the Schur complement ``G - C^T B^-1 C`` (the inverse covariance of v
+    when these are normal equations); NaN if ``B`` is not positive definite."""
+    m, q = D.shape[:2]
+    n, u = m * q, 2 * q - 1  # order and upper bandwidth of B
+    B = np.zeros((n, n))
+    idx = np.arange(m)[:, None, None] * q
+    rows, cols = np.arange(q)[None, :, None], np.arange(q)[None, None, :]
+    B[idx + rows, idx + cols] = D
+    B[idx[:-1] + rows, idx[:-1] + q + cols] = E
+    band = np.zeros((u + 1, n))
+    for d in range(min(u, n - 1) + 1):
+        band[u - d, d:] = np.diagonal(B, d)
+    rhs = np.concatenate([a.reshape(n, 1), C.reshape(n, -1)], axis=1)
+    try:
+        X = scipy.linalg.solveh_banded(band, rhs, check_finite=False)
+    except (np.linalg.LinAlgError, ValueError):
+        k = G.shape[0]
+        return np.full((m, q), np.nan), np.full(k, np.nan), np.full((k, k), np.nan)
+    Cf = C.reshape(n, -1)
+    S = G - Cf.T @ X[:, 1:]
+    try:
+        v = np.linalg.solve(S, g - Cf.T @ X[:, 0])
+    except np.linalg.LinAlgError:
+        v = np.full(G.shape[0], np.nan)
+    return (X[:, 0] - X[:, 1:] @ v).reshape(m, q), v, S
 
 
 def _fit_length(predict: Callable[[np.ndarray], np.ndarray], obs: np.ndarray, free: np.ndarray, prior: _SizePrior,

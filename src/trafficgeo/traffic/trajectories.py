@@ -53,7 +53,7 @@ class TrajectoryOptions:
     max_gap_s: float = 5.0  # a longer gap in time splits a track
     min_points: int = 5  # shorter tracks (after splitting) are dropped
     box_correction: bool = True  # fit a cuboid to each box (tracks with boxes only)
-    estimate_length: bool = False  # estimate each vehicle's length from its boxes (slower)
+    estimate_length: bool = True  # estimate each vehicle's length from its boxes (where the view allows)
     frame_margin_px: float = 2.0  # boxes this close to the frame's edge are cut off by it: not used
     max_metres_per_px: float = 1.5  # farther points, where one pixel spans more of the road (m), are not used
 

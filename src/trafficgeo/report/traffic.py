@@ -1,0 +1,60 @@
+"""Readable terminal tables of traffic results: an ``analyze`` run and a ``compare-sumo`` comparison (rich)."""
+
+from __future__ import annotations
+
+from rich.console import Console
+from rich.table import Table
+
+from trafficgeo.traffic.analyze import Analysis, summary
+from trafficgeo.traffic.validation import Comparison
+
+
+def print_analysis(analysis: Analysis, console: Console) -> None:
+    """Totals and per-line counts of an ``analyze`` run."""
+    s = summary(analysis)
+    t0, t1 = s["period_s"]
+    dropped = ", ".join(f"{k} {v}" for k, v in s["dropped_points"].items()) or "none"
+    speed = f"{s['mean_speed_kmh']:.1f} km/h" if s["mean_speed_kmh"] is not None else "-"
+    classes = ", ".join(f"{k or 'unknown'} {v}" for k, v in s["classes"].items())
+    console.print(f"{s['vehicles']} vehicles ({classes}) in {t1 - t0:.1f} s; {s['points']} track points, "
+                  f"{s['outlier_points']} rejected as outliers; not used: {dropped}")
+    console.print(f"mean speed over the observed paths: {speed}; lane changes: {s['lane_changes']}")
+    if s["crossings"]:
+        table = Table(title="crossings per counting line")
+        for col in ("line", "lane", "direction", "vehicles", "flow veh/h", "mean speed km/h"):
+            table.add_column(col, justify="right")
+        dur = max(t1 - t0, 1e-9)
+        cr = analysis.crossings
+        for row in s["crossings"]:
+            sel = cr[(cr["line"] == row["line"]) & (cr["lane"] == row["lane"]) & (cr["direction"] == row["direction"])]
+            table.add_row(row["line"], row["lane"] or "-", f"{row['direction']:+d}", str(row["count"]),
+                          f"{row['count'] * 3600.0 / dur:.0f}", f"{sel['speed_kmh'].mean():.1f}")
+        console.print(table)
+
+
+def print_comparison(comparison: Comparison, console: Console) -> None:
+    """GEH per line and lane, speeds and travel times of a ``compare-sumo`` run."""
+
+    s = comparison.count_summary
+    console.print(f"{s['rows']} counts (line x lane x direction x interval): {s['share_geh_below_5']:.0%} with GEH < 5 "
+                  f"(target >= 85 %), mean GEH {s['mean_geh']:.2f}; vehicles observed {s['total_observed']}, "
+                  f"simulated {s['total_simulated']}")
+    table = Table(title="per line and lane")
+    for col in ("line", "lane", "observed", "simulated", "GEH", "speed obs km/h", "speed sim km/h", "KS"):
+        table.add_column(col, justify="right")
+    speeds = comparison.speeds.set_index(["line", "lane"]) if len(comparison.speeds) else None
+    for g in s["groups"]:
+        key = (g["line"], g["lane"])
+        sp = speeds.loc[key] if speeds is not None and key in speeds.index else None
+        fmt = (lambda v: "-" if v is None or v != v else f"{v:.1f}")  # noqa: E731
+        table.add_row(str(g["line"]), str(g["lane"]) or "-", str(g["observed"]), str(g["simulated"]),
+                      f"{g['geh']:.2f}", fmt(sp["observed_mean_kmh"] if sp is not None else None),
+                      fmt(sp["simulated_mean_kmh"] if sp is not None else None),
+                      "-" if sp is None or sp["ks_statistic"] != sp["ks_statistic"] else f"{sp['ks_statistic']:.2f}")
+    console.print(table)
+    tt = comparison.travel_times
+    if tt:
+        console.print(f"travel time {tt['from_line']} -> {tt['to_line']}: observed median "
+                      f"{tt.get('observed_median_s', float('nan')):.1f} s (n {tt.get('observed_n', 0)}), simulated "
+                      f"{tt.get('simulated_median_s', float('nan')):.1f} s (n {tt.get('simulated_n', 0)}), KS "
+                      f"{tt.get('ks_statistic', float('nan')):.2f}")
