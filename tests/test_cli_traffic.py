@@ -68,6 +68,9 @@ def test_analyze_writes_vehicles_counts_and_trajectories(scene: dict[str, Path],
         assert veh.loc[tid, "class"] == cls
     assert veh.loc["1", "lane"] == "inner" and veh.loc["2", "lane"] == "outer" and veh.loc["3", "lane"] == "inner"
     assert (veh["lane_changes"] == 0).all()
+    # lengths from the boxes where the view determines them (measured 4.70 and 4.49 m; the truck is seen end-on)
+    cars = veh.loc[["1", "2"], "length_m"]
+    assert cars.notna().all() and np.allclose(cars, 4.5, atol=0.5)
     cr = pd.read_csv(out / "crossings.csv", dtype={"track_id": str, "lane": str, "line": str})
     assert sorted(cr["track_id"]) == ["1", "2", "3"]
     c1 = cr.set_index("track_id").loc["1"]
@@ -170,10 +173,12 @@ def test_export_fcd_and_compare_sumo_round_trip(scene: dict[str, Path], tmp_path
     back = read_fcd(fcd, crs=CRS)
     pts = pd.read_csv(run / "trajectories.csv", dtype={"track_id": str})
     assert len(back) == len(pts) and set(back["track_id"]) == {"1", "2", "3"}
-    # SUMO positions are front bumpers: half a car (truck) length ahead of the footprint centre, northbound
+    # SUMO positions are front bumpers: half the vehicle's estimated length (else its class's) ahead of the
+    # footprint centre, northbound
     first = back[back["track_id"] == "1"].iloc[0]
     p0 = pts[pts["track_id"] == "1"].iloc[0]
-    assert first["y"] - p0["y"] == pytest.approx(2.25, abs=0.05)
+    length = pd.read_csv(run / "vehicles.csv", dtype={"track_id": str}).set_index("track_id").loc["1", "length_m"]
+    assert first["y"] - p0["y"] == pytest.approx(0.5 * length, abs=0.01)
     cmp_dir = tmp_path / "cmp"
     code, stdout, stderr = invoke("compare-sumo", run, fcd, "--out", cmp_dir)
     assert code == 0, stderr

@@ -127,7 +127,7 @@ def summary(analysis: Analysis) -> dict[str, object]:
         "points": len(analysis.points),
         "dropped_points": analysis.dropped,
         "outlier_points": int(analysis.points["outlier"].sum()) if len(analysis.points) else 0,
-        "mean_speed_kmh": float(veh["mean_speed_kmh"].mean()) if len(veh) else None,
+        "mean_speed_kmh": float(veh["mean_speed_kmh"].mean()) if veh["mean_speed_kmh"].notna().any() else None,
         "classes": {str(k): int(v) for k, v in veh["class"].value_counts().items()} if len(veh) else {},
         "lane_changes": int(veh["lane_changes"].sum()) if len(veh) else 0,
         "crossings": [{"line": str(k[0]), "lane": str(k[1]), "direction": int(k[2]), "count": int(v)}

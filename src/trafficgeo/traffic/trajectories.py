@@ -38,6 +38,7 @@ from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, smooth_tr
 from trafficgeo.traffic.tracks import ImageTracks
 
 MIN_MOVING_SPEED = 1.0  # m/s: below this a smoothed heading is noise
+MIN_SPEED_DURATION_S = 1.0  # a vehicle seen for less than this gets no mean speed (a glimpse tells too little)
 EDGE_SIGMAS = 2.0  # points within this many pixel sigmas of the end of the surface are not used
 BOX_FIT_TOL_PX = 0.02  # the cuboid fit stops when the box's centre and bottom match to this (px): far below noise
 
@@ -334,10 +335,10 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
             "track_id": name, "source_track": source, "class": vclass, "first_time": float(sm.time[0]),
             "last_time": float(sm.time[-1]), "duration_s": duration, "points": int(rows.size),
             "outliers": int(sm.outlier.sum()), "path_length_m": path,
-            "mean_speed_kmh": 3.6 * path / duration if duration > 0 else np.nan,
+            "mean_speed_kmh": 3.6 * path / duration if duration >= MIN_SPEED_DURATION_S else np.nan,
             "mean_speed_std_kmh": 3.6 * float(np.hypot(sm.position_std[0], sm.position_std[-1])) / duration
-            if duration > 0 else np.nan,
-            "median_speed_kmh": float(np.median(3.6 * sm.speed)),
+            if duration >= MIN_SPEED_DURATION_S else np.nan,
+            "median_speed_kmh": float(np.median(3.6 * sm.speed)) if duration >= MIN_SPEED_DURATION_S else np.nan,
             "speed_std_kmh": float(np.sqrt(np.mean(sm.speed_std**2))) * 3.6,
             "min_distance_m": float(np.nanmin(ground.distance_m[rows])),
             "length_m": length, "length_std_m": length_std,
