@@ -155,7 +155,9 @@ def part_world(world_dir: Path, seed: int, options: TrajectoryOptions | None = N
                      .value_counts().index[0] if v in set(truth["vehicle"]) else "" for v, a, b in
                      zip(veh["vehicle"], veh["first_time"], veh["last_time"], strict=True)]
     acc, table = _count_accuracy(result.crossings, truth_counts)
-    spot = _spot_speed_error(result.crossings, major, truth_counts)
+    source = result.vehicles.set_index("track_id")["source_track"]  # split parts "<id>.k" -> the tracker's id
+    spot = _spot_speed_error(result.crossings.assign(track_id=result.crossings["track_id"].map(source)), major,
+                             truth_counts)
 
     # --- naive baseline
     raw = _naive(camera, surface, tracks)

@@ -127,3 +127,18 @@ def test_options_checked() -> None:
         TrajectoryOptions(pixel_sigma=0.0)
     with pytest.raises(InputError, match="min_points"):
         TrajectoryOptions(min_points=1)
+
+
+def test_a_wrong_first_point_does_not_capture_the_filter() -> None:
+    """Given parts (as in the second pass), a first point 1 m ahead makes the filter believe in 90 km/h and
+    reject everything after it; the run of rejections splits it off and the rest is smoothed right."""
+    from trafficgeo.traffic.trajectories import _smooth_segments
+
+    t = np.arange(0.0, 2.0, 0.04)
+    xy = np.column_stack([np.zeros(t.size), 12.5 * t])  # 45 km/h
+    xy[1, 1] += 1.0  # 1 m jump between the first two points: 25 m/s more
+    cov = np.broadcast_to(0.05**2 * np.eye(2), (t.size, 2, 2)).copy()
+    parts = _smooth_segments(t, xy, cov, TrajectoryOptions(), segments=[np.arange(t.size)])
+    assert len(parts) == 1
+    idx, sm = parts[0]
+    assert idx[0] >= 1 and np.median(sm.speed) == pytest.approx(12.5, abs=0.2)

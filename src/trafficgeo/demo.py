@@ -230,7 +230,8 @@ def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console)
     both = pd.concat([true_counts.rename("true"), counted.rename("counted")], axis=1).fillna(0)
     major = noisy.groupby("track_id")["vehicle"].agg(lambda s: s.value_counts().index[0])
     spot_true = tc.set_index([tc["line"].astype(str), "vehicle"])["speed_kmh"]
-    cr = result.crossings
+    source = result.vehicles.set_index("track_id")["source_track"]  # split parts "<id>.k" -> the tracker's id
+    cr = result.crossings.assign(track_id=result.crossings["track_id"].map(source))
     spot = cr["speed_kmh"].to_numpy() - np.array([spot_true.get((ln, major.get(t)), np.nan) for ln, t in
                                                    zip(cr["line"], cr["track_id"], strict=True)])
     m = {

@@ -137,21 +137,21 @@ def _runs(mask: np.ndarray, min_len: int) -> list[int]:
 
 def _smooth_segments(t: np.ndarray, xy_m: np.ndarray, cov: np.ndarray, opts: TrajectoryOptions,
                      segments: list[np.ndarray] | None = None) -> list[tuple[np.ndarray, SmoothedTrack]]:
-    """Smooth one track's points (indices into t); split at long gaps and outlier runs unless ``segments`` are
-    given. Returns (indices, smoothed) per part of at least ``min_points`` points."""
+    """Smooth one track's points (indices into t), starting from ``segments`` or from the track split at long
+    gaps, and split again wherever ``split_outliers`` points in a row are rejected (an ID switch, or a wrong start
+    that the filter then refuses to leave). Returns (indices, smoothed) per part of at least ``min_points``."""
     if segments is None:
         cuts = np.flatnonzero(np.diff(t) > opts.max_gap_s) + 1
-        pending = [s for s in np.split(np.arange(t.size), cuts)]
-        fixed = False
+        pending = list(np.split(np.arange(t.size), cuts))
     else:
-        pending, fixed = list(segments), True
+        pending = list(segments)
     done = []
     while pending:
         idx = pending.pop(0)
         if idx.size < opts.min_points:
             continue
         sm = smooth_track(t[idx], xy_m[idx], cov[idx], accel_sigma=opts.accel_sigma, gate=opts.gate)
-        starts = [] if fixed else _runs(sm.outlier, opts.split_outliers)
+        starts = _runs(sm.outlier, opts.split_outliers)
         if starts:
             pending[:0] = [idx[: starts[0]], idx[starts[0]:]]
             continue
