@@ -187,8 +187,10 @@ def demo(
 
 
 from trafficgeo.cli import geo as _geo  # noqa: E402, F401  (registers the geospatial commands)
+from trafficgeo.cli import process as _process  # noqa: E402, F401  (registers process and stitch)
 from trafficgeo.cli import synth as _synth  # noqa: E402, F401  (registers the synth command)
 from trafficgeo.cli import traffic as _traffic  # noqa: E402, F401  (registers analyze and compare-sumo)
+from trafficgeo.cli import video as _video  # noqa: E402, F401  (registers the frame command)
 
 
 def main(argv: list[str] | None = None) -> Any:

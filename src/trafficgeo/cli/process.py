@@ -1,0 +1,154 @@
+"""Video commands: process (decode -> detect -> track -> analyze, resumable) and stitch (time chunks)."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from trafficgeo.cli import app, console
+from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt, _camera, _surface
+from trafficgeo.cli.traffic import _check_out_dir
+from trafficgeo.errors import InputError
+
+LanesOpt = Annotated[Path | None, typer.Option(help="lane polygons or boundary lines (GIS), or boundary lines drawn "
+                                               "in the image (CSV line,u,v)")]
+LinesOpt = Annotated[Path | None, typer.Option(help="counting lines (GIS file, or CSV line,u,v in the image)")]
+IntervalOpt = Annotated[float, typer.Option(help="counting interval (s)")]
+
+
+def _layout(cam, surf, lanes: Path | None, lines: Path | None):
+    from trafficgeo.geo.mapping import camera_crs
+    from trafficgeo.traffic.lanes import read_lanes
+    from trafficgeo.traffic.lines import read_count_lines
+
+    crs = camera_crs(cam)
+    return (read_lanes(lanes, crs=crs, camera=cam, surface=surf) if lanes is not None else None,
+            read_count_lines(lines, crs=crs, camera=cam, surface=surf) if lines is not None else None)
+
+
+def _analyze_and_write(cam, surf, image_tracks, lane_set, count_lines, interval: float, out: Path):
+    from trafficgeo.report.traffic import print_analysis
+    from trafficgeo.traffic.analyze import analyze as run_analysis
+    from trafficgeo.traffic.analyze import write_analysis
+
+    result = run_analysis(cam, surf, image_tracks, lanes=lane_set, lines=count_lines, interval_s=interval)
+    written = write_analysis(out, result, cam)
+    print_analysis(result, console)
+    return result, written
+
+
+@app.command()
+def process(
+    video: Annotated[Path, typer.Argument(help="video file (mp4/mov/...) from a fixed camera")],
+    camera: Annotated[Path, typer.Option(help="camera JSON from 'trafficgeo calibrate' (on a frame of this "
+                                         "video)")],
+    surface: SurfaceOpt,
+    out: Annotated[Path, typer.Option("--out", "-o", help="output folder")],
+    lanes: LanesOpt = None,
+    lines: LinesOpt = None,
+    interval: IntervalOpt = 60.0,
+    detector: Annotated[str, typer.Option(help="'background' (MOG2, no weights), 'knn', or a YOLO .onnx model "
+                                          "file")] = "background",
+    start: Annotated[float, typer.Option(help="start time (s)")] = 0.0,
+    end: Annotated[float | None, typer.Option(help="end time (s); default: the end of the video")] = None,
+    every: Annotated[int, typer.Option(help="use every n-th frame")] = 1,
+    roi: Annotated[Path | None, typer.Option(help="region of interest: mask image or CSV polygon u,v")] = None,
+    checkpoint: Annotated[float, typer.Option(help="seconds of video between checkpoints")] = 30.0,
+    restart: Annotated[bool, typer.Option(help="ignore a checkpoint and start again")] = False,
+    surface_crs: SurfaceCrsOpt = None,
+    resolution: ResolutionOpt = 0.25,
+) -> None:
+    """Detect, track and georeference the vehicles of a video; then counts, speeds and lanes as 'analyze'.
+
+    Interrupted runs resume from their last checkpoint when the same command is run again.
+    """
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from trafficgeo.video.pipeline import (
+        ProcessOptions,
+        detect_and_track,
+        finish_run,
+        tracks_table_to_image_tracks,
+        write_run_info,
+    )
+
+    _check_out_dir(out)
+    opts = ProcessOptions(detector=detector, start_s=start, end_s=end, every=every, checkpoint_s=checkpoint)
+    cam, doc = _camera(camera)
+    surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
+    lane_set, count_lines = _layout(cam, surf, lanes, lines)
+    mask = None
+    if roi is not None:
+        from trafficgeo.video.roi import read_roi
+
+        mask = read_roi(roi, cam.image_size)
+    t0 = time.perf_counter()
+    columns = (TextColumn("[progress.description]{task.description}"), BarColumn(),
+               TextColumn("{task.completed}/{task.total} frames, {task.fields[rate]:.1f} fps, video {task.fields[t]}"),
+               TimeRemainingColumn())
+    try:
+        with Progress(*columns, console=console, transient=True) as bar:
+            task = bar.add_task("detect + track", total=None, rate=0.0, t="-")
+
+            def tick(done: int, total: int, t: float) -> None:
+                rate = done / max(time.perf_counter() - t0, 1e-9)
+                bar.update(task, completed=done, total=total, rate=rate, t=f"{t:.1f} s")
+
+            detections, tracks = detect_and_track(video, cam, surf, out, opts, roi=mask, restart=restart,
+                                                  progress=tick)
+    except KeyboardInterrupt:
+        console.print(f"interrupted; run the same command again to resume from the last checkpoint in {out}")
+        sys.exit(130)
+    elapsed = time.perf_counter() - t0
+    console.print(f"{len(detections)} detections, {tracks['track_id'].nunique() if len(tracks) else 0} tracks "
+                  f"in {elapsed:.1f} s")
+    if not len(tracks):
+        raise InputError(f"{video}: no vehicle was tracked; check --roi, --start/--end and the detector")
+    _result, written = _analyze_and_write(cam, surf, tracks_table_to_image_tracks(tracks), lane_set, count_lines,
+                                          interval, out)
+    write_run_info(out, {"video": str(video), "options": {"detector": detector, "start_s": start, "end_s": end,
+                                                          "every": every}, "seconds": elapsed,
+                         "detections": len(detections), "track_rows": len(tracks)})
+    finish_run(out)
+    console.print(f"wrote detections.csv, tracks.csv, {', '.join(p.name for p in written)}, process.json in {out}")
+
+
+@app.command()
+def stitch(
+    chunks: Annotated[list[Path], typer.Argument(help="--out folders of 'process --start/--end' runs of one "
+                                                 "video, in time order, overlapping by a few seconds")],
+    camera: Annotated[Path, typer.Option(help="camera JSON")],
+    surface: SurfaceOpt,
+    out: Annotated[Path, typer.Option("--out", "-o", help="output folder")],
+    lanes: LanesOpt = None,
+    lines: LinesOpt = None,
+    interval: IntervalOpt = 60.0,
+    surface_crs: SurfaceCrsOpt = None,
+    resolution: ResolutionOpt = 0.25,
+) -> None:
+    """Join the tracks of time chunks of one video (processed apart, e.g. on several machines) and analyze them."""
+    import pandas as pd
+
+    from trafficgeo.io.atomic import atomic_path
+    from trafficgeo.video.pipeline import stitch_tracks, tracks_table_to_image_tracks
+
+    _check_out_dir(out)
+    tables = []
+    for folder in chunks:
+        path = folder / "tracks.csv"
+        if not path.is_file():
+            raise InputError(f"{folder}: no tracks.csv; give the --out folders of finished 'process' runs")
+        tables.append(pd.read_csv(path, dtype={"class": str}, keep_default_na=False, na_values=[""]))
+    cam, doc = _camera(camera)
+    surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
+    lane_set, count_lines = _layout(cam, surf, lanes, lines)
+    joined = stitch_tracks(tables)
+    joined["class"] = joined["class"].fillna("")
+    _analyze_and_write(cam, surf, tracks_table_to_image_tracks(joined), lane_set, count_lines, interval, out)
+    with atomic_path(out / "tracks.csv") as tmp:
+        joined.to_csv(tmp, index=False, float_format="%.3f")
+    console.print(f"stitched {len(chunks)} chunks: {joined['track_id'].nunique()} tracks; wrote {out}")

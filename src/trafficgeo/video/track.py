@@ -1,0 +1,93 @@
+"""Multi-object tracking of vehicle detections: ByteTrack from the ``trackers`` library (Apache-2.0).
+
+ByteTrack associates boxes frame to frame with a Kalman-predicted IoU, first with the confident detections, then
+with the weak ones (a partly hidden vehicle keeps its identity), and keeps a lost track alive for
+``lost_track_s`` seconds so that identities survive short occlusions. The boxes it returns are the detector's
+(not the tracker's prediction): trafficgeo smooths positions later, in world coordinates, where the motion is
+simple (:mod:`trafficgeo.traffic.trajectories`).
+
+A tracker is plain Python state: it can be pickled at a checkpoint and restored to resume a run exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from trafficgeo.errors import InputError
+from trafficgeo.video.detect import Detections
+
+
+@dataclass(frozen=True)
+class TrackerOptions:
+    """ByteTrack settings (scores are the detector's, 0..1)."""
+
+    lost_track_s: float = 1.5  # a track survives this long without a detection
+    activation_score: float = 0.4  # a detection must score this much to start a track
+    high_score: float = 0.5  # detections scoring this much are matched first
+    min_consecutive_frames: int = 2  # frames before a new track gets an id
+    min_iou: float = 0.1  # least overlap between a track's predicted box and a detection to match them
+
+    def __post_init__(self) -> None:
+        ok = (self.lost_track_s > 0 and 0 <= self.activation_score <= 1 and 0 <= self.high_score <= 1
+              and self.min_consecutive_frames >= 1 and 0 <= self.min_iou < 1)
+        if not ok:
+            raise InputError(f"tracker options out of range: {self}; times > 0, scores and IoU in [0, 1]")
+
+
+@dataclass(frozen=True)
+class TrackedBoxes:
+    """The tracked vehicles of one frame: ``ids`` (N,) int >= 0, ``boxes`` (N, 4) px, ``scores`` (N,),
+    ``classes`` (N,) str."""
+
+    ids: np.ndarray
+    boxes: np.ndarray
+    scores: np.ndarray
+    classes: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.ids.size)
+
+
+class VehicleTracker:
+    """Frame-by-frame ByteTrack over :class:`~trafficgeo.video.detect.Detections` at ``fps`` frames per second."""
+
+    def __init__(self, fps: float, options: TrackerOptions | None = None) -> None:
+        import trackers
+
+        if not (np.isfinite(fps) and fps > 0):
+            raise InputError(f"frame rate {fps!r} must be positive")
+        self.options = options or TrackerOptions()
+        o = self.options
+        self._classes: list[str] = []
+        self._tracker = trackers.ByteTrackTracker(
+            lost_track_buffer=max(1, round(o.lost_track_s * fps)), frame_rate=float(fps),
+            track_activation_threshold=o.activation_score, minimum_consecutive_frames=o.min_consecutive_frames,
+            minimum_iou_threshold=o.min_iou, high_conf_det_threshold=o.high_score)
+
+    def _class_ids(self, classes: np.ndarray) -> np.ndarray:
+        ids = []
+        for c in classes:
+            name = str(c)
+            if name not in self._classes:
+                self._classes.append(name)
+            ids.append(self._classes.index(name))
+        return np.asarray(ids, dtype=int)
+
+    def update(self, detections: Detections, time_s: float | None = None) -> TrackedBoxes:
+        """Feed one frame's detections; returns the detections that belong to confirmed tracks, with their ids.
+        ``time_s`` (the frame's timestamp) lets variable-frame-rate video keep the motion model right."""
+        import supervision as sv
+
+        det = sv.Detections(xyxy=np.asarray(detections.boxes, dtype=np.float64).reshape(-1, 4),
+                            confidence=np.asarray(detections.scores, dtype=np.float64),
+                            class_id=self._class_ids(detections.classes))
+        out = self._tracker.update(det, timestamp=time_s) if time_s is not None else self._tracker.update(det)
+        keep = np.asarray(out.tracker_id) >= 0
+        names = np.asarray(self._classes + [""], dtype=object)
+        cls = np.asarray(out.class_id if out.class_id is not None else np.full(len(out), -1))[keep]
+        return TrackedBoxes(ids=np.asarray(out.tracker_id)[keep].astype(np.int64), boxes=out.xyxy[keep],
+                            scores=(np.asarray(out.confidence)[keep] if out.confidence is not None
+                                    else np.ones(int(keep.sum()))),
+                            classes=names[np.where(cls >= 0, cls, len(self._classes))])
