@@ -38,7 +38,7 @@ from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, smooth_tr
 from trafficgeo.traffic.tracks import ImageTracks
 
 MIN_MOVING_SPEED = 1.0  # m/s: below this a smoothed heading is noise
-MIN_SPEED_DURATION_S = 1.0  # a vehicle seen for less than this gets no mean speed (a glimpse tells too little)
+MIN_SPEED_DURATION_S = 1.0  # a vehicle seen for less than this gets no speeds at all (a glimpse tells too little)
 EDGE_SIGMAS = 2.0  # points within this many pixel sigmas of the end of the surface are not used
 BOX_FIT_TOL_PX = 0.02  # the cuboid fit stops when the box's centre and bottom match to this (px): far below noise
 
@@ -323,11 +323,13 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
         vclass = _majority(tracks.vclass[rows])
         step = np.hypot(np.diff(sm.x), np.diff(sm.y))
         duration = float(sm.time[-1] - sm.time[0])
+        glimpse_ok = duration >= MIN_SPEED_DURATION_S
         path = float(step.sum())
         point_tables.append(pd.DataFrame({
             "track_id": name, "source_track": source, "frame": tracks.frame[rows], "time": sm.time,
             "u": tracks.u[rows], "v": tracks.v[rows], "x_obs": measured[rows, 0], "y_obs": measured[rows, 1],
-            "x": x, "y": y, "speed_kmh": 3.6 * sm.speed, "speed_std_kmh": 3.6 * sm.speed_std,
+            "x": x, "y": y, "speed_kmh": 3.6 * sm.speed if glimpse_ok else np.nan,
+            "speed_std_kmh": 3.6 * sm.speed_std if glimpse_ok else np.nan,
             "heading_deg": sm.heading_deg, "accel_mps2": sm.accel, "position_std_m": sm.position_std,
             "outlier": sm.outlier, "distance_m": ground.distance_m[rows], "class": vclass,
         }))
