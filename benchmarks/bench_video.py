@@ -29,7 +29,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from trafficgeo.video.reader import iter_frames, video_info
 
 from trafficgeo.camera.io import read_camera_json
 from trafficgeo.geo.load import load_surface
@@ -38,6 +37,7 @@ from trafficgeo.traffic.analyze import analyze
 from trafficgeo.traffic.lanes import read_lanes
 from trafficgeo.traffic.lines import read_count_lines
 from trafficgeo.video.pipeline import ProcessOptions, detect_and_track, tracks_table_to_image_tracks
+from trafficgeo.video.reader import iter_frames, video_info
 
 ROOT = Path(__file__).resolve().parents[1]
 WORLD = WorldOptions(seed=5, fps=30.0, duration_s=60.0, count_stations=(-20.0, 20.0, 60.0))
