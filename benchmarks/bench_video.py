@@ -32,7 +32,8 @@ import pandas as pd
 
 from trafficgeo.camera.io import read_camera_json
 from trafficgeo.geo.load import load_surface
-from trafficgeo.synth.world import WorldOptions, build_world, truth_lane_name
+from trafficgeo.synth.scoring import count_scores, detection_scores
+from trafficgeo.synth.world import WorldOptions, build_world
 from trafficgeo.traffic.analyze import analyze
 from trafficgeo.traffic.lanes import read_lanes
 from trafficgeo.traffic.lines import read_count_lines
@@ -41,40 +42,6 @@ from trafficgeo.video.reader import iter_frames, video_info
 
 ROOT = Path(__file__).resolve().parents[1]
 WORLD = WorldOptions(seed=5, fps=30.0, duration_s=60.0, count_stations=(-20.0, 20.0, 60.0))
-
-
-def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    x1 = np.maximum(a[:, None, 0], b[None, :, 0])
-    y1 = np.maximum(a[:, None, 1], b[None, :, 1])
-    x2 = np.minimum(a[:, None, 2], b[None, :, 2])
-    y2 = np.minimum(a[:, None, 3], b[None, :, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    area = lambda r: (r[:, 2] - r[:, 0]) * (r[:, 3] - r[:, 1])  # noqa: E731
-    return inter / np.maximum(area(a)[:, None] + area(b)[None, :] - inter, 1e-9)
-
-
-def detection_scores(detections: pd.DataFrame, truth: pd.DataFrame, fps: float) -> tuple[float, float, int]:
-    """Precision and recall at IoU >= 0.5 (greedy by IoU), over frames with detections or truth."""
-    det = detections.groupby("frame")
-    tru = truth.groupby("frame")
-    tp = fp = fn = 0
-    for f in sorted(set(detections["frame"]) | set(truth["frame"])):
-        d = det.get_group(f)[["x1", "y1", "x2", "y2"]].to_numpy() if f in det.groups else np.zeros((0, 4))
-        g = tru.get_group(f) if f in tru.groups else truth.iloc[:0]
-        gb = g[["x1", "y1", "x2", "y2"]].to_numpy()
-        counted = g["counted"].to_numpy()
-        matched_d = np.zeros(len(d), dtype=bool)
-        matched_g = np.zeros(len(gb), dtype=bool)
-        if len(d) and len(gb):
-            iou = _iou(d, gb)
-            for i, j in sorted(zip(*np.nonzero(iou >= 0.5), strict=True), key=lambda p: -iou[p]):
-                if not matched_d[i] and not matched_g[j]:
-                    matched_d[i] = matched_g[j] = True
-        tp += int(np.sum(matched_g & counted))
-        fn += int(np.sum(~matched_g & counted))
-        # a detection matching a vehicle too hidden or small to be required is not a false positive
-        fp += int(np.sum(~matched_d))
-    return tp / max(tp + fp, 1), tp / max(tp + fn, 1), tp + fn
 
 
 def main() -> None:
@@ -116,29 +83,11 @@ def main() -> None:
     print(f"| analyze ({len(tracks)} track boxes) | {n / t_analyze:.0f} | {n / t_analyze / info.fps:.1f} | |")
 
     truth = pd.read_csv(wdir / "truth_tracks.csv")
-    truth = truth[truth["time"] < end]
-    boxes = truth.dropna(subset=["x1", "y1", "x2", "y2"]).copy()
-    boxes["counted"] = (boxes["visible_fraction"] >= 0.5) & (boxes["y2"] - boxes["y1"] >= 12)
-    precision, recall, n_true = detection_scores(detections, boxes, info.fps)
-    tc = pd.read_csv(wdir / "truth_counts.csv")
-    tc = tc[tc["time"] < end]
-    tc["lane_name"] = truth_lane_name(tc["direction"], tc["lane"])
-    true_counts = tc.groupby([tc["line"].astype(str), "lane_name"]).size()
-    counted = result.crossings.groupby(["line", "lane"]).size()
-    both = pd.concat([true_counts.rename("true"), counted.rename("counted")], axis=1).fillna(0).astype(int)
-    count_acc = 1 - np.abs(both["counted"] - both["true"]).sum() / max(both["true"].sum(), 1)
-    # speeds at the lines: match each crossing to the true crossing of the same line, lane and nearest time
-    errs = []
-    for (line, lane), g in result.crossings.groupby(["line", "lane"]):
-        tg = tc[(tc["line"].astype(str) == line) & (tc["lane_name"] == lane)]
-        for _, c in g.iterrows():
-            if len(tg):
-                k = int(np.argmin(np.abs(tg["time"].to_numpy() - c["time"])))
-                if abs(tg["time"].iloc[k] - c["time"]) < 0.5:
-                    errs.append(c["speed_kmh"] - tg["speed_kmh"].iloc[k])
-    errs = np.asarray(errs)
-    n_matched = errs.size
-    errs = errs[np.isfinite(errs)]  # tracks seen under 1 s carry no speed
+    precision, recall, n_true = detection_scores(detections, truth[truth["time"] < end])
+    score = count_scores(result.crossings, pd.read_csv(wdir / "truth_counts.csv"), end_s=end)
+    both, count_acc = score.table, score.accuracy
+    n_matched = score.speed_errors.size
+    errs = score.speed_errors[np.isfinite(score.speed_errors)]  # tracks seen under 1 s carry no speed
     print("\n| measure | result | target |\n|---|---|---|")
     print(f"| detection precision at IoU 0.5 | {precision:.1%} | |")
     print(f"| detection recall at IoU 0.5 ({n_true} visible vehicle boxes) | {recall:.1%} | |")

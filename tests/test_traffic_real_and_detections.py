@@ -65,7 +65,8 @@ def test_ngsim_speeds_recovered_through_a_camera_in_feet(ngsim: pd.DataFrame) ->
             mid = truth[[(s, f) for s, f in zip(g["source_track"], g["frame"], strict=True)]].to_numpy()
             raw_err.append(3.6 * d / dt - 0.5 * (mid[::10][1:] + mid[::10][:-1]))
     raw_mae = float(np.mean(np.abs(np.concatenate(raw_err))))
-    mae = float(np.mean(np.abs(err)))
+    assert np.isfinite(err).mean() > 0.95  # only glimpses under 1 s carry no speed
+    mae = float(np.nanmean(np.abs(err)))
     assert mae < 1.5, mae  # measured 0.9 km/h
     assert mae < 0.6 * raw_mae, (mae, raw_mae)
     assert pts["distance_m"].max() < 200  # metres, although the CRS is in feet

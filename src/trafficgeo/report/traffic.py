@@ -9,6 +9,10 @@ from trafficgeo.traffic.analyze import Analysis, summary
 from trafficgeo.traffic.validation import Comparison
 
 
+def _kmh(value: float) -> str:
+    return "-" if value != value else f"{value:.1f}"
+
+
 def print_analysis(analysis: Analysis, console: Console) -> None:
     """Totals and per-line counts of an ``analyze`` run."""
     s = summary(analysis)
@@ -28,7 +32,7 @@ def print_analysis(analysis: Analysis, console: Console) -> None:
         for row in s["crossings"]:
             sel = cr[(cr["line"] == row["line"]) & (cr["lane"] == row["lane"]) & (cr["direction"] == row["direction"])]
             table.add_row(row["line"], row["lane"] or "-", f"{row['direction']:+d}", str(row["count"]),
-                          f"{row['count'] * 3600.0 / dur:.0f}", f"{sel['speed_kmh'].mean():.1f}")
+                          f"{row['count'] * 3600.0 / dur:.0f}", _kmh(sel["speed_kmh"].mean()))
         console.print(table)
 
 
