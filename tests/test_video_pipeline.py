@@ -29,8 +29,13 @@ def test_process_writes_every_output_and_no_checkpoint(world: Path, tmp_path: Pa
     out = tmp_path / "run"
     code, stdout, stderr = invoke("process", world / "video.mp4", "--camera", world / "camera_truth.json",
                                   "--surface", world / "cloud.laz", "--lanes", world / "lanes.gpkg",
-                                  "--lines", world / "count_lines.gpkg", "--out", out)
+                                  "--lines", world / "count_lines.gpkg", "--out", out,
+                                  "--annotate", tmp_path / "annotated.mp4")
     assert code == 0, stderr
+    from trafficgeo.video.reader import video_info
+
+    annotated = video_info(tmp_path / "annotated.mp4")
+    assert (annotated.width, annotated.height) == (640, 360) and annotated.frame_count > 100
     for name in ("detections.csv", "tracks.csv", "vehicles.csv", "counts.csv", "crossings.csv",
                  "trajectories.gpkg", "summary.json", "process.json"):
         assert (out / name).is_file(), name

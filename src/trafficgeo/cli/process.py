@@ -59,6 +59,8 @@ def process(
     roi: Annotated[Path | None, typer.Option(help="region of interest: mask image or CSV polygon u,v")] = None,
     checkpoint: Annotated[float, typer.Option(help="seconds of video between checkpoints")] = 30.0,
     restart: Annotated[bool, typer.Option(help="ignore a checkpoint and start again")] = False,
+    annotate: Annotated[Path | None, typer.Option(help="also write an annotated video (.mp4): boxes, ids, lanes, "
+                                                  "km/h, counting lines")] = None,
     surface_crs: SurfaceCrsOpt = None,
     resolution: ResolutionOpt = 0.25,
 ) -> None:
@@ -77,6 +79,8 @@ def process(
     )
 
     _check_out_dir(out)
+    if annotate is not None and annotate.suffix.lower() != ".mp4":
+        raise InputError(f"--annotate {annotate}: write the annotated video as .mp4")
     opts = ProcessOptions(detector=detector, start_s=start, end_s=end, every=every, checkpoint_s=checkpoint)
     cam, doc = _camera(camera)
     surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
@@ -108,8 +112,17 @@ def process(
                   f"in {elapsed:.1f} s")
     if not len(tracks):
         raise InputError(f"{video}: no vehicle was tracked; check --roi, --start/--end and the detector")
-    _result, written = _analyze_and_write(cam, surf, tracks_table_to_image_tracks(tracks), lane_set, count_lines,
-                                          interval, out)
+    result, written = _analyze_and_write(cam, surf, tracks_table_to_image_tracks(tracks), lane_set, count_lines,
+                                         interval, out)
+    if annotate is not None:
+        from trafficgeo.video.annotate import annotate_video
+
+        with Progress(*columns[:2], TextColumn("{task.completed}/{task.total} frames"), console=console,
+                      transient=True) as bar:
+            task = bar.add_task("annotated video", total=None)
+            annotate_video(video, annotate, tracks, result.points, camera=cam, lines=count_lines, surface=surf,
+                           progress=lambda d, n: bar.update(task, completed=d, total=n))
+        console.print(f"wrote {annotate}")
     write_run_info(out, {"video": str(video), "options": {"detector": detector, "start_s": start, "end_s": end,
                                                           "every": every}, "seconds": elapsed,
                          "detections": len(detections), "track_rows": len(tracks)})
