@@ -539,3 +539,19 @@ def test_detections_image_size(tmp_path: Path) -> None:
         read_detections(norm, image_size=(640, 360))
     with pytest.raises(InputError, match="not found"):
         read_detections(tmp_path / "nope.csv")
+
+
+def test_background_defaults_keep_close_and_small_vehicles_apart() -> None:
+    """By default no closing joins two vehicles a few pixels apart, and a small far vehicle (~150 px^2 at 1080p)
+    passes the minimum area."""
+    bg = np.full((1080, 1920, 3), 90, dtype=np.uint8)
+    det = BackgroundDetector(warmup=0)
+    det.detect(bg, 0.0)
+    frame = bg.copy()
+    rects = [(600, 500, 660, 540), (666, 500, 726, 540), (1200, 300, 1216, 312)]  # x1, y1, x2, y2 (exclusive)
+    for x1, y1, x2, y2 in rects:
+        frame[y1:y2, x1:x2] = (30, 200, 220)
+    d = det.detect(frame, 0.04)
+    truth = np.array([[x1 - 0.5, y1 - 0.5, x2 - 0.5, y2 - 0.5] for x1, y1, x2, y2 in rects], dtype=np.float64)
+    assert len(d) == 3
+    assert len(match(d.boxes, truth, 0.5)) == 3

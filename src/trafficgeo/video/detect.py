@@ -482,7 +482,7 @@ class BackgroundDetector:
        applied here: nothing outside it is foreground.
     3. Morphology: opening with an ``open_px`` ellipse removes speckle noise (and the flicker of edges of a
        shaking camera), closing with a ``close_px`` ellipse joins a vehicle's parts (sizes in full-frame pixels,
-       odd and at least 3 px at detection scale).
+       odd and at least 3 px at detection scale; by default no closing, which joins vehicles close in the image).
     4. Connected components (8-connectivity) of at least ``min_area_px`` full-frame pixels become blobs.
     5. **Merging** (``merge=True``): two blobs whose column ranges overlap by at least half the narrower one's
        width and whose vertical gap is at most a quarter of the smaller one's height (:func:`merge_candidates`)
@@ -539,8 +539,10 @@ class BackgroundDetector:
                 (squared distance, default 400).
             camera, surface: calibrated camera and road surface for the metric size filter, class and splitting.
             roi: bool (H, W) region of interest at full resolution (True = watched).
-            min_area_px: smallest blob area (px^2); default 2e-4 of the frame area (415 px^2 at 1920x1080).
-            open_px, close_px: sizes of the opening and closing ellipses; default frame width / 400 and / 150.
+            min_area_px: smallest blob area (px^2); default 5e-5 of the frame area (104 px^2 at 1920x1080: a car
+                about 15 px tall).
+            open_px, close_px: sizes of the opening and closing ellipses; default frame width / 400 and 0 (no
+                closing: it joins neighbouring vehicles into one blob; 0 disables either).
             merge, split: merge the parts of a vehicle; split blobs of several vehicles.
             rules: metric size rules (:class:`SizeRules`).
             compensate_gain: scale each frame to the brightness of the initial background (camera auto-exposure,
@@ -628,13 +630,15 @@ class BackgroundDetector:
             small = cv2.resize(roi.astype(np.uint8) * 255, (sw, sh), interpolation=cv2.INTER_AREA)
             self._roi_small = np.where(small >= 128, 255, 0).astype(np.uint8)
         open_px = w / 400.0 if self.open_px is None else self.open_px
-        close_px = w / 150.0 if self.close_px is None else self.close_px
+        # No closing by default: it joins vehicles that are close in the image (far away, or one behind the other)
+        # into one blob far more often than it mends a vehicle (its parts are merged by step 5 instead).
+        close_px = 0.0 if self.close_px is None else self.close_px
         # Odd sizes: an even kernel has no centre pixel and shifts the mask by a pixel.
         ko = max(3, 2 * round(0.5 * (open_px / self._sx - 1)) + 1) if open_px > 0 else 1
         kc = max(3, 2 * round(0.5 * (close_px / self._sx - 1)) + 1) if close_px > 0 else 1
         self._open = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (ko, ko)) if ko > 1 else None
         self._close = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (kc, kc)) if kc > 1 else None
-        min_area = 2e-4 * w * h if self.min_area_px is None else self.min_area_px
+        min_area = 5e-5 * w * h if self.min_area_px is None else self.min_area_px
         self._min_area = max(1.0, min_area / (self._sx * self._sy))
         self._shape = (h, w)
 
