@@ -46,8 +46,8 @@ class DetectionNoise:
                 raise InputError(f"DetectionNoise.{name} = {value!r} is out of range (>= 0; rates and fractions <= 1)")
 
 
-def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """IoU of boxes a (N, 4) with boxes b (M, 4): (N, M)."""
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """IoU of boxes a (N, 4) with boxes b (M, 4), ``x1, y1, x2, y2`` px: (N, M)."""
     x1 = np.maximum(a[:, None, 0], b[None, :, 0])
     y1 = np.maximum(a[:, None, 1], b[None, :, 1])
     x2 = np.minimum(a[:, None, 2], b[None, :, 2])
@@ -66,7 +66,7 @@ def _swap_ids(df: pd.DataFrame, noise: DetectionNoise, rng: np.random.Generator)
         if len(g) < 2:
             continue
         box = g[["x1", "y1", "x2", "y2"]].to_numpy()
-        iou = np.triu(_iou(box, box), k=1)
+        iou = np.triu(box_iou(box, box), k=1)
         for i, j in zip(*np.nonzero(iou > noise.swap_iou), strict=True):
             a, b = g["vehicle"].iloc[i], g["vehicle"].iloc[j]
             key = (min(a, b), max(a, b))

@@ -8,18 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from trafficgeo.synth.detections import box_iou
 from trafficgeo.synth.world import truth_lane_name
-
-
-def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    x1 = np.maximum(a[:, None, 0], b[None, :, 0])
-    y1 = np.maximum(a[:, None, 1], b[None, :, 1])
-    x2 = np.minimum(a[:, None, 2], b[None, :, 2])
-    y2 = np.minimum(a[:, None, 3], b[None, :, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
-    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    return inter / np.maximum(area_a[:, None] + area_b[None, :] - inter, 1e-9)
 
 
 def detection_scores(detections: pd.DataFrame, truth_tracks: pd.DataFrame, *, min_visible: float = 0.5,
@@ -41,7 +31,7 @@ def detection_scores(detections: pd.DataFrame, truth_tracks: pd.DataFrame, *, mi
         md = np.zeros(di.size, dtype=bool)
         mt = np.zeros(ti.size, dtype=bool)
         if di.size and ti.size:
-            m = _iou(dbox[di], tbox[ti])
+            m = box_iou(dbox[di], tbox[ti])
             pairs = sorted(zip(*np.nonzero(m >= iou), strict=True), key=lambda p: -m[p])
             for i, j in pairs:
                 if not md[i] and not mt[j]:
