@@ -50,9 +50,9 @@ def kalman_rts(t: np.ndarray, z: np.ndarray, R: np.ndarray, q: float, gate: floa
         if k > 0 and d2 > gate:
             outlier[k] = True  # coast: keep the prediction
         else:
-            K = P[:, :2] @ Si  # (4, 2)
+            K = np.ascontiguousarray(P[:, :2]) @ Si  # (4, 2)
             x = x + K @ innov
-            P = P - K @ P[:2, :]
+            P = P - K @ np.ascontiguousarray(P[:2, :])
             P = 0.5 * (P + P.T)
         xf[k] = x
         Pf[k] = P
