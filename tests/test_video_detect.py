@@ -19,6 +19,7 @@ from trafficgeo.video.detect import (
     OnnxDetector,
     SizeRules,
     blob_ground_size,
+    box_iou,
     classify_sizes,
     group_pairs,
     letterbox,
@@ -38,14 +39,7 @@ from trafficgeo.video.detections_io import (
 def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """IoU (N, M) of boxes a (N, 4) and b (M, 4)."""
     a, b = np.asarray(a, dtype=float).reshape(-1, 4), np.asarray(b, dtype=float).reshape(-1, 4)
-    x1 = np.maximum(a[:, None, 0], b[None, :, 0])
-    y1 = np.maximum(a[:, None, 1], b[None, :, 1])
-    x2 = np.minimum(a[:, None, 2], b[None, :, 2])
-    y2 = np.minimum(a[:, None, 3], b[None, :, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
-    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    return inter / np.maximum(area_a[:, None] + area_b[None, :] - inter, 1e-9)
+    return box_iou(a[:, None], b[None, :])
 
 
 def match(det: np.ndarray, truth: np.ndarray, thr: float = 0.5) -> list[tuple[int, int]]:

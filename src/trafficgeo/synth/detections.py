@@ -25,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.errors import InputError
+from trafficgeo.video.detect import box_iou
 
 
 @dataclass(frozen=True)
@@ -46,18 +47,6 @@ class DetectionNoise:
                 raise InputError(f"DetectionNoise.{name} = {value!r} is out of range (>= 0; rates and fractions <= 1)")
 
 
-def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """IoU of boxes a (N, 4) with boxes b (M, 4), ``x1, y1, x2, y2`` px: (N, M)."""
-    x1 = np.maximum(a[:, None, 0], b[None, :, 0])
-    y1 = np.maximum(a[:, None, 1], b[None, :, 1])
-    x2 = np.minimum(a[:, None, 2], b[None, :, 2])
-    y2 = np.minimum(a[:, None, 3], b[None, :, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
-    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    return inter / np.maximum(area_a[:, None] + area_b[None, :] - inter, 1e-9)
-
-
 def _swap_ids(df: pd.DataFrame, noise: DetectionNoise, rng: np.random.Generator) -> pd.DataFrame:
     """Swap the ids of overlapping vehicles from the first frame they overlap (each pair at most once)."""
     ids = df["track_id"].to_numpy().copy()
@@ -66,7 +55,7 @@ def _swap_ids(df: pd.DataFrame, noise: DetectionNoise, rng: np.random.Generator)
         if len(g) < 2:
             continue
         box = g[["x1", "y1", "x2", "y2"]].to_numpy()
-        iou = np.triu(box_iou(box, box), k=1)
+        iou = np.triu(box_iou(box[:, None], box[None, :]), k=1)
         for i, j in zip(*np.nonzero(iou > noise.swap_iou), strict=True):
             a, b = g["vehicle"].iloc[i], g["vehicle"].iloc[j]
             key = (min(a, b), max(a, b))

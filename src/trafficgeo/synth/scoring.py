@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from trafficgeo.synth.detections import box_iou
 from trafficgeo.synth.world import truth_lane_name
+from trafficgeo.video.detect import box_iou
 
 
 def detection_scores(detections: pd.DataFrame, truth_tracks: pd.DataFrame, *, min_visible: float = 0.5,
@@ -31,7 +31,7 @@ def detection_scores(detections: pd.DataFrame, truth_tracks: pd.DataFrame, *, mi
         md = np.zeros(di.size, dtype=bool)
         mt = np.zeros(ti.size, dtype=bool)
         if di.size and ti.size:
-            m = box_iou(dbox[di], tbox[ti])
+            m = box_iou(dbox[di][:, None], tbox[ti][None, :])
             pairs = sorted(zip(*np.nonzero(m >= iou), strict=True), key=lambda p: -m[p])
             for i, j in pairs:
                 if not md[i] and not mt[j]:

@@ -94,6 +94,18 @@ class Detections:
         return np.column_stack([0.5 * (self.boxes[:, 0] + self.boxes[:, 2]), self.boxes[:, 3]])
 
 
+def box_iou(a: object, b: object) -> np.ndarray:
+    """IoU of boxes ``x1, y1, x2, y2`` (px) in arrays (..., 4) that broadcast against each other: matching rows
+    with ``box_iou(a, b)``, every pair with ``box_iou(a[:, None], b[None, :])`` -> (N, M)."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    w = np.clip(np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0]), 0, None)
+    h = np.clip(np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1]), 0, None)
+    inter = w * h
+    area_a = (a[..., 2] - a[..., 0]) * (a[..., 3] - a[..., 1])
+    area_b = (b[..., 2] - b[..., 0]) * (b[..., 3] - b[..., 1])
+    return inter / np.maximum(area_a + area_b - inter, 1e-9)
+
+
 @runtime_checkable
 class Detector(Protocol):
     """Anything that finds vehicles in a frame."""

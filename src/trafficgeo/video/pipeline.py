@@ -30,6 +30,7 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.io.atomic import atomic_path, write_json_atomic
+from trafficgeo.video.detect import box_iou
 from trafficgeo.video.track import TrackerOptions, VehicleTracker
 
 CHECKPOINT_DIR = ".checkpoint"
@@ -214,15 +215,6 @@ def write_run_info(out_dir: str | Path, doc: dict) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ chunks
-def _box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """IoU of matching rows of boxes a and b (N, 4)."""
-    x1, y1 = np.maximum(a[:, 0], b[:, 0]), np.maximum(a[:, 1], b[:, 1])
-    x2, y2 = np.minimum(a[:, 2], b[:, 2]), np.minimum(a[:, 3], b[:, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    union = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1]) + (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]) - inter
-    return inter / np.maximum(union, 1e-9)
-
-
 def stitch_tracks(chunks: list[pd.DataFrame], *, min_iou: float = 0.5) -> pd.DataFrame:
     """Join the track tables of consecutive, overlapping time chunks of one video into one table.
 
@@ -246,7 +238,7 @@ def stitch_tracks(chunks: list[pd.DataFrame], *, min_iou: float = 0.5) -> pd.Dat
                 b = t[t["time"] <= hi]
                 m = a.merge(b, on="frame", suffixes=("_a", "_b"))
                 if len(m):
-                    m["iou"] = _box_iou(m[["x1_a", "y1_a", "x2_a", "y2_a"]].to_numpy(),
+                    m["iou"] = box_iou(m[["x1_a", "y1_a", "x2_a", "y2_a"]].to_numpy(),
                                         m[["x1_b", "y1_b", "x2_b", "y2_b"]].to_numpy())
                     score = m.groupby(["track_id_b", "track_id_a"])["iou"].mean().reset_index()
                     score = score[score["iou"] >= min_iou].sort_values("iou", ascending=False)
