@@ -40,27 +40,18 @@ from trafficgeo.geo.load import load_surface
 from trafficgeo.geo.mapping import pixels_to_world
 from trafficgeo.geo.surface import ConstantSurface
 from trafficgeo.synth.detections import DetectionNoise, noisy_tracks
+from trafficgeo.synth.scoring import count_scores
 from trafficgeo.synth.world import WorldOptions, build_world, truth_lane_name
 from trafficgeo.traffic.analyze import analyze
 from trafficgeo.traffic.lanes import read_lanes
 from trafficgeo.traffic.lines import find_crossings, read_count_lines
-from trafficgeo.traffic.tracks import ImageTracks
+from trafficgeo.traffic.tracks import ImageTracks, tracks_from_table
 from trafficgeo.traffic.trajectories import TrajectoryOptions, world_trajectories
 
 ROOT = Path(__file__).resolve().parents[1]
 NGSIM = ROOT.parent / "shared" / "data" / "ngsim-peachtree-subset" / "NGSIM_peachtree_27s_window.csv"
 WORLD = WorldOptions(seed=11, count_stations=(-20.0, 20.0, 60.0))
 FT = 1200.0 / 3937.0  # US survey foot, m
-
-
-def _tracks_from_table(df: pd.DataFrame, fps: float) -> ImageTracks:
-    box = df[["x1", "y1", "x2", "y2"]].to_numpy(dtype=np.float64)
-    order = np.lexsort((df["frame"].to_numpy(), df["track_id"].to_numpy()))
-    n = len(df)
-    return ImageTracks(track_id=df["track_id"].to_numpy(dtype=object)[order],
-                       frame=df["frame"].to_numpy()[order], time=df["frame"].to_numpy()[order] / fps,
-                       u=(0.5 * (box[:, 0] + box[:, 2]))[order], v=box[order, 3], box=box[order],
-                       vclass=df["class"].to_numpy(dtype=object)[order], score=np.full(n, np.nan))
 
 
 def _naive(camera: Camera, surface, tracks: ImageTracks, half_window_s: float = 0.5) -> pd.DataFrame:
@@ -96,17 +87,6 @@ def _majority_vehicle(noisy: pd.DataFrame) -> pd.Series:
     return noisy.groupby("track_id")["vehicle"].agg(lambda s: s.value_counts().index[0])
 
 
-def _count_accuracy(crossings: pd.DataFrame, truth_counts: pd.DataFrame) -> tuple[float, pd.DataFrame]:
-    t = truth_counts.assign(line=truth_counts["line"].astype(str),
-                            lane=truth_lane_name(truth_counts["direction"], truth_counts["lane"]))
-    tc = t.groupby(["line", "lane"]).size().rename("true")
-    cc = crossings.groupby(["line", "lane"]).size().rename("counted")
-    j = pd.concat([tc, cc], axis=1).fillna(0).astype(int)
-    j = j[j.index.get_level_values("lane") != ""] if "" in j.index.get_level_values("lane") else j
-    acc = 1.0 - float(np.abs(j["counted"] - j["true"]).sum()) / max(float(j["true"].sum()), 1.0)
-    return acc, j
-
-
 def _spot_speed_error(crossings: pd.DataFrame, noisy_vehicle: pd.Series, truth_counts: pd.DataFrame) -> np.ndarray:
     tc = truth_counts.assign(line=truth_counts["line"].astype(str)).set_index(["line", "vehicle"])["speed_kmh"]
     veh = crossings["track_id"].map(noisy_vehicle)
@@ -129,7 +109,7 @@ def part_world(world_dir: Path, seed: int, options: TrajectoryOptions | None = N
     lanes = read_lanes(world_dir / "lanes.gpkg", crs=surface.crs)
     lines = read_count_lines(world_dir / "count_lines.gpkg", crs=surface.crs)
     noisy = noisy_tracks(truth, camera.image_size, DetectionNoise(), seed=seed)
-    tracks = _tracks_from_table(noisy, WORLD.fps)
+    tracks = tracks_from_table(noisy.assign(time=noisy["frame"] / WORLD.fps))
     vehicle_of = noisy.set_index(["track_id", "frame"])["vehicle"]
     t = time.perf_counter()
     result = analyze(camera, surface, tracks, lanes=lanes, lines=lines, interval_s=60.0, options=options)
@@ -154,7 +134,8 @@ def part_world(world_dir: Path, seed: int, options: TrajectoryOptions | None = N
     veh_lane_true = [truth[(truth["vehicle"] == v) & (truth["time"] >= a) & (truth["time"] <= b)]["lane_name"]
                      .value_counts().index[0] if v in set(truth["vehicle"]) else "" for v, a, b in
                      zip(veh["vehicle"], veh["first_time"], veh["last_time"], strict=True)]
-    acc, table = _count_accuracy(result.crossings, truth_counts)
+    score = count_scores(result.crossings, truth_counts)
+    acc, table = score.accuracy, score.table
     source = result.vehicles.set_index("track_id")["source_track"]  # split parts "<id>.k" -> the tracker's id
     spot = _spot_speed_error(result.crossings.assign(track_id=result.crossings["track_id"].map(source)), major,
                              truth_counts)
@@ -174,7 +155,8 @@ def part_world(world_dir: Path, seed: int, options: TrajectoryOptions | None = N
     raw_lane_true = np.array([tr["lane_name"].get((v, f), "") for v, f in zip(raw_vehicle, raw["frame"],
                                                                               strict=True)], dtype=object)
     raw_cross = find_crossings(raw, lines, lanes)
-    naive_acc, naive_table = _count_accuracy(raw_cross, truth_counts)
+    naive_score = count_scores(raw_cross, truth_counts)
+    naive_acc, naive_table = naive_score.accuracy, naive_score.table
     naive_spot = _spot_speed_error(raw_cross, major, truth_counts)
 
     def mae(e: np.ndarray) -> str:

@@ -37,7 +37,8 @@ from trafficgeo.synth.world import WorldOptions, build_world
 from trafficgeo.traffic.analyze import analyze
 from trafficgeo.traffic.lanes import read_lanes
 from trafficgeo.traffic.lines import read_count_lines
-from trafficgeo.video.pipeline import ProcessOptions, detect_and_track, tracks_table_to_image_tracks
+from trafficgeo.traffic.tracks import tracks_from_table
+from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
 from trafficgeo.video.reader import iter_frames, video_info
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -73,7 +74,7 @@ def main() -> None:
     lanes = read_lanes(wdir / "lanes.gpkg", crs=surface.crs)
     lines = read_count_lines(wdir / "count_lines.gpkg", crs=surface.crs)
     t = time.perf_counter()
-    result = analyze(camera, surface, tracks_table_to_image_tracks(tracks), lanes=lanes, lines=lines)
+    result = analyze(camera, surface, tracks_from_table(tracks), lanes=lanes, lines=lines)
     t_analyze = time.perf_counter() - t
 
     print("\n| step | frames/s | x real time | vs decode only |\n|---|---|---|---|")

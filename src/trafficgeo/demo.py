@@ -196,7 +196,8 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     from trafficgeo.traffic.analyze import analyze, write_analysis
     from trafficgeo.traffic.lanes import read_lanes
     from trafficgeo.traffic.lines import read_count_lines
-    from trafficgeo.video.pipeline import ProcessOptions, detect_and_track, finish_run, tracks_table_to_image_tracks
+    from trafficgeo.traffic.tracks import tracks_from_table
+    from trafficgeo.video.pipeline import ProcessOptions, detect_and_track, finish_run
     from trafficgeo.video.reader import video_info
 
     run = out / "video"
@@ -212,7 +213,7 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     elapsed = time.perf_counter() - t0
     lanes = read_lanes(wdir / "lanes.gpkg", crs=surf.crs)
     lines = read_count_lines(wdir / "count_lines.gpkg", crs=surf.crs)
-    result = analyze(cam, surf, tracks_table_to_image_tracks(tracks), lanes=lanes, lines=lines)
+    result = analyze(cam, surf, tracks_from_table(tracks), lanes=lanes, lines=lines)
     write_analysis(run, result, cam)
     finish_run(run)
     print_analysis(result, con)
@@ -243,6 +244,7 @@ def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console)
     """Step 5: tracker output -> analyze -> speeds, lanes and counts against the truth, and compare-sumo."""
     from trafficgeo.report.traffic import print_analysis, print_comparison
     from trafficgeo.synth.detections import noisy_tracks
+    from trafficgeo.synth.scoring import count_scores
     from trafficgeo.synth.sumo_world import WARMUP_S
     from trafficgeo.synth.world import truth_lane_name
     from trafficgeo.traffic.analyze import analyze, write_analysis
@@ -276,22 +278,13 @@ def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console)
     keys = list(zip(veh, pts["frame"], strict=True))
     true_lane = np.array([by_frame["lane_name"].get(k, "") for k in keys], dtype=object)
     true_speed = np.array([by_frame["speed_kmh"].get(k, np.nan) for k in keys])
-    tc = pd.read_csv(wdir / "truth_counts.csv")
-    tc["lane_name"] = truth_lane_name(tc["direction"], tc["lane"])
-    true_counts = tc.groupby([tc["line"].astype(str), "lane_name"]).size()
-    counted = result.crossings.groupby(["line", "lane"]).size()
-    both = pd.concat([true_counts.rename("true"), counted.rename("counted")], axis=1).fillna(0)
-    major = noisy.groupby("track_id")["vehicle"].agg(lambda s: s.value_counts().index[0])
-    spot_true = tc.set_index([tc["line"].astype(str), "vehicle"])["speed_kmh"]
-    source = result.vehicles.set_index("track_id")["source_track"]  # split parts "<id>.k" -> the tracker's id
-    cr = result.crossings.assign(track_id=result.crossings["track_id"].map(source))
-    spot = cr["speed_kmh"].to_numpy() - np.array([spot_true.get((ln, major.get(t)), np.nan) for ln, t in
-                                                   zip(cr["line"], cr["track_id"], strict=True)])
+    score = count_scores(result.crossings, pd.read_csv(wdir / "truth_counts.csv"))
+    both = score.table
     m = {
         "point_speed_mae_kmh": float(np.nanmean(np.abs(pts["speed_kmh"].to_numpy() - true_speed))),
-        "spot_speed_mae_kmh": float(np.nanmean(np.abs(spot))),
+        "spot_speed_mae_kmh": float(np.nanmean(np.abs(score.speed_errors))),
         "lane_accuracy": float(np.mean((pts["lane"].to_numpy() == true_lane)[true_lane != ""])),
-        "count_accuracy": float(1 - np.abs(both["counted"] - both["true"]).sum() / both["true"].sum()),
+        "count_accuracy": score.accuracy,
     }
     t = Table(title="Demo world traffic: measured vs truth")
     for col in ("quantity", "measured", "truth"):

@@ -11,23 +11,8 @@ import typer
 
 from trafficgeo.cli import app, console
 from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt, _camera, _surface
-from trafficgeo.cli.traffic import _check_out_dir
+from trafficgeo.cli.traffic import IntervalOpt, LanesOpt, LinesOpt, _check_out_dir, _layout
 from trafficgeo.errors import InputError
-
-LanesOpt = Annotated[Path | None, typer.Option(help="lane polygons or boundary lines (GIS), or boundary lines drawn "
-                                               "in the image (CSV line,u,v)")]
-LinesOpt = Annotated[Path | None, typer.Option(help="counting lines (GIS file, or CSV line,u,v in the image)")]
-IntervalOpt = Annotated[float, typer.Option(help="counting interval (s)")]
-
-
-def _layout(cam, surf, lanes: Path | None, lines: Path | None):
-    from trafficgeo.geo.mapping import camera_crs
-    from trafficgeo.traffic.lanes import read_lanes
-    from trafficgeo.traffic.lines import read_count_lines
-
-    crs = camera_crs(cam)
-    return (read_lanes(lanes, crs=crs, camera=cam, surface=surf) if lanes is not None else None,
-            read_count_lines(lines, crs=crs, camera=cam, surface=surf) if lines is not None else None)
 
 
 def _analyze_and_write(cam, surf, image_tracks, lane_set, count_lines, interval: float, out: Path):
@@ -70,11 +55,11 @@ def process(
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+    from trafficgeo.traffic.tracks import tracks_from_table
     from trafficgeo.video.pipeline import (
         ProcessOptions,
         detect_and_track,
         finish_run,
-        tracks_table_to_image_tracks,
         write_run_info,
     )
 
@@ -112,7 +97,7 @@ def process(
                   f"in {elapsed:.1f} s")
     if not len(tracks):
         raise InputError(f"{video}: no vehicle was tracked; check --roi, --start/--end and the detector")
-    result, written = _analyze_and_write(cam, surf, tracks_table_to_image_tracks(tracks), lane_set, count_lines,
+    result, written = _analyze_and_write(cam, surf, tracks_from_table(tracks), lane_set, count_lines,
                                          interval, out)
     if annotate is not None:
         from trafficgeo.video.annotate import annotate_video
@@ -147,7 +132,8 @@ def stitch(
     import pandas as pd
 
     from trafficgeo.io.atomic import atomic_path
-    from trafficgeo.video.pipeline import stitch_tracks, tracks_table_to_image_tracks
+    from trafficgeo.traffic.tracks import tracks_from_table
+    from trafficgeo.video.pipeline import stitch_tracks
 
     _check_out_dir(out)
     tables = []
@@ -161,7 +147,7 @@ def stitch(
     lane_set, count_lines = _layout(cam, surf, lanes, lines)
     joined = stitch_tracks(tables)
     joined["class"] = joined["class"].fillna("")
-    _analyze_and_write(cam, surf, tracks_table_to_image_tracks(joined), lane_set, count_lines, interval, out)
+    _analyze_and_write(cam, surf, tracks_from_table(joined), lane_set, count_lines, interval, out)
     with atomic_path(out / "tracks.csv") as tmp:
         joined.to_csv(tmp, index=False, float_format="%.3f")
     console.print(f"stitched {len(chunks)} chunks: {joined['track_id'].nunique()} tracks; wrote {out}")

@@ -12,10 +12,27 @@ from trafficgeo.cli import app, console
 from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt, _camera, _surface
 from trafficgeo.errors import InputError
 
+LanesOpt = Annotated[Path | None, typer.Option(help="lane polygons or boundary lines (GIS), or boundary lines drawn "
+                                               "in the image (CSV line,u,v)")]
+LinesOpt = Annotated[Path | None, typer.Option(help="counting lines (GIS file, or CSV line,u,v in the image)")]
+IntervalOpt = Annotated[float, typer.Option(help="counting interval (s), e.g. 60 or 900")]
+
+
 
 def _check_out_dir(out: Path) -> None:
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder; give a folder for the outputs")
+
+
+def _layout(cam, surf, lanes: Path | None, lines: Path | None):
+    """The lanes and counting lines given on the command line (GIS files or image CSVs), in the camera's CRS."""
+    from trafficgeo.geo.mapping import camera_crs
+    from trafficgeo.traffic.lanes import read_lanes
+    from trafficgeo.traffic.lines import read_count_lines
+
+    crs = camera_crs(cam)
+    return (read_lanes(lanes, crs=crs, camera=cam, surface=surf) if lanes is not None else None,
+            read_count_lines(lines, crs=crs, camera=cam, surface=surf) if lines is not None else None)
 
 
 @app.command()
@@ -26,10 +43,9 @@ def analyze(
     surface: SurfaceOpt,
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder")],
     fps: Annotated[float | None, typer.Option(help="frame rate when the tracks have no time column")] = None,
-    lanes: Annotated[Path | None, typer.Option(help="lane polygons or boundary lines (GIS file), or boundary "
-                                               "lines drawn in the image (CSV line,u,v)")] = None,
-    lines: Annotated[Path | None, typer.Option(help="counting lines (GIS file, or CSV line,u,v in the image)")] = None,
-    interval: Annotated[float, typer.Option(help="counting interval (s), e.g. 60 or 900")] = 60.0,
+    lanes: LanesOpt = None,
+    lines: LinesOpt = None,
+    interval: IntervalOpt = 60.0,
     pixel_sigma: Annotated[float, typer.Option(help="noise of a track's ground point in the image (px)")] = 2.0,
     accel_sigma: Annotated[float, typer.Option(help="how hard vehicles may accelerate/turn in the smoother "
                                                "(m/s^2)")] = 1.5,
@@ -41,12 +57,9 @@ def analyze(
     """Image tracks to world trajectories, true speeds (km/h), lanes and counts at counting lines."""
     from rich.progress import Progress
 
-    from trafficgeo.geo.mapping import camera_crs
     from trafficgeo.report.traffic import print_analysis
     from trafficgeo.traffic.analyze import analyze as run_analysis
     from trafficgeo.traffic.analyze import write_analysis
-    from trafficgeo.traffic.lanes import read_lanes
-    from trafficgeo.traffic.lines import read_count_lines
     from trafficgeo.traffic.tracks import read_tracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
 
@@ -57,9 +70,7 @@ def analyze(
     cam, doc = _camera(camera)
     image_tracks = read_tracks(tracks, fps=fps)
     surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
-    crs = camera_crs(cam)
-    lane_set = read_lanes(lanes, crs=crs, camera=cam, surface=surf) if lanes is not None else None
-    count_lines = read_count_lines(lines, crs=crs, camera=cam, surface=surf) if lines is not None else None
+    lane_set, count_lines = _layout(cam, surf, lanes, lines)
     console.print(f"surface: {surf.describe()}")
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task("tracks", total=len(image_tracks.track_ids))

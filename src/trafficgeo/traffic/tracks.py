@@ -140,3 +140,18 @@ def read_tracks(path: str | Path, *, fps: float | None = None) -> ImageTracks:
     order = np.lexsort((time, track))
     return ImageTracks(track_id=track[order], frame=frame[order], time=time[order], u=u[order], v=v[order],
                        box=box[order], vclass=np.asarray(vclass, dtype=object)[order], score=score[order])
+
+
+def tracks_from_table(table: pd.DataFrame) -> ImageTracks:
+    """Tracks from a table with ``track_id, frame, time, x1, y1, x2, y2`` and optional ``class, score`` (the
+    ``tracks.csv`` that ``process`` writes): ground point = box bottom centre, rows sorted by track and time."""
+    df = table.sort_values(["track_id", "time"], kind="stable")
+    box = df[["x1", "y1", "x2", "y2"]].to_numpy(dtype=np.float64)
+    n = len(df)
+    return ImageTracks(track_id=df["track_id"].astype(str).to_numpy(dtype=object),
+                       frame=df["frame"].to_numpy(dtype=np.int64), time=df["time"].to_numpy(dtype=np.float64),
+                       u=0.5 * (box[:, 0] + box[:, 2]), v=box[:, 3], box=box,
+                       vclass=(df["class"].fillna("").astype(str).to_numpy(dtype=object) if "class" in df.columns
+                               else np.full(n, "", dtype=object)),
+                       score=(df["score"].to_numpy(dtype=np.float64) if "score" in df.columns
+                              else np.full(n, np.nan)))

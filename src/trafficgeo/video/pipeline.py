@@ -188,20 +188,6 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     return detections, tracks
 
 
-def tracks_table_to_image_tracks(tracks: pd.DataFrame):
-    """The ``tracks.csv`` table as :class:`~trafficgeo.traffic.tracks.ImageTracks` (ground point = box bottom
-    centre; the analysis fits the cuboid)."""
-    from trafficgeo.traffic.tracks import ImageTracks
-
-    df = tracks.sort_values(["track_id", "time"], kind="stable")
-    box = df[["x1", "y1", "x2", "y2"]].to_numpy(dtype=np.float64)
-    return ImageTracks(track_id=df["track_id"].astype(str).to_numpy(dtype=object),
-                       frame=df["frame"].to_numpy(dtype=np.int64), time=df["time"].to_numpy(dtype=np.float64),
-                       u=0.5 * (box[:, 0] + box[:, 2]), v=box[:, 3], box=box,
-                       vclass=df["class"].astype(str).to_numpy(dtype=object),
-                       score=df["score"].to_numpy(dtype=np.float64))
-
-
 def finish_run(out_dir: str | Path) -> None:
     """Remove the checkpoint of a completed run."""
     ck = Path(out_dir) / CHECKPOINT_DIR
