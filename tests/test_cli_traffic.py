@@ -206,3 +206,20 @@ def test_sumo_commands_bad_input(case: str, scene: dict[str, Path], tmp_path: Pa
     code, _, stderr = invoke(*args)
     assert code == 2 and len(stderr.strip().splitlines()) == 1 and "Traceback" not in stderr, stderr
     assert not (tmp_path / "out.csv").exists() and not (tmp_path / "cmp").exists()
+
+
+def test_a_counting_line_beyond_the_usable_range_is_warned_about(scene: dict[str, Path], tmp_path: Path) -> None:
+    """A line 260 m away, where one pixel spans ~5 m of road, counts nobody: analyze says so and why."""
+    far = gpd.GeoDataFrame({"name": ["far"]}, geometry=[shapely.LineString([(E0 - 8, N0 + 250), (E0 + 1, N0 + 250)])],
+                           crs=CRS)
+    far.to_file(tmp_path / "far.gpkg")
+    out = tmp_path / "out"
+    code, stdout, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
+                                  "--lines", tmp_path / "far.gpkg", "--out", out)
+    assert code == 0, stderr
+    words = " ".join(stdout.split())
+    assert "counting line far: 100% of it lies farther than where one pixel spans 1.5 m" in words
+    assert json.loads((out / "summary.json").read_text())["warnings"]
+    code, stdout, _ = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
+                             "--lines", scene["lines"], "--out", tmp_path / "near")
+    assert "warning" not in stdout

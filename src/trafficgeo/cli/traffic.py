@@ -51,6 +51,8 @@ def analyze(
                                                "(m/s^2)")] = 1.5,
     box_correction: Annotated[bool, typer.Option(help="fit a vehicle cuboid to each box for its footprint "
                                                  "centre")] = True,
+    max_metres_per_px: Annotated[float, typer.Option(help="points farther away, where one pixel spans more road "
+                                                     "(m), are not used")] = 1.5,
     surface_crs: SurfaceCrsOpt = None,
     resolution: ResolutionOpt = 0.25,
 ) -> None:
@@ -66,7 +68,8 @@ def analyze(
     _check_out_dir(out)
     if not interval > 0:
         raise InputError(f"--interval {interval} must be a positive number of seconds, e.g. 60")
-    opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction)
+    opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
+                             max_metres_per_px=max_metres_per_px)
     cam, doc = _camera(camera)
     image_tracks = read_tracks(tracks, fps=fps)
     surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))

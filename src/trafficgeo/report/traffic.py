@@ -23,6 +23,8 @@ def print_analysis(analysis: Analysis, console: Console) -> None:
     console.print(f"{s['vehicles']} vehicles ({classes}) in {t1 - t0:.1f} s; {s['points']} track points, "
                   f"{s['outlier_points']} rejected as outliers; not used: {dropped}")
     console.print(f"mean speed over the observed paths: {speed}; lane changes: {s['lane_changes']}")
+    for text in analysis.warnings:
+        console.print(f"[yellow]warning:[/yellow] {text}")
     if s["crossings"]:
         table = Table(title="crossings per counting line")
         for col in ("line", "lane", "direction", "vehicles", "flow veh/h", "mean speed km/h"):

@@ -46,6 +46,7 @@ class Analysis:
     lanes: Lanes | None = None
     lines: list[CountLine] = field(default_factory=list)
     options: dict[str, object] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
 
 def add_lanes(world: WorldTracks, lanes: Lanes, *, min_dwell_s: float = 1.0) -> None:
@@ -61,6 +62,28 @@ def add_lanes(world: WorldTracks, lanes: Lanes, *, min_dwell_s: float = 1.0) -> 
         seq.append(">".join(v.lane for v in visits))
         changes.append(max(len(visits) - 1, 0))
     veh["lane"], veh["lanes"], veh["lane_changes"] = main, seq, changes
+
+
+def line_warnings(camera: Camera, surface: Surface, lines: list[CountLine], options: TrajectoryOptions,
+                  samples: int = 21) -> list[str]:
+    """A warning for each counting line more than 10 % of which lies where track points are not used (too far
+    away, or at the end of the surface): vehicles are not counted there."""
+    from trafficgeo.traffic.trajectories import usable_positions
+
+    out = []
+    for line in lines:
+        at = shapely.line_interpolate_point(line.geometry, np.linspace(0.0, 1.0, samples), normalized=True)
+        xy = shapely.get_coordinates(at)
+        status = usable_positions(camera, surface, xy, options)
+        bad = status != "ok"
+        if bad.mean() > 0.1:  # a line's ends often reach over the shoulders: those do not matter
+            why = {"too_far": f"farther than where one pixel spans {options.max_metres_per_px:g} m of road",
+                   "surface_edge": "at the end of the road surface"}
+            reasons = " or ".join(why[r] for r in sorted(set(status[bad])))
+            out.append(f"counting line {line.name}: {bad.mean():.0%} of it lies {reasons}, where track points are "
+                       "not used: vehicles there are not counted; move the line nearer the camera (or raise "
+                       "--max-metres-per-px)")
+    return out
 
 
 def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lanes | None = None,
@@ -82,9 +105,10 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
         world.points["length_m"] = world.points["track_id"].map(world.vehicles.set_index("track_id")["length_m"])
     crossings = find_crossings(world.points, lines or [], lanes)
     counts = aggregate_counts(crossings, interval_s, *period)
+    warnings = line_warnings(camera, surface, lines or [], opts)
     return Analysis(points=world.points, vehicles=world.vehicles, crossings=crossings, counts=counts,
                     period=period, dropped=world.dropped, lanes=lanes, lines=list(lines or []),
-                    options={**asdict(opts), "interval_s": interval_s})
+                    options={**asdict(opts), "interval_s": interval_s}, warnings=warnings)
 
 
 # ------------------------------------------------------------------------------------------------ writing
@@ -133,6 +157,7 @@ def summary(analysis: Analysis) -> dict[str, object]:
         "crossings": [{"line": str(k[0]), "lane": str(k[1]), "direction": int(k[2]), "count": int(v)}
                       for k, v in (per_line.items() if len(per_line) else [])],
         "options": analysis.options,
+        "warnings": analysis.warnings,
     }
 
 

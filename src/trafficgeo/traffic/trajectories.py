@@ -224,7 +224,7 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     # noisy points would keep those whose noise pulls them towards the camera and bias the rest.
     have = ok & np.isfinite(smoothed[:, 0])
     status[ok & ~have] = "short_track"
-    status[have] = _usable(camera, surface, smoothed[have], opts, m)
+    status[have] = usable_positions(camera, surface, smoothed[have], opts)
     ok = status == "ok"
     # Pass 2: the measurements (cuboid-fitted footprint centres with boxes), smoothed again on the same parts.
     measured = ground.xyz[:, :2].copy()  # the ground point each smoothed position was fitted to (CRS units)
@@ -260,9 +260,11 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     return _assemble(camera, surface, tracks, ground, measured, named, m, dropped)
 
 
-def _usable(camera: Camera, surface: Surface, xy: np.ndarray, opts: TrajectoryOptions, m: float) -> np.ndarray:
+def usable_positions(camera: Camera, surface: Surface, xy: np.ndarray, opts: TrajectoryOptions) -> np.ndarray:
     """``ok``, ``too_far`` or ``surface_edge`` for ground positions (N, 2) (CRS units): too far where one pixel
     spans more than ``max_metres_per_px`` of road, at the edge where the surface ends within two pixel sigmas."""
+    crs = camera_crs(camera)
+    m = metres_per_unit(crs) if crs is not None else 1.0
     xyz = np.column_stack([xy, surface.elevation(xy[:, 0], xy[:, 1])])
     uv = camera.project(xyz)
     out = np.full(xy.shape[0], "ok", dtype=object)
