@@ -511,17 +511,6 @@ def _sumolib():
     return sumolib
 
 
-def _net_offset(net_path: Path) -> tuple[float, float]:
-    sumolib = _sumolib()
-    for loc in sumolib.xml.parse_fast(str(net_path), "location", ["netOffset"]):
-        try:
-            x, y = (float(v) for v in loc.netOffset.split(","))
-        except ValueError:
-            break
-        return x, y
-    raise InputError(f"{net_path}: no <location netOffset=...> found; pass the .net.xml written by run_sumo_world")
-
-
 def _empty_trajectories() -> Trajectories:
     f, i, s = np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=str)
     return Trajectories(f, s, s, f, f, f, f, f, i, i, f, f, f, f, f)
@@ -539,27 +528,26 @@ def read_fcd(path: str | os.PathLike[str], road: RoadSpec, net_path: str | os.Pa
     for what, p in (("FCD file", path), ("network file", net_path)):
         if not p.is_file():
             raise InputError(f"{what} {p} does not exist; give the file written by run_sumo_world")
-    off_x, off_y = _net_offset(net_path)
+    from trafficgeo.io.sumo import read_fcd as read_sumo_fcd
+    from trafficgeo.io.sumo import read_net_location
+
+    off_x, off_y = read_net_location(net_path).offset
     ox, oy, _ = road.origin
     if abs(off_x + ox) > 1e-3 or abs(off_y + oy) > 1e-3:
         raise InputError(f"{net_path} was built for origin ({-off_x}, {-off_y}), not RoadSpec.origin ({ox}, {oy}); "
                          "pass the RoadSpec used for the run")
-    cols: dict[str, list[str]] = {k: [] for k in ("time", "id", "x", "y", "angle", "type", "speed", "lane")}
-    sumolib = _sumolib()
-    for step, veh in sumolib.xml.parse_fast_nested(str(path), "timestep", ["time"], "vehicle",
-                                                   ["id", "x", "y", "angle", "type", "speed", "lane"]):
-        cols["time"].append(step.time)
-        for key in ("id", "x", "y", "angle", "type", "speed", "lane"):
-            cols[key].append(getattr(veh, key))
+    fcd = read_sumo_fcd(path, crs=road.crs, geo=False)  # SUMO's own network coordinates, front bumpers
     if t0 is None:
-        first = next(iter(sumolib.xml.parse_fast(str(path), "timestep", ["time"])), None)
+        first = next(iter(_sumolib().xml.parse_fast(str(path), "timestep", ["time"])), None)
         t0 = float(first.time) if first is not None else 0.0
-    if not cols["time"]:
+    if not len(fcd):
         return _empty_trajectories()
 
-    time = np.round(np.asarray(cols["time"], dtype=np.float64) - t0, 6)
-    heading = np.mod(np.asarray(cols["angle"], dtype=np.float64), 360.0)
-    vehicle = np.asarray(cols["id"], dtype=str)
+    time = np.round(fcd["time"].to_numpy(dtype=np.float64) - t0, 6)
+    heading = fcd["heading_deg"].to_numpy(dtype=np.float64)
+    vehicle = fcd["track_id"].to_numpy(dtype=str)
+    cols = {"x": fcd["x"].to_numpy(), "y": fcd["y"].to_numpy(), "speed": fcd["speed_kmh"].to_numpy() / 3.6,
+            "type": fcd["class"].to_numpy(dtype=str), "lane": fcd["sumo_lane"].to_numpy(dtype=str)}
     # vehicle class -> sizes
     types, type_idx = np.unique(np.asarray(cols["type"], dtype=str), return_inverse=True)
     unknown = [t for t in types if t not in VEHICLE_CLASSES]
