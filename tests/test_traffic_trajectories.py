@@ -76,6 +76,28 @@ def test_id_switch_splits_the_track_and_single_outliers_do_not() -> None:
     assert bool(first["outlier"].to_numpy()[20])
 
 
+def test_a_gap_is_bridged_only_by_consistent_motion() -> None:
+    """A tracker that lost a vehicle for 0.8 s may give its id to another one for a few frames: the track ends at
+    the gap (too few points to be flagged as a switch by the filter, they would join it). The same vehicle found
+    again where its motion puts it keeps one track."""
+    cam = _camera()
+    tid, t, xyz = _straight("a", -1.75, 15.0, 14.0, 4.0)
+    keep = (t < 1.2) | ((t >= 2.0) & (t < 2.16))  # 30 points, a 0.8 s gap, then 4 points
+    switched = xyz.copy()
+    switched[t >= 2.0] += [-3.5, 30.0, 0.0]  # another vehicle, one lane over and 30 m ahead, same speed
+    cut = world_trajectories(cam, ConstantSurface(Z0), _tracks_from_world(cam, tid[keep], t[keep], switched[keep],
+                                                                          noise_px=0.5, seed=2))
+    assert cut.vehicles["last_time"].max() < 1.2  # nothing of the other vehicle
+    assert cut.vehicles["mean_speed_kmh"].iloc[0] == pytest.approx(14.0 * 3.6, abs=1.5)
+    same = world_trajectories(cam, ConstantSurface(Z0), _tracks_from_world(cam, tid[keep], t[keep], xyz[keep],
+                                                                           noise_px=0.5, seed=2))
+    assert list(same.vehicles["track_id"]) == ["a"] and same.vehicles["last_time"].iloc[0] > 2.1
+    loose = world_trajectories(cam, ConstantSurface(Z0), _tracks_from_world(cam, tid[keep], t[keep], switched[keep],
+                                                                            noise_px=0.5, seed=2),
+                               TrajectoryOptions(check_gap_s=5.0))
+    assert loose.vehicles["last_time"].max() > 2.1  # without the check the other vehicle's points join the track
+
+
 def test_points_off_the_road_are_dropped_with_a_reason() -> None:
     cam = _camera()
     tid, t, xyz = _straight("a", -1.75, 15.0, 10.0, 2.0)

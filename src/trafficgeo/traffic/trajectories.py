@@ -6,7 +6,8 @@ uncertainty is the pixel noise ``pixel_sigma`` carried through the local image-t
 are trusted less, and mostly along the viewing ray. Each track is then smoothed in metres by a Kalman filter + RTS
 smoother (:mod:`trafficgeo.traffic.smoothing`) that rejects outlier points. A run of ``split_outliers`` rejected
 points in a row means the track jumped to another vehicle (an ID switch): the track is split there, as it is at
-gaps longer than ``max_gap_s``; the parts are named ``<track>.1``, ``<track>.2``, ...
+gaps longer than ``max_gap_s`` and at gaps over ``check_gap_s`` that the motion on both sides does not bridge (an ID
+switch while the vehicle was lost: :func:`_gap_cuts`); the parts are named ``<track>.1``, ``<track>.2``, ...
 A box cut off by the left, right or bottom edge of the frame does not show where the vehicle meets the road: such
 points are not used (``box_clipped``). Nor are points within two pixel sigmas of the end of the surface (a DEM's
 edge, the horizon: ``surface_edge``), whose errors are no longer symmetric, nor points so far away that one pixel
@@ -52,6 +53,7 @@ class TrajectoryOptions:
     gate: float = CHI2_2DOF_999  # chi-square (2 dof) gate for outlier points
     split_outliers: int = 5  # this many rejected points in a row split a track
     max_gap_s: float = 5.0  # a longer gap in time splits a track
+    check_gap_s: float = 0.5  # a gap this long splits a track unless the motion on both sides bridges it
     min_points: int = 5  # shorter tracks (after splitting) are dropped
     box_correction: bool = True  # fit a cuboid to each box (tracks with boxes only)
     estimate_length: bool = True  # estimate each vehicle's length from its boxes (where the view allows)
@@ -61,6 +63,7 @@ class TrajectoryOptions:
     def __post_init__(self) -> None:
         checks = {"pixel_sigma": self.pixel_sigma > 0, "accel_sigma": self.accel_sigma > 0, "gate": self.gate > 0,
                   "split_outliers": self.split_outliers >= 1, "max_gap_s": self.max_gap_s > 0,
+                  "check_gap_s": self.check_gap_s > 0,
                   "max_metres_per_px": self.max_metres_per_px > 0,
                   "min_points": self.min_points >= 2}
         for name, ok in checks.items():
@@ -135,14 +138,46 @@ def _runs(mask: np.ndarray, min_len: int) -> list[int]:
     return starts
 
 
+def _gap_cuts(t: np.ndarray, xy_m: np.ndarray, cov: np.ndarray, opts: TrajectoryOptions) -> np.ndarray:
+    """Indices where a track is cut at a gap in time: gaps longer than ``max_gap_s``, and gaps longer than
+    ``check_gap_s`` that the motion on their two sides does not bridge.
+
+    A tracker that lost a vehicle may give its id to another one when it finds a box where it predicts the lost
+    one (an ID switch across a gap). A gap is bridged when each side has at least 3 points within 1 s of it and
+    the straight-line motions fitted to the two sides reach the middle of the gap within
+    ``2 m + 3 sigma`` of each other (sigma from the points' covariance and ``accel_sigma`` over the gap).
+    """
+    dt = np.diff(t)
+    cuts = set(np.flatnonzero(dt > opts.max_gap_s) + 1)
+    for k in np.flatnonzero((dt > opts.check_gap_s) & (dt <= opts.max_gap_s)):
+        before = np.flatnonzero((t <= t[k]) & (t >= t[k] - 1.0))
+        after = np.flatnonzero((t >= t[k + 1]) & (t <= t[k + 1] + 1.0))
+        mid = 0.5 * (t[k] + t[k + 1])
+        ends = []
+        for side in (before, after):
+            if side.size < 3 or np.ptp(t[side]) <= 0:
+                break
+            coef = np.polyfit(t[side] - mid, xy_m[side], 1)  # (2, 2): slope row, intercept row
+            ends.append(coef[1])
+        if len(ends) < 2:
+            cuts.add(k + 1)
+            continue
+        pos_var = float(np.trace(cov[k]) + np.trace(cov[k + 1]))
+        half = 0.5 * dt[k]
+        acc_var = 2.0 * (opts.accel_sigma ** 2) * half ** 3 / 3.0  # white-noise acceleration, per axis
+        tol = 2.0 + 3.0 * np.sqrt(pos_var + 4.0 * acc_var)
+        if np.hypot(*(ends[0] - ends[1])) > tol:
+            cuts.add(k + 1)
+    return np.array(sorted(cuts), dtype=np.int64)
+
+
 def _smooth_segments(t: np.ndarray, xy_m: np.ndarray, cov: np.ndarray, opts: TrajectoryOptions,
                      segments: list[np.ndarray] | None = None) -> list[tuple[np.ndarray, SmoothedTrack]]:
     """Smooth one track's points (indices into t), starting from ``segments`` or from the track split at long
     gaps, and split again wherever ``split_outliers`` points in a row are rejected (an ID switch, or a wrong start
     that the filter then refuses to leave). Returns (indices, smoothed) per part of at least ``min_points``."""
     if segments is None:
-        cuts = np.flatnonzero(np.diff(t) > opts.max_gap_s) + 1
-        pending = list(np.split(np.arange(t.size), cuts))
+        pending = list(np.split(np.arange(t.size), _gap_cuts(t, xy_m, cov, opts)))
     else:
         pending = list(segments)
     done = []

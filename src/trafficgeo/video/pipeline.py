@@ -36,7 +36,7 @@ from trafficgeo.video.track import TrackerOptions, VehicleTracker
 CHECKPOINT_DIR = ".checkpoint"
 DETECTION_COLUMNS = ["frame", "time", "x1", "y1", "x2", "y2", "score", "class"]
 TRACK_COLUMNS = ["frame", "time", "track_id", "x1", "y1", "x2", "y2", "score", "class"]
-PRIME_S = 4.0  # after a resume, the background detector re-learns on this much video before the checkpoint
+PRIME_S = 4.0  # s of video the background detector learns on before detecting (see detect_and_track)
 
 
 @dataclass(frozen=True)
@@ -151,12 +151,24 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
         state = _State(key, opts.start_s, 0, [], VehicleTracker(fps, opts.tracker))
     total = max(1, round((end_s - opts.start_s) * info.fps / opts.every))
     detector = make_detector(opts.detector, camera=camera if surface is not None else None, surface=surface, roi=roi)
-    if state.next_time_s > 0 and opts.detector in ("background", "mog2", "knn"):
-        # a resumed run or a later chunk: learn the background on the video just before it first
-        for frame in iter_frames(video, start_s=max(0.0, state.next_time_s - PRIME_S), end_s=state.next_time_s,
-                                 every=opts.every):
-            if frame.time_s < state.next_time_s - 1e-6:
-                detector.detect(frame.image, frame.time_s)
+    if opts.detector in ("background", "mog2", "knn"):
+        # Learn the background before detecting, so that vehicles are found from the first frame on.
+        t0 = state.next_time_s
+        if t0 - opts.start_s < PRIME_S:
+            # A run learns on its first PRIME_S seconds (or the video before them, if there is that much), then
+            # processes them from their beginning; a run resumed within them repeats that exactly.
+            if opts.start_s >= PRIME_S:
+                windows = [(opts.start_s - PRIME_S, opts.start_s)]
+            else:
+                windows = [(opts.start_s, min(opts.start_s + PRIME_S, end_s))]
+            windows.append((opts.start_s, t0))
+        else:  # resumed later on: learn on the video just before the checkpoint
+            windows = [(t0 - PRIME_S, t0)]
+        for lo, hi in windows:
+            if hi > lo:
+                for frame in iter_frames(video, start_s=lo, end_s=hi, every=opts.every):
+                    if frame.time_s < hi - 1e-6:
+                        detector.detect(frame.image, frame.time_s)
     det_rows: list = []
     trk_rows: list = []
     next_flush = state.next_time_s + opts.checkpoint_s
