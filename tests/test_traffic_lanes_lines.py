@@ -51,6 +51,46 @@ def test_polygon_lanes_first_wins_and_names_unique() -> None:
         lanes_from_polygons([shapely.LineString([(0, 0), (1, 1)]).buffer(0)], ["z"])
 
 
+def _two_way_lanes() -> Lanes:
+    """Four 3.5 m lanes along +y: x in [0, 7) southbound (bearing 180), x in [7, 14) northbound (bearing 0)."""
+    boxes = [shapely.box(E0 + x, N0, E0 + x + 3.5, N0 + 100) for x in (0.0, 3.5, 7.0, 10.5)]
+    return lanes_from_polygons(boxes, ["s_2", "s_1", "n_1", "n_2"], [180.0, 180.0, 0.0, 360.0])
+
+
+def test_travel_direction_corrects_a_lane_across_the_centre_line() -> None:
+    lanes = _two_way_lanes()
+    x = [E0 + 6.0, E0 + 6.0, E0 + 2.0, E0 + 6.0, E0 + 8.0]
+    heading = [2.0, 181.0, 350.0, np.nan, 175.0]
+    got = lanes.assign(x, [N0 + 50.0] * 5, heading)
+    # northbound 1 m left of the centre line -> its nearest northbound lane; southbound there stays; a northbound
+    # point 5 m into the other carriageway (more than a lane width) keeps its lane (a wrong-way driver); no heading
+    # -> no change; southbound 1 m right of the centre line -> the nearest southbound lane
+    assert list(got) == ["n_1", "s_1", "s_2", "s_1", "s_1"]
+    assert list(lanes.assign(x, [N0 + 50.0] * 5)) == ["s_1", "s_1", "s_2", "s_1", "n_1"]  # without headings
+    # a crossing takes the direction of the track's step across the line
+    pts = pd.DataFrame({"track_id": ["a", "a"], "time": [0.0, 1.0], "x": [E0 + 6.0] * 2, "y": [N0 + 40.0, N0 + 60.0],
+                        "speed_kmh": [72.0, 72.0]})
+    line = CountLine("L", shapely.LineString([(E0 - 1.0, N0 + 50.0), (E0 + 15.0, N0 + 50.0)]))
+    assert list(find_crossings(pts, [line], lanes)["lane"]) == ["n_1"]
+
+
+def test_lane_bearing_column_read_and_checked(tmp_path) -> None:
+    import geopandas as gpd
+
+    from trafficgeo.traffic.lanes import read_lanes
+
+    lanes = _two_way_lanes()
+    gdf = gpd.GeoDataFrame({"lane": list(lanes.names), "bearing": ["180", "180", "", "0"]},
+                           geometry=list(lanes.polygons), crs="EPSG:32633")
+    gdf.to_file(tmp_path / "lanes.gpkg")
+    got = read_lanes(tmp_path / "lanes.gpkg", crs=None)
+    assert got.bearings[:2] == (180.0, 180.0) and np.isnan(got.bearings[2]) and got.bearings[3] == 0.0
+    gdf["bearing"] = ["180", "south", "0", "0"]
+    gdf.to_file(tmp_path / "bad.gpkg")
+    with pytest.raises(InputError, match="bearing 'south' of feature 2 is not a number"):
+        read_lanes(tmp_path / "bad.gpkg", crs=None)
+
+
 def test_lane_visits_ignore_jitter_and_count_changes() -> None:
     t = np.arange(0, 10, 0.1)
     lane = np.where(t < 5, "1", "2").astype(object)

@@ -254,7 +254,9 @@ def demo_world(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def test_background_on_demo_world(demo_world: Path) -> None:
+def _demo_world_scores(demo_world: Path, **options: object) -> tuple[float, float, float, float]:
+    """(recall, precision, class agreement, covered) of the background detector on the demo world; covered: the
+    share of well visible vehicles whose box's bottom centre lies in some detection's box."""
     import av
 
     from trafficgeo.camera.io import read_camera_json
@@ -262,8 +264,8 @@ def test_background_on_demo_world(demo_world: Path) -> None:
 
     camera = read_camera_json(demo_world / "camera_truth.json")
     truth = pd.read_csv(demo_world / "truth_tracks.csv")
-    det = BackgroundDetector(camera=camera, surface=ConstantSurface(90.0), warmup=50)
-    tp = n_good = n_det = n_true_det = same_class = 0
+    det = BackgroundDetector(camera=camera, surface=ConstantSurface(90.0), warmup=50, **options)
+    tp = n_good = n_det = n_true_det = same_class = covered = 0
     times = []
     with av.open(str(demo_world / "video.mp4")) as container:
         for k, frame in enumerate(container.decode(video=0)):
@@ -280,6 +282,11 @@ def test_background_on_demo_world(demo_world: Path) -> None:
             n_det += len(d)
             n_true_det += len(pairs)  # a detection of any visible vehicle is a true one
             n_good += int(good.sum())
+            bc = np.column_stack([0.5 * (boxes[good, 0] + boxes[good, 2]), boxes[good, 3]])
+            b = d.boxes
+            covered += int(((bc[:, None, 0] >= b[None, :, 0] - 2) & (bc[:, None, 0] <= b[None, :, 2] + 2)
+                            & (bc[:, None, 1] >= b[None, :, 1] - 2) & (bc[:, None, 1] <= b[None, :, 3] + 2)
+                            ).any(axis=1).sum())
             for i, j in pairs:
                 if good[j]:
                     tp += 1
@@ -289,13 +296,23 @@ def test_background_on_demo_world(demo_world: Path) -> None:
     precision = n_true_det / max(n_det, 1)
     class_ok = same_class / max(tp, 1)
     ms = 1000 * float(np.median(times[det.warmup:]))
-    print(f"\ndemo world 640x360: recall {recall:.3f} ({tp}/{n_good}), precision {precision:.3f} "
-          f"({n_true_det}/{n_det}), class agreement {class_ok:.3f}, {ms:.1f} ms/frame")
-    # Measured (OpenCV 5.0, 2 cores): recall 0.63, precision 0.73, class agreement 0.80 (cars taken for vans are
-    # most of the rest). Misses and false boxes are mostly vehicles that touch in the image and stay one blob.
-    assert recall > 0.5
-    assert precision > 0.6
+    print(f"\ndemo world 640x360 {options}: recall {recall:.3f} ({tp}/{n_good}), precision {precision:.3f} "
+          f"({n_true_det}/{n_det}), class agreement {class_ok:.3f}, covered {covered / max(n_good, 1):.3f}, "
+          f"{ms:.1f} ms/frame")
+    return recall, precision, class_ok, covered / max(n_good, 1)
+
+
+def test_background_on_demo_world(demo_world: Path) -> None:
+    # Measured (OpenCV 5.0, 2 cores), without keeping merged blobs: recall 0.67, precision 0.61, class agreement
+    # 0.84 (cars taken for vans are most of the rest). Misses and false boxes are mostly vehicles that touch in the
+    # image and stay one blob. Keeping the blobs of such groups (the default) adds boxes that hold several vehicles
+    # (precision 0.54): more vehicles lie in some box, and on the 1080p benchmark more of them are counted.
+    strict_recall, strict_precision, class_ok, strict_covered = _demo_world_scores(demo_world, keep_merged=False)
+    assert strict_recall > 0.5
+    assert strict_precision > 0.6
     assert class_ok > 0.65
+    recall, precision, _, covered = _demo_world_scores(demo_world)
+    assert recall >= strict_recall and covered > strict_covered and precision > 0.45
 
 
 def test_size_rules_classify_truth_boxes(demo_world: Path) -> None:

@@ -306,7 +306,8 @@ def truth_lane_name(direction: object, lane: object) -> np.ndarray:
 
 
 def lanes_layer(spec: RoadSpec):
-    """Every lane of the road as a polygon named by :func:`truth_lane_name`."""
+    """Every lane of the road as a polygon named by :func:`truth_lane_name`, with its direction of travel
+    (``bearing``, deg clockwise from north at station 0)."""
     from shapely.geometry import Polygon
 
     from trafficgeo.io.gis import Layer
@@ -314,7 +315,8 @@ def lanes_layer(spec: RoadSpec):
     keys = [(d, k) for d in spec.directions for k in range(1, spec.lanes + 1)]
     geoms = [Polygon(spec.lane_polygon(d, k)[:, :2]) for d, k in keys]
     return Layer("lanes", geoms, {"lane": [str(truth_lane_name(d, k)) for d, k in keys],
-                                  "direction": [d for d, _ in keys]})
+                                  "direction": [d for d, _ in keys],
+                                  "bearing": [spec.heading_deg(d) for d, _ in keys]})
 
 
 def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z: np.ndarray, tracks,

@@ -52,7 +52,8 @@ class Analysis:
 def add_lanes(world: WorldTracks, lanes: Lanes, *, min_dwell_s: float = 1.0) -> None:
     """Lane of every point, and each vehicle's main lane, lane sequence and number of lane changes (in place)."""
     pts, veh = world.points, world.vehicles
-    pts["lane"] = lanes.assign(pts["x"].to_numpy(), pts["y"].to_numpy()) if len(pts) else ""
+    heading = pts["heading_deg"].to_numpy() if "heading_deg" in pts.columns else None
+    pts["lane"] = lanes.assign(pts["x"].to_numpy(), pts["y"].to_numpy(), heading) if len(pts) else ""
     main, seq, changes = [], [], []
     groups = dict(tuple(pts.groupby("track_id", sort=False))) if len(pts) else {}
     for tid in veh["track_id"]:

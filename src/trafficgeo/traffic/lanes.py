@@ -8,6 +8,12 @@ Lanes come from :func:`trafficgeo.traffic.layout.read_layout` as either
   looking along the first boundary's drawing direction.
 
 A point outside every lane has lane ``""``; where polygons overlap, the first in file order wins.
+
+Polygons may carry a ``bearing`` column: the lane's direction of travel in degrees clockwise from grid north (the
+convention of ``heading_deg``). A moving point found in a lane whose bearing is more than 90 deg from its heading
+(on a two-way road, a position error of a lane or two puts a vehicle on the other side of the centre line) is
+given the nearest lane whose bearing fits, if that lane is within one lane width; otherwise it keeps the lane it
+is in (a wrong-way driver stays visible).
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pyproj
 import shapely
 
@@ -31,15 +38,51 @@ class Lanes:
 
     names: tuple[str, ...]
     polygons: tuple[shapely.Polygon, ...]
+    bearings: tuple[float, ...] | None = None  # direction of travel, deg clockwise from grid north (NaN: unknown)
 
     def __post_init__(self) -> None:
         if len(self.names) != len(self.polygons) or not self.names:
             raise ValueError("Lanes needs one name per polygon and at least one lane")
         if len(set(self.names)) != len(self.names):
             raise InputError(f"lane names must be unique; got {', '.join(self.names)}")
+        if self.bearings is not None and len(self.bearings) != len(self.names):
+            raise ValueError("Lanes needs one bearing per lane (NaN where unknown)")
 
-    def assign(self, x: object, y: object) -> np.ndarray:
-        """The lane name of each point (N,) object array; ``""`` outside every lane or for NaN points."""
+    def assign(self, x: object, y: object, heading_deg: object = None) -> np.ndarray:
+        """The lane name of each point (N,) object array; ``""`` outside every lane or for NaN points.
+
+        With ``heading_deg`` (N,) (deg clockwise from grid north, NaN where not moving) and lane bearings, a point in
+        a lane of the opposite direction goes to the nearest lane of its direction within one lane width (see the
+        module docstring)."""
+        out = self._contains(x, y)
+        if heading_deg is None or self.bearings is None:
+            return out
+        xa = np.asarray(x, dtype=np.float64).reshape(-1)
+        ya = np.asarray(y, dtype=np.float64).reshape(-1)
+        heading = np.asarray(heading_deg, dtype=np.float64).reshape(-1)
+        bearing_of = dict(zip(self.names, self.bearings, strict=True))
+        lane_bearing = np.array([bearing_of.get(name, np.nan) for name in out], dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            wrong = angle_between(heading, lane_bearing) > 90.0
+        rows = np.flatnonzero(wrong)
+        if rows.size == 0:
+            return out
+        best = np.full(rows.size, np.inf)
+        pts = shapely.points(xa[rows], ya[rows])
+        for name, poly, bearing in zip(self.names, self.polygons, self.bearings, strict=True):
+            with np.errstate(invalid="ignore"):
+                fits = angle_between(heading[rows], bearing) <= 90.0
+            if not fits.any():
+                continue
+            d = np.where(fits, shapely.distance(poly, pts), np.inf)
+            width = 2.0 * poly.area / max(poly.length, 1e-12)  # a long strip's width
+            better = (d < best) & (d <= width)
+            out[rows[better]] = name
+            best[better] = d[better]
+        return out
+
+    def _contains(self, x: object, y: object) -> np.ndarray:
+        """The lane containing each point (``""`` outside every lane or for NaN points)."""
         xa = np.asarray(x, dtype=np.float64).reshape(-1)
         ya = np.asarray(y, dtype=np.float64).reshape(-1)
         out = np.full(xa.size, "", dtype=object)
@@ -54,15 +97,23 @@ class Lanes:
         return out
 
 
-def lanes_from_polygons(polygons: list[shapely.Geometry], names: list[str]) -> Lanes:
-    """Lanes from (multi)polygons; multipolygons are merged into one lane shape."""
+def angle_between(a_deg: object, b_deg: object) -> np.ndarray:
+    """Absolute difference (deg, in [0, 180]) of directions in degrees; NaN where either is NaN."""
+    d = np.abs(np.asarray(a_deg, dtype=np.float64) - np.asarray(b_deg, dtype=np.float64)) % 360.0
+    return np.minimum(d, 360.0 - d)
+
+
+def lanes_from_polygons(polygons: list[shapely.Geometry], names: list[str],
+                        bearings: list[float] | None = None) -> Lanes:
+    """Lanes from (multi)polygons; multipolygons are merged into one lane shape. ``bearings``: each lane's
+    direction of travel (deg clockwise from grid north; NaN where unknown), or None."""
     polys = []
     for name, geom in zip(names, polygons, strict=True):
         geom = shapely.make_valid(geom)
         if geom.is_empty or geom.area <= 0:
             raise InputError(f"lane {name}: the polygon has no area; redraw it")
         polys.append(geom)
-    return Lanes(tuple(names), tuple(polys))
+    return Lanes(tuple(names), tuple(polys), None if bearings is None else tuple(float(b) for b in bearings))
 
 
 def lanes_from_boundaries(lines: list[shapely.LineString]) -> Lanes:
@@ -102,13 +153,30 @@ def read_lanes(path: str | Path, *, crs: pyproj.CRS | None, camera: Camera | Non
     gdf = read_layout(path, "--lanes", crs=crs, camera=camera, surface=surface)
     kinds = set(gdf.geometry.geom_type)
     if kinds <= {"Polygon", "MultiPolygon"}:
-        return lanes_from_polygons(list(gdf.geometry), feature_names(gdf, ("lane", "name", "id")))
+        return lanes_from_polygons(list(gdf.geometry), feature_names(gdf, ("lane", "name", "id")),
+                                   _bearings(gdf, path))
     if kinds <= {"LineString"}:
         return lanes_from_boundaries(list(gdf.geometry))
     if kinds <= {"LineString", "MultiLineString"}:
         raise InputError(f"--lanes {path}: multi-part lines are ambiguous boundaries; draw each boundary as one line")
     raise InputError(f"--lanes {path}: geometries are {', '.join(sorted(kinds))}; give lane polygons or lane "
                      "boundary lines")
+
+
+def _bearings(gdf, path: str | Path) -> list[float] | None:
+    """The ``bearing`` column (deg clockwise from grid north; empty = unknown), or None without one."""
+    cols = {str(c).lower(): c for c in gdf.columns}
+    if "bearing" not in cols:
+        return None
+    values = pd.to_numeric(gdf[cols["bearing"]], errors="coerce").to_numpy(dtype=np.float64)
+    raw = gdf[cols["bearing"]]
+    bad = np.isnan(values) & raw.notna().to_numpy() & (raw.astype(str).str.strip() != "").to_numpy()
+    bad |= np.isinf(values)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise InputError(f"--lanes {path}: bearing {raw.iloc[k]!r} of feature {k + 1} is not a number; give each "
+                         "lane's direction of travel in degrees clockwise from north (or leave it empty)")
+    return list(values % 360.0)
 
 
 @dataclass(frozen=True)

@@ -102,12 +102,14 @@ def find_crossings(points: pd.DataFrame, lines: list[CountLine], lanes: Lanes | 
         frac = best_s[hit]
         seg = i0[hit]
         cx = xy[seg] + frac[:, None] * (xy[seg + 1] - xy[seg])
+        step = xy[seg + 1] - xy[seg]
+        heading = np.degrees(np.arctan2(step[:, 0], step[:, 1])) % 360.0  # clockwise from grid north
         table = pd.DataFrame({
             "line": line.name, "track_id": tid[seg], "direction": best_sign[hit],
             "time": t[seg] + frac * (t[seg + 1] - t[seg]), "speed_kmh": v[seg] + frac * (v[seg + 1] - v[seg]),
             "x": cx[:, 0], "y": cx[:, 1],
             "class": points["class"].to_numpy()[seg] if "class" in points.columns else "",
-            "lane": lanes.assign(cx[:, 0], cx[:, 1]) if lanes is not None else "",
+            "lane": lanes.assign(cx[:, 0], cx[:, 1], heading) if lanes is not None else "",
         })
         if "length_m" in points.columns:
             table["length_m"] = points["length_m"].to_numpy()[seg]

@@ -513,14 +513,16 @@ class BackgroundDetector:
        deep. Vehicles exactly one behind the other in one lane stay one blob.
     7. With a ``camera`` and a road ``surface`` (both or neither), the **class and size filter**
        (:func:`blob_ground_size`, :func:`classify_sizes`): the blob's ground length follows from its box for an
-       assumed vehicle height (the bottom edge is on the road, the top edge is the far end of the roof); the
-       class is the one of ``rules.classes`` (car 3-5.3 m long and 1.2-1.8 m high, van 4.6-7.5 m / 1.8-2.9 m,
-       truck 7.5-25 m / 2.6-4.3 m) whose heights give lengths within its length range, or nearest to it. "truck"
-       covers trucks and buses: both are long and high, a blob cannot tell them apart. A "car" shorter than 3 m
-       and narrower than 1.4 m is a "motorcycle". The blob is kept when its class fits within a factor 1.65, its
-       length is within 1.2-25 m and its bottom edge is 0.5-6 m wide on the ground. A blob cut by the frame border
-       (its ground contact or its extent is not seen) is kept without the size check. Without a camera every blob
-       is kept and its class is ``""``.
+       assumed vehicle height (the bottom edge is on the road, the top edge is the far end of the roof); the class
+       is the one of ``rules.classes`` (car 3-5.3 m long and 1.2-1.8 m high, van 4.6-7.5 m / 1.8-2.9 m, truck 7.5-25
+       m / 2.6-4.3 m) whose heights give lengths within its length range, or nearest to it. "truck" covers trucks
+       and buses: both are long and high, a blob cannot tell them apart. A "car" shorter than 3 m and narrower than
+       1.4 m is a "motorcycle". The blob is kept when its class fits within a factor 1.65, its length is within
+       1.2-25 m and its bottom edge is 0.5-6 m wide on the ground, and, with ``keep_merged``, also when it is longer
+       than a car (the shortest class) or wider than 6 m but could not be split (vehicles hiding each other:
+       dropping the blob would lose them all, keeping it makes at least one track). Blobs too small for a vehicle
+       are dropped. A blob cut by the frame border (its ground contact or its extent is not seen) is kept without
+       the size check. Without a camera every blob is kept and its class is ``""``.
     8. Score: the blob's fill ratio, foreground pixels / box area (in (0, 1]): compact vehicles score high, sparse
        noise or merged clutter low.
 
@@ -532,7 +534,8 @@ class BackgroundDetector:
                  shadow_threshold: float = 0.5, camera: Camera | None = None,
                  surface: Surface | None = None, roi: np.ndarray | None = None, min_area_px: float | None = None,
                  open_px: float | None = None, close_px: float | None = None, merge: bool = True,
-                 split: bool = True, rules: SizeRules | None = None, compensate_gain: bool = True) -> None:
+                 split: bool = True, rules: SizeRules | None = None, compensate_gain: bool = True,
+                 keep_merged: bool = True) -> None:
         """Options (pixels are full-frame pixels):
 
         Args:
@@ -559,6 +562,8 @@ class BackgroundDetector:
             rules: metric size rules (:class:`SizeRules`).
             compensate_gain: scale each frame to the brightness of the initial background (camera auto-exposure,
                 passing clouds) before the model sees it.
+            keep_merged: keep blobs too long or too wide for one vehicle that could not be split (step 7): fewer
+                boxes match one vehicle, more vehicles are counted.
         """
         method = method.lower().strip()
         if method not in ("mog2", "knn"):
@@ -623,6 +628,7 @@ class BackgroundDetector:
         self.last_mask: np.ndarray | None = None  # the last cleaned foreground mask (small image), for inspection
         self.background: np.ndarray | None = None  # the initial background (small image) once warmed up
         self.compensate_gain = bool(compensate_gain)
+        self.keep_merged = bool(keep_merged)
         self.gain = 1.0  # brightness of the last frame relative to the initial background
         self._ref: np.ndarray | None = None
         self._ref_ok: np.ndarray | None = None
@@ -833,7 +839,12 @@ class BackgroundDetector:
     def _metric(self, blobs: _Blobs) -> tuple[_Blobs, np.ndarray]:
         """The size filter and the classes (step 6 of the class docstring)."""
         sw, sh = self._small
-        classes, _length, plausible, _width = self._measure(blobs.boxes)
+        classes, length, plausible, width = self._measure(blobs.boxes)
+        # keep_merged: longer than the shortest class allows (a car), or too wide, yet not split: vehicles that hide
+        # each other (seen along the road from a low camera). Dropped, all of them would be lost.
+        shortest = min(spec[1] for spec in self.rules.classes.values())
+        with np.errstate(invalid="ignore"):
+            plausible |= self.keep_merged & ((length > shortest) | (width > self.rules.max_width_m))
         # Cut by the frame border, a blob's ground size is not measurable: it is kept without the size check.
         b = blobs.boxes
         plausible |= (b[:, 0] <= 0) | (b[:, 1] <= 0) | (b[:, 2] >= sw - 1) | (b[:, 3] >= sh - 1)
