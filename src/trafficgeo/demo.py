@@ -9,7 +9,7 @@ and on the GCP plane, and writes the accuracy map and the site as GIS layers. Th
 output (truth boxes with a detector's and tracker's faults, :mod:`trafficgeo.synth.detections`) goes through
 ``analyze`` (speeds, lanes, counts at three counting lines) and ``compare-sumo`` against the world's SUMO run.
 Finally the whole chain runs on the video itself (``process``: decode, background-subtraction detector, ByteTrack,
-analyze). Every result is printed next to the truth.
+analyze). Every result is printed next to the truth, and ``report.html`` shows them all on one page.
 """
 
 from __future__ import annotations
@@ -182,7 +182,19 @@ def run_demo(out: Path, *, seed: int = 7, console: Console | None = None, world:
     con.print(t)
     cmp.update(_traffic(out, wdir, cam, surf, opts, con))
     cmp.update(_video(out, wdir, cam, surf, con))
+    _report(out, wdir, con)
     return cmp
+
+
+def _report(out: Path, wdir: Path, con: Console) -> None:
+    """Step 7: everything above on one HTML page (calibration, accuracy map, both traffic runs)."""
+    from trafficgeo.report.html import write_report_html
+
+    con.print(f"\n$ trafficgeo report {out} --ortho {wdir / 'ortho.tif'} --video {wdir / 'video.mp4'} "
+              f"-o {out / 'report.html'}")
+    page = write_report_html(out / "report.html", out, ortho=wdir / "ortho.tif", video=wdir / "video.mp4")
+    con.print(f"wrote {out / 'report.html'} ({len(page.html.encode('utf-8')) / 1e6:.1f} MB): "
+              f"{', '.join(page.sections)}", markup=False, highlight=False)
 
 
 def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:

@@ -89,6 +89,8 @@ def calibrate(
     survey_sigma: Annotated[float, typer.Option(help="standard deviation of GCP world coordinates (m)")] = 0.03,
     gis: Annotated[Path | None, typer.Option(help="also write camera, GCPs with residuals and the footprint on "
                                              "the GCP plane (.gpkg / .geojson)")] = None,
+    report_html: Annotated[Path | None, typer.Option(help="also write an HTML report of the calibration (built from "
+                                                     "the camera JSON's folder, see 'trafficgeo report')")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only the summary line")] = False,
 ) -> None:
     """Calibrate the camera (intrinsics, distortion, pose) from GCPs and report how far it can be trusted."""
@@ -99,6 +101,10 @@ def calibrate(
         from trafficgeo.cli.geo import _check_gis_path
 
         _check_gis_path(gis, "--gis")
+    if report_html is not None:
+        from trafficgeo.cli.report import check_html_path
+
+        check_html_path(report_html)
     intr = _load_intrinsics(intrinsics, size) if intrinsics is not None else None
     options = CalibrationOptions(
         focal=focal, principal_point=principal_point, distortion=_distortion_option(distortion), focal_px=focal_px,
@@ -117,6 +123,10 @@ def calibrate(
 
         print_calibration_report(result.report, console)
     console.print(f"wrote {output}" + (f" and {report}" if report else ""))
+    if report_html is not None:
+        from trafficgeo.cli.report import write_page
+
+        write_page(report_html, output.parent, camera=output, calibration_report=result.report)
 
 
 def _write_site_gis(path: Path, camera_json: Path) -> None:
@@ -188,6 +198,7 @@ def demo(
 
 from trafficgeo.cli import geo as _geo  # noqa: E402, F401  (registers the geospatial commands)
 from trafficgeo.cli import process as _process  # noqa: E402, F401  (registers process and stitch)
+from trafficgeo.cli import report as _report  # noqa: E402, F401  (registers the report command)
 from trafficgeo.cli import synth as _synth  # noqa: E402, F401  (registers the synth command)
 from trafficgeo.cli import traffic as _traffic  # noqa: E402, F401  (registers analyze and compare-sumo)
 from trafficgeo.cli import video as _video  # noqa: E402, F401  (registers the frame command)

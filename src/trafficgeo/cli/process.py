@@ -11,7 +11,7 @@ import typer
 
 from trafficgeo.cli import app, console
 from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt, _camera, _surface
-from trafficgeo.cli.traffic import IntervalOpt, LanesOpt, LinesOpt, _check_out_dir, _layout
+from trafficgeo.cli.traffic import IntervalOpt, LanesOpt, LinesOpt, ReportHtmlOpt, _check_out_dir, _layout
 from trafficgeo.errors import InputError
 
 
@@ -48,6 +48,7 @@ def process(
                                                   "km/h, counting lines")] = None,
     surface_crs: SurfaceCrsOpt = None,
     resolution: ResolutionOpt = 0.25,
+    report_html: ReportHtmlOpt = None,
 ) -> None:
     """Detect, track and georeference the vehicles of a video; then counts, speeds and lanes as 'analyze'.
 
@@ -55,6 +56,7 @@ def process(
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+    from trafficgeo.cli.report import check_html_path
     from trafficgeo.traffic.tracks import tracks_from_table
     from trafficgeo.video.pipeline import (
         ProcessOptions,
@@ -64,6 +66,7 @@ def process(
     )
 
     _check_out_dir(out)
+    check_html_path(report_html)
     if annotate is not None and annotate.suffix.lower() != ".mp4":
         raise InputError(f"--annotate {annotate}: write the annotated video as .mp4")
     opts = ProcessOptions(detector=detector, start_s=start, end_s=end, every=every, checkpoint_s=checkpoint)
@@ -108,11 +111,15 @@ def process(
             annotate_video(video, annotate, tracks, result.points, camera=cam, lines=count_lines, surface=surf,
                            progress=lambda d, n: bar.update(task, completed=d, total=n))
         console.print(f"wrote {annotate}")
-    write_run_info(out, {"video": str(video), "options": {"detector": detector, "start_s": start, "end_s": end,
-                                                          "every": every}, "seconds": elapsed,
-                         "detections": len(detections), "track_rows": len(tracks)})
+    write_run_info(out, {"video": str(video), "camera": str(camera),
+                         "options": {"detector": detector, "start_s": start, "end_s": end, "every": every},
+                         "seconds": elapsed, "detections": len(detections), "track_rows": len(tracks)})
     finish_run(out)
     console.print(f"wrote detections.csv, tracks.csv, {', '.join(p.name for p in written)}, process.json in {out}")
+    if report_html is not None:
+        from trafficgeo.cli.report import write_page
+
+        write_page(report_html, out, camera=camera)  # the video and its --start come from process.json
 
 
 @app.command()

@@ -16,6 +16,8 @@ LanesOpt = Annotated[Path | None, typer.Option(help="lane polygons or boundary l
                                                "in the image (CSV line,u,v)")]
 LinesOpt = Annotated[Path | None, typer.Option(help="counting lines (GIS file, or CSV line,u,v in the image)")]
 IntervalOpt = Annotated[float, typer.Option(help="counting interval (s), e.g. 60 or 900")]
+ReportHtmlOpt = Annotated[Path | None, typer.Option(help="also write an HTML report of the run (figures and tables, "
+                                                    "see 'trafficgeo report')")]
 
 
 
@@ -55,10 +57,12 @@ def analyze(
                                                      "(m), are not used")] = 1.5,
     surface_crs: SurfaceCrsOpt = None,
     resolution: ResolutionOpt = 0.25,
+    report_html: ReportHtmlOpt = None,
 ) -> None:
     """Image tracks to world trajectories, true speeds (km/h), lanes and counts at counting lines."""
     from rich.progress import Progress
 
+    from trafficgeo.cli.report import check_html_path
     from trafficgeo.report.traffic import print_analysis
     from trafficgeo.traffic.analyze import analyze as run_analysis
     from trafficgeo.traffic.analyze import write_analysis
@@ -66,6 +70,7 @@ def analyze(
     from trafficgeo.traffic.trajectories import TrajectoryOptions
 
     _check_out_dir(out)
+    check_html_path(report_html)
     if not interval > 0:
         raise InputError(f"--interval {interval} must be a positive number of seconds, e.g. 60")
     opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
@@ -82,6 +87,10 @@ def analyze(
     written = write_analysis(out, analysis, cam)
     print_analysis(analysis, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")
+    if report_html is not None:
+        from trafficgeo.cli.report import write_page
+
+        write_page(report_html, out, camera=camera)
 
 
 @app.command("compare-sumo")

@@ -1,1 +1,2 @@
-"""Human-facing views of results (terminal tables now; HTML later). Nothing below this layer imports it."""
+"""Human-facing views of results: terminal tables (rich) and the self-contained HTML page (``html``, with its
+matplotlib ``figures``). Nothing below this layer imports it."""
