@@ -201,6 +201,7 @@ from trafficgeo.cli import process as _process  # noqa: E402, F401  (registers p
 from trafficgeo.cli import report as _report  # noqa: E402, F401  (registers the report command)
 from trafficgeo.cli import synth as _synth  # noqa: E402, F401  (registers the synth command)
 from trafficgeo.cli import traffic as _traffic  # noqa: E402, F401  (registers analyze and compare-sumo)
+from trafficgeo.cli import ui as _ui  # noqa: E402, F401  (registers the gcp-ui command)
 from trafficgeo.cli import video as _video  # noqa: E402, F401  (registers the frame command)
 
 
