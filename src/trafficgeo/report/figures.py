@@ -122,6 +122,16 @@ def geometry_parts(geom: Any) -> list[Any]:
 
 
 # ------------------------------------------------------------------------------------------------ calibration
+def _status_markers(ax: Any, x: np.ndarray, y: np.ndarray, status: np.ndarray, *, size: float,
+                    zorder: int) -> None:
+    """GCP markers styled by status (control inlier, outlier, check), each with its count in the legend."""
+    for s, (colour, marker, label) in STATUS_STYLE.items():
+        sel = status == s
+        if sel.any():
+            ax.scatter(x[sel], y[sel], s=size, c=colour, marker=marker, edgecolors="white", linewidths=0.6,
+                       label=f"{label} ({int(sel.sum())})", zorder=zorder)
+
+
 def residuals_on_frame(gcps: pd.DataFrame, image_size: tuple[int, int], image: np.ndarray | None = None, *,
                        scale: float | None = None) -> Any:
     """GCPs where they were clicked in the frame, with their residual vectors (projected - clicked, px).
@@ -150,11 +160,7 @@ def residuals_on_frame(gcps: pd.DataFrame, image_size: tuple[int, int], image: n
     q = ax.quiver(u, v, np.nan_to_num(du) * scale, np.nan_to_num(dv) * scale, color=colours, angles="xy",
                   scale_units="xy", scale=1.0, width=0.003, headwidth=4, zorder=3)
     q.set_gid("residuals")
-    for s, (colour, marker, label) in STATUS_STYLE.items():
-        sel = status == s
-        if sel.any():
-            ax.scatter(u[sel], v[sel], s=28, c=colour, marker=marker, edgecolors="white", linewidths=0.6,
-                       label=f"{label} ({int(sel.sum())})", zorder=4)
+    _status_markers(ax, u, v, status, size=28, zorder=4)
     if "id" in gcps.columns and len(gcps) <= 80:
         for name, x, y in zip(gcps["id"].astype(str), u, v, strict=True):
             ax.annotate(name, (x, y), xytext=(4, 4), textcoords="offset points", fontsize=6, color="white",
@@ -222,11 +228,7 @@ def gcps_on_map(gcps: pd.DataFrame, axes: MapAxes, *, camera_xy: tuple[float, fl
                       zorder=4)
         q.set_gid("ground-residuals")
         ax.plot([], [], color="0.3", label=f"ground residual x{scale:g} (clicked pixel's ray - survey)")
-    for s, (colour, marker, label) in STATUS_STYLE.items():
-        sel = status == s
-        if sel.any():
-            ax.scatter(x[sel], y[sel], s=30, c=colour, marker=marker, edgecolors="white", linewidths=0.6,
-                       label=f"{label} ({int(sel.sum())})", zorder=5)
+    _status_markers(ax, x, y, status, size=30, zorder=5)
     if "id" in gcps.columns and len(gcps) <= 80:
         for name, px, py in zip(gcps["id"].astype(str), x, y, strict=True):
             ax.annotate(name, (px, py), xytext=(4, 3), textcoords="offset points", fontsize=6, zorder=7)
