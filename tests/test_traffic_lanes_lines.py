@@ -152,6 +152,23 @@ def test_line_limited_to_lanes_and_polyline_lines() -> None:
     assert both.set_index("track_id").loc["a", "time"] == pytest.approx((20 + 5 * 2.75 / 4.5) / 10.0)
 
 
+def test_two_tracks_of_one_vehicle_are_counted_once() -> None:
+    from trafficgeo.traffic.lines import same_vehicle
+
+    table = pd.DataFrame({
+        "time": [10.00, 10.05, 10.06, 10.07, 11.0, 20.00, 20.01],
+        "speed_kmh": [50.0, 50.0, 50.0, 50.0, 50.0, np.nan, 40.0],
+        "x": [E0, E0 + 0.5, E0 + 3.5, E0 + 0.4, E0, E0, E0 + 0.2],
+        "y": [N0] * 7,
+        "direction": [1, 1, 1, -1, 1, 1, 1],
+    })
+    # 0.05 s at 50 km/h = 0.7 m of travel, 0.5 m to the side: one vehicle; 3.5 m to the side: a neighbour; the
+    # other direction, or a second later: other vehicles; of a pair the crossing with a speed is kept
+    assert list(same_vehicle(table)) == [False, True, False, False, False, True, False]
+    feet = table.assign(x=E0 + (table["x"] - E0) / 0.3048)
+    assert list(same_vehicle(feet, metres_per_unit=0.3048)) == list(same_vehicle(table))
+
+
 def test_no_crossings_gives_empty_table_with_columns() -> None:
     line = CountLine("L", shapely.LineString([(E0 + 100, N0), (E0 + 101, N0)]))
     cr = find_crossings(_straight_points("a", 0.0, 10.0, 0.0), [line])

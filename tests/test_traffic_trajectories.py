@@ -98,6 +98,25 @@ def test_a_gap_is_bridged_only_by_consistent_motion() -> None:
     assert loose.vehicles["last_time"].max() > 2.1  # without the check the other vehicle's points join the track
 
 
+def test_a_bad_stretch_is_cut_out_and_the_vehicle_joined_again() -> None:
+    """0.4 s of a track on another vehicle (a merged blob) in the middle: the vehicle's own parts on both sides
+    are one vehicle again (its whole path and speed); the bad stretch is a part of its own."""
+    cam = _camera()
+    tid, t, xyz = _straight("a", -1.75, 15.0, 14.0, 4.0)
+    bad = (t >= 1.8) & (t < 2.2)
+    xyz[bad] += [-3.5, 12.0, 0.0]
+    tracks = _tracks_from_world(cam, tid, t, xyz, noise_px=0.5, seed=4)
+    world = world_trajectories(cam, ConstantSurface(Z0), tracks)
+    veh = world.vehicles.set_index("track_id")
+    main = veh[veh["path_length_m"] == veh["path_length_m"].max()].iloc[0]
+    assert main["first_time"] < 0.1 and main["last_time"] > 3.9
+    assert main["mean_speed_kmh"] == pytest.approx(14.0 * 3.6, abs=1.0)
+    pts = world.points[world.points["track_id"] == main.name]
+    assert not np.any((pts["time"] >= 1.8) & (pts["time"] < 2.2) & ~pts["outlier"])
+    apart = world_trajectories(cam, ConstantSurface(Z0), tracks, TrajectoryOptions(rejoin_gap_s=1e-6))
+    assert apart.vehicles["last_time"].min() < 2.0 < apart.vehicles["first_time"].max()  # without: two parts
+
+
 def test_points_off_the_road_are_dropped_with_a_reason() -> None:
     cam = _camera()
     tid, t, xyz = _straight("a", -1.75, 15.0, 10.0, 2.0)

@@ -23,6 +23,7 @@ import pyproj
 import shapely
 
 from trafficgeo.camera.model import Camera
+from trafficgeo.crs import metres_per_unit
 from trafficgeo.geo.mapping import Surface, camera_crs
 from trafficgeo.traffic.lanes import Lanes, lane_visits, main_lane
 from trafficgeo.traffic.lines import CountLine, aggregate_counts, find_crossings
@@ -104,7 +105,9 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
         world.vehicles["lane"], world.vehicles["lanes"], world.vehicles["lane_changes"] = "", "", 0
     if "length_m" in world.vehicles.columns and len(world.points):
         world.points["length_m"] = world.points["track_id"].map(world.vehicles.set_index("track_id")["length_m"])
-    crossings = find_crossings(world.points, lines or [], lanes)
+    crs = camera_crs(camera)
+    crossings = find_crossings(world.points, lines or [], lanes,
+                               metres_per_unit=metres_per_unit(crs) if crs is not None else 1.0)
     counts = aggregate_counts(crossings, interval_s, *period)
     warnings = line_warnings(camera, surface, lines or [], opts)
     return Analysis(points=world.points, vehicles=world.vehicles, crossings=crossings, counts=counts,

@@ -27,6 +27,9 @@ from trafficgeo.traffic.lanes import Lanes
 from trafficgeo.traffic.layout import feature_names, read_layout
 
 CROSSING_COLUMNS = ["line", "track_id", "class", "lane", "direction", "time", "speed_kmh", "x", "y"]
+MIN_SPACING_M = 3.0  # m of travel: two crossings of one line closer than this are one vehicle (if also side by side)
+MIN_LATERAL_M = 1.75  # m along the line: crossings farther apart than this may be vehicles side by side
+DEFAULT_SPEED_MPS = 15.0  # m/s assumed for the spacing test when neither crossing has a speed
 
 
 @dataclass(frozen=True)
@@ -73,9 +76,11 @@ def _segment_crossings(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarra
     return np.where(ok, s, np.nan), np.where(left_p, 1, -1)
 
 
-def find_crossings(points: pd.DataFrame, lines: list[CountLine], lanes: Lanes | None = None) -> pd.DataFrame:
+def find_crossings(points: pd.DataFrame, lines: list[CountLine], lanes: Lanes | None = None, *,
+                   metres_per_unit: float = 1.0) -> pd.DataFrame:
     """Crossings of trajectories with counting lines (columns :data:`CROSSING_COLUMNS` plus ``length_m`` when the
-    points have it).
+    points have it). Crossings that repeat one vehicle's are dropped (:func:`same_vehicle`; ``metres_per_unit``
+    of the points' CRS).
 
     ``points`` has one row per track point, sorted by track then time, with ``track_id, time, x, y, speed_kmh``
     and optionally ``class``, ``length_m``; positions in the lines' CRS.
@@ -115,13 +120,47 @@ def find_crossings(points: pd.DataFrame, lines: list[CountLine], lanes: Lanes | 
             table["length_m"] = points["length_m"].to_numpy()[seg]
         if line.lanes:
             table = table[table["lane"].isin(line.lanes)]
-        rows.append(table.sort_values("time").drop_duplicates("track_id", keep="first"))
+        table = table.sort_values("time").drop_duplicates("track_id", keep="first")
+        rows.append(table[~same_vehicle(table, metres_per_unit=metres_per_unit)])
     columns = CROSSING_COLUMNS + (["length_m"] if "length_m" in points.columns else [])
     if not rows:
         return pd.DataFrame({c: pd.Series(dtype=object if c in ("line", "track_id", "class", "lane") else float)
                              for c in columns})
     out = pd.concat(rows, ignore_index=True)[columns]
     return out.sort_values(["line", "time"], kind="stable").reset_index(drop=True)
+
+
+def same_vehicle(crossings: pd.DataFrame, *, spacing_m: float = MIN_SPACING_M, lateral_m: float = MIN_LATERAL_M,
+                 metres_per_unit: float = 1.0) -> np.ndarray:
+    """True for crossings of one line (sorted by time) that repeat an earlier one: two tracks of one vehicle (a
+    blob split in two, a track broken and continued). Two crossings in the same direction closer in time than
+    ``spacing_m`` of travel at their speed, and closer than ``lateral_m`` to each other on the line, cannot be two
+    vehicles: one would be inside the other. Of such a pair the crossing with a speed is kept (else the first)."""
+    n = len(crossings)
+    dup = np.zeros(n, dtype=bool)
+    if n < 2:
+        return dup
+    t = crossings["time"].to_numpy(dtype=np.float64)
+    v = crossings["speed_kmh"].to_numpy(dtype=np.float64) / 3.6
+    xy = crossings[["x", "y"]].to_numpy(dtype=np.float64)
+    direction = crossings["direction"].to_numpy()
+    m = float(metres_per_unit)
+    for i in range(n):
+        if dup[i]:
+            continue
+        for j in range(i + 1, n):
+            dt = t[j] - t[i]
+            speed = np.nanmax([v[i], v[j], 0.0]) if np.isfinite([v[i], v[j]]).any() else DEFAULT_SPEED_MPS
+            if dt * speed >= spacing_m:
+                break
+            if dup[j] or direction[j] != direction[i] or np.hypot(*(xy[j] - xy[i])) * m >= lateral_m:
+                continue
+            if np.isfinite(v[i]) or not np.isfinite(v[j]):
+                dup[j] = True
+            else:
+                dup[i] = True
+                break
+    return dup
 
 
 def interval_edges(start: float, end: float, interval_s: float) -> np.ndarray:

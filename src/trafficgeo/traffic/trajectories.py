@@ -54,6 +54,7 @@ class TrajectoryOptions:
     split_outliers: int = 5  # this many rejected points in a row split a track
     max_gap_s: float = 5.0  # a longer gap in time splits a track
     check_gap_s: float = 0.5  # a gap this long splits a track unless the motion on both sides bridges it
+    rejoin_gap_s: float = 2.0  # parts of a track split apart this long or less are joined again if motion bridges
     min_points: int = 5  # shorter tracks (after splitting) are dropped
     box_correction: bool = True  # fit a cuboid to each box (tracks with boxes only)
     estimate_length: bool = True  # estimate each vehicle's length from its boxes (where the view allows)
@@ -63,7 +64,7 @@ class TrajectoryOptions:
     def __post_init__(self) -> None:
         checks = {"pixel_sigma": self.pixel_sigma > 0, "accel_sigma": self.accel_sigma > 0, "gate": self.gate > 0,
                   "split_outliers": self.split_outliers >= 1, "max_gap_s": self.max_gap_s > 0,
-                  "check_gap_s": self.check_gap_s > 0,
+                  "check_gap_s": self.check_gap_s > 0, "rejoin_gap_s": self.rejoin_gap_s > 0,
                   "max_metres_per_px": self.max_metres_per_px > 0,
                   "min_points": self.min_points >= 2}
         for name, ok in checks.items():
@@ -191,7 +192,52 @@ def _smooth_segments(t: np.ndarray, xy_m: np.ndarray, cov: np.ndarray, opts: Tra
             pending[:0] = [idx[: starts[0]], idx[starts[0]:]]
             continue
         done.append((idx, sm))
-    return done
+    return _rejoin(t, xy_m, cov, opts, done)
+
+
+def _bridges(a: SmoothedTrack, b: SmoothedTrack, opts: TrajectoryOptions) -> bool:
+    """Whether part ``b`` (starting after ``a`` ends) continues ``a``: ``a``'s last smoothed state carried over the
+    gap at constant velocity meets ``b``'s first within ``2 m + 3 sigma`` and the velocities differ by less than
+    ``3 m/s + 3 sigma`` (sigma from both states and ``accel_sigma`` over the gap)."""
+    gap = b.time[0] - a.time[-1]
+    pred = np.array([a.x[-1] + a.vx[-1] * gap, a.y[-1] + a.vy[-1] * gap])
+    pos_var = 2.0 * (a.position_std[-1] ** 2 + b.position_std[0] ** 2) + 2.0 * opts.accel_sigma ** 2 * gap ** 3 / 3.0
+    vel_var = a.speed_std[-1] ** 2 + b.speed_std[0] ** 2 + opts.accel_sigma ** 2 * gap
+    with np.errstate(invalid="ignore"):
+        near = np.hypot(*(pred - [b.x[0], b.y[0]])) <= 2.0 + 3.0 * np.sqrt(pos_var)
+        same_velocity = np.hypot(a.vx[-1] - b.vx[0], a.vy[-1] - b.vy[0]) <= 3.0 + 3.0 * np.sqrt(vel_var)
+    return bool(near and same_velocity)
+
+
+def _rejoin(t: np.ndarray, xy_m: np.ndarray, cov: np.ndarray, opts: TrajectoryOptions,
+            parts: list[tuple[np.ndarray, SmoothedTrack]]) -> list[tuple[np.ndarray, SmoothedTrack]]:
+    """Join parts of one track that belong together again: a stretch of bad points (the box of a merged blob, a
+    moment on another vehicle) is cut out by the splitting, and the vehicle's own points on both sides of it are
+    one vehicle when the motion bridges the gap (:func:`_bridges`, gaps up to ``rejoin_gap_s``). The stretch
+    stays a part of its own. A join that the filter then rejects in a run of ``split_outliers`` points is undone."""
+    if len(parts) < 2:
+        return parts
+    todo = sorted(parts, key=lambda p: t[p[0][0]])
+    out = []
+    while todo:
+        idx, sm = todo.pop(0)
+        joined = True
+        while joined:
+            joined = False
+            for k, (idx2, sm2) in enumerate(todo):
+                gap = t[idx2[0]] - t[idx[-1]]
+                if gap <= 0 or gap > opts.rejoin_gap_s or not _bridges(sm, sm2, opts):
+                    continue
+                both = np.concatenate([idx, idx2])
+                sm_both = smooth_track(t[both], xy_m[both], cov[both], accel_sigma=opts.accel_sigma, gate=opts.gate)
+                if _runs(sm_both.outlier, opts.split_outliers):
+                    continue
+                idx, sm = both, sm_both
+                del todo[k]
+                joined = True
+                break
+        out.append((idx, sm))
+    return out
 
 
 # ------------------------------------------------------------------------------------------------ main
