@@ -17,7 +17,7 @@ Part 2, accuracy against the world's truth, with the true camera and a DEM from 
 * speed at the lines: each crossing against the true crossing of the same line and lane nearest in time
   (within 0.5 s), mean absolute error.
 
-Run ``python benchmarks/bench_video.py [--world DIR] [--seconds S]``.
+Run ``python benchmarks/bench_video.py [--world DIR] [--seconds S] [--camera-height H]``.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import platform
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -49,12 +50,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--world", type=Path, default=ROOT / "out" / "bench-video-world")
     ap.add_argument("--seconds", type=float, default=None, help="process only the first S seconds")
+    ap.add_argument("--camera-height", type=float, default=None,
+                    help="build the world with the camera this high (m; default 8) - use with another --world")
     args = ap.parse_args()
     wdir = args.world
     if not (wdir / "world.json").is_file():
         print(f"building the demo world into {wdir} ...")
         t = time.perf_counter()
-        build_world(wdir, WORLD)
+        build_world(wdir, WORLD if args.camera_height is None else replace(WORLD, camera_height=args.camera_height))
         print(f"  built in {time.perf_counter() - t:.0f} s")
     video = wdir / "video.mp4"
     info = video_info(video)
