@@ -15,6 +15,7 @@ analyze). Every result is printed next to the truth, and ``report.html`` shows t
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -209,7 +210,7 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     from trafficgeo.traffic.lanes import read_lanes
     from trafficgeo.traffic.lines import read_count_lines
     from trafficgeo.traffic.tracks import tracks_from_table
-    from trafficgeo.video.pipeline import ProcessOptions, detect_and_track, finish_run
+    from trafficgeo.video.pipeline import ProcessOptions, detect_and_track, finish_run, write_run_info
     from trafficgeo.video.reader import video_info
 
     run = out / "video"
@@ -227,6 +228,11 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     lines = read_count_lines(wdir / "count_lines.gpkg", crs=surf.crs)
     result = analyze(cam, surf, tracks_from_table(tracks), lanes=lanes, lines=lines)
     write_analysis(run, result, cam)
+    # as 'process' writes it; paths relative to the run folder, so the report finds the video and the camera
+    write_run_info(run, {"video": os.path.relpath(wdir / "video.mp4", run),
+                         "camera": os.path.relpath(out / "camera.json", run),
+                         "options": {"detector": "background", "start_s": 0.0, "end_s": None, "every": 1},
+                         "seconds": elapsed, "detections": len(detections), "track_rows": len(tracks)})
     finish_run(run)
     print_analysis(result, con)
     precision, recall, n_boxes = detection_scores(detections, pd.read_csv(wdir / "truth_tracks.csv"))
