@@ -476,3 +476,33 @@ def test_process_rejects_a_bad_report_path_before_running(site: dict[str, Path],
                              "--out", tmp_path / "o", "--report-html", tmp_path / "r.txt")
     assert code == 2 and "--report-html" in stderr and ".html" in stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_geh_band_limits_and_flow_points() -> None:
+    from trafficgeo.traffic.compare import geh
+
+    m = np.array([0.0, 50.0, 600.0, 2400.0])
+    lo, hi = F.geh_limits(m)
+    np.testing.assert_allclose(geh(m, hi), 5.0, rtol=1e-9)
+    np.testing.assert_allclose(geh(m[1:], lo[1:]), 5.0, rtol=1e-9)  # at 0 veh/h the band starts at 0
+    table = pd.DataFrame({"observed_flow_veh_h": [600.0, 600.0, 1200.0], "simulated_flow_veh_h": [620.0, 900.0, 0.0],
+                          "geh": geh(np.array([600.0, 600.0, 1200.0]), np.array([620.0, 900.0, 0.0]))})
+    fig = F.observed_vs_simulated(table)
+    assert len(_gid(fig, "geh-ok")[0].get_offsets()) == 1 and len(_gid(fig, "geh-high")[0].get_offsets()) == 2
+
+
+def test_compare_sumo_results_are_shown(feet_run: tuple[Path, dict[str, pd.DataFrame]], tmp_path: Path) -> None:
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(feet_run[0], run)
+    pd.DataFrame({"line": ["A", "A"], "lane": ["1", "2"], "direction": [1, 1], "interval_start": [0.0, 0.0],
+                  "interval_end": [60.0, 60.0], "observed": [10, 12], "simulated": [11, 30],
+                  "observed_flow_veh_h": [600.0, 720.0], "simulated_flow_veh_h": [660.0, 1800.0],
+                  "geh": [2.4, 30.4], "geh_ok": [True, False]}).to_csv(run / "compare_counts.csv", index=False)
+    (run / "compare_summary.json").write_text(json.dumps({"counts": {"rows": 2, "share_geh_below_5": 0.5,
+                                                                     "total_observed": 22, "total_simulated": 41}}))
+    page = build_page(run, dpi=40)
+    assert "Observed vs simulated (compare-sumo)" in page.html and "50.0 % with GEH &lt; 5" in page.html
+    assert page.html.count('<tr class="outlier">') == 1
+    assert len(_pngs(page.html)) == 5  # the four traffic figures and the flows figure

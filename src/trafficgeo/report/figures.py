@@ -475,6 +475,42 @@ def counts_over_time(counts: pd.DataFrame) -> Any:
     return fig
 
 
+def geh_limits(observed: np.ndarray, geh: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+    """The simulated hourly flows (low, high) at which the GEH statistic ``sqrt(2 (M - C)^2 / (M + C))`` reaches
+    ``geh`` for observed flows ``observed`` (veh/h): ``C = M + d`` with ``2 d^2 - g^2 d - 2 g^2 M = 0``."""
+    m = np.asarray(observed, dtype=np.float64)
+    g2 = geh * geh
+    root = np.sqrt(g2 * g2 + 16.0 * g2 * m)
+    return np.maximum(m + (g2 - root) / 4.0, 0.0), m + (g2 + root) / 4.0
+
+
+def observed_vs_simulated(compare: pd.DataFrame) -> Any:
+    """Observed against simulated hourly flows (``compare_counts.csv`` of ``compare-sumo``: one point per line,
+    lane, direction and interval), with the 1:1 line and the band where GEH < 5. Points have gid ``"geh-ok"`` or
+    ``"geh-high"``."""
+    fig, axs = new_figure(5.5, 5.0)
+    ax = axs[0, 0]
+    obs = compare["observed_flow_veh_h"].to_numpy(float)
+    sim = compare["simulated_flow_veh_h"].to_numpy(float)
+    ok = compare["geh"].to_numpy(float) < 5.0
+    top = max(float(np.nanmax(np.concatenate([obs, sim, [1.0]]))) * 1.1, 1.0)
+    grid = np.linspace(0.0, top, 200)
+    lo, hi = geh_limits(grid)
+    ax.fill_between(grid, lo, np.minimum(hi, top), color="0.9", label="GEH < 5", zorder=1)
+    ax.plot([0, top], [0, top], color="0.4", lw=0.8, zorder=2)
+    for sel, colour, gid, label in ((ok, "tab:green", "geh-ok", "GEH < 5"), (~ok, "tab:red", "geh-high", "GEH >= 5")):
+        if sel.any():
+            pts = ax.scatter(obs[sel], sim[sel], s=18, c=colour, label=f"{label} ({int(sel.sum())})", zorder=3)
+            pts.set_gid(gid)
+    ax.set_xlim(-0.02 * top, top)
+    ax.set_ylim(-0.02 * top, top)
+    ax.set_aspect("equal")
+    ax.set_xlabel("observed flow (veh/h)")
+    ax.set_ylabel("simulated flow (veh/h)")
+    ax.legend(fontsize=7, loc="upper left")
+    return fig
+
+
 def road_stations(x: np.ndarray, y: np.ndarray, *, degree: int = 3) -> tuple[np.ndarray, Any]:
     """Distance of each point along the road (CRS units) and the reference line it is measured on.
 

@@ -974,9 +974,49 @@ def _traffic_section(b: _Build, run: TrafficRun, k: int) -> None:
         parts.append("<h3>Counts and speeds per line and lane</h3>" + _crossing_table(crossings, s))
     if counts is not None and len(counts):
         parts.append(_counts_table(counts))
+    compare = _read_table(run.folder / "compare_counts.csv")
+    if compare is not None and len(compare):
+        parts.append(_comparison(b, run, compare))
     if run.process is not None:
         parts.append("<h3>Video processing</h3>" + _process_table(run.process))
     b.sections.append((f"traffic-{k}", title, "\n".join(parts)))
+
+
+def _comparison(b: _Build, run: TrafficRun, compare: pd.DataFrame) -> str:
+    """The ``compare-sumo`` results of a run: GEH of the counts, the flows figure, and speeds per line and lane."""
+    doc = _read_json(run.folder / "compare_summary.json") if (run.folder / "compare_summary.json").is_file() else {}
+    counts = doc.get("counts", {}) if isinstance(doc, dict) else {}
+    head = ""
+    if counts:
+        head = (f'<p>{_e(counts.get("rows", len(compare)))} counts (line, lane, direction, interval): '
+                f'{_num(100.0 * float(counts.get("share_geh_below_5", float("nan"))), 1)} % with GEH &lt; 5 '
+                f'(the usual acceptance target is 85 %); observed {_e(counts.get("total_observed", ""))} vehicles, '
+                f'simulated {_e(counts.get("total_simulated", ""))}.</p>')
+    fig = _figure(F.observed_vs_simulated(compare), "Observed against simulated hourly flows per line, lane, "
+                  "direction and interval (veh/h); grey: where the GEH statistic is below 5.", b.dpi)
+    cols = [("line", "line"), ("lane", "lane"), ("direction", "direction"), ("interval_start", "from s"),
+            ("interval_end", "to s"), ("observed", "observed"), ("simulated", "simulated"), ("geh", "GEH")]
+    cols = [(c, label) for c, label in cols if c in compare.columns]
+    rows, classes = [], []
+    for d in compare.head(TABLE_ROWS).to_dict("records"):
+        rows.append([d[c] if c in ("line", "lane") else (f"{int(d[c]):+d}" if c == "direction" else
+                     (int(d[c]) if c in ("observed", "simulated") else (d[c], 2 if c == "geh" else 1)))
+                     for c, _ in cols])
+        classes.append("outlier" if float(d.get("geh", 0.0)) >= 5.0 else "")
+    table = _table([label for _, label in cols], rows, row_classes=classes)
+    speeds = _read_table(run.folder / "compare_speeds.csv")
+    speed_table = ""
+    if speeds is not None and len(speeds):
+        scols = [("line", "line"), ("lane", "lane"), ("observed_n", "observed n"),
+                 ("observed_mean_kmh", "observed mean km/h"), ("simulated_n", "simulated n"),
+                 ("simulated_mean_kmh", "simulated mean km/h"), ("mean_difference_kmh", "difference km/h"),
+                 ("ks_statistic", "KS distance"), ("ks_pvalue", "KS p")]
+        scols = [(c, label) for c, label in scols if c in speeds.columns]
+        srows = [[d[c] if c in ("line", "lane") else (int(d[c]) if c.endswith("_n") and np.isfinite(d[c]) else
+                  (d[c], 2)) for c, _ in scols] for d in speeds.head(TABLE_ROWS).to_dict("records")]
+        speed_table = "<h4>Spot speeds at the lines, observed vs simulated</h4>" + _table(
+            [label for _, label in scols], srows)
+    return "<h3>Observed vs simulated (compare-sumo)</h3>" + head + fig + table + speed_table
 
 
 def _run_summary(run: TrafficRun, s: dict[str, Any]) -> str:
