@@ -398,3 +398,12 @@ def test_write_geotiff_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
         write_geotiff(path, data, Affine(1, 0, 0, 0, -1, 64), "EPSG:2994")
     assert os.listdir(tmp_path) == ["dem.tif"]
     assert np.all(read_raster(path).data == 5.0)  # the old file is untouched
+
+
+def test_an_orthophoto_given_as_dem_is_refused(ortho: GeoRaster) -> None:
+    from trafficgeo.errors import InputError
+    from trafficgeo.geo.raster import read_dem
+
+    assert ortho.data.shape[0] >= 3 and ortho.data.dtype == np.uint8
+    with pytest.raises(InputError, match="8-bit bands: a colour image"):
+        read_dem(ortho.path)

@@ -392,9 +392,17 @@ def read_dem(path: str | os.PathLike[str], crs: str | pyproj.CRS | None = None) 
     Elevations keep the file's unit (normally the CRS's linear unit). ``crs`` as in :func:`read_raster`.
 
     Raises:
-        InputError: as :func:`read_raster`; also when every cell is nodata or the CRS is geographic (lon/lat).
+        InputError: as :func:`read_raster`; also when every cell is nodata, the CRS is geographic (lon/lat), or the
+            file is an 8-bit colour image (an orthophoto given where the DEM goes: band 1 would be read as heights).
     """
     raw = _read(path, crs, "DEM", [1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with rasterio.open(raw.path) as ds:
+            count, dtype = ds.count, ds.dtypes[0]
+    if count >= 3 and dtype == "uint8":
+        raise InputError(f"DEM {raw.path} has {count} 8-bit bands: a colour image (an orthophoto?), not heights; "
+                         "give the DEM GeoTIFF (one band of elevations), or the point cloud")
     data = raw.data.astype(np.float64)
     if raw.nodata is not None and not math.isnan(raw.nodata):
         data[data == raw.nodata] = np.nan
