@@ -66,10 +66,37 @@ def add_lanes(world: WorldTracks, lanes: Lanes, *, min_dwell_s: float = 1.0) -> 
     veh["lane"], veh["lanes"], veh["lane_changes"] = main, seq, changes
 
 
+CAR_HEIGHT_M = 1.5  # m, the height of the car in the occlusion warning
+MAX_HIDDEN_M = 20.0  # m of road hidden behind a car at a counting line above which analyze warns
+
+
+def hidden_behind_m(camera: Camera, surface: Surface, xy: np.ndarray, height_m: float = CAR_HEIGHT_M) -> np.ndarray:
+    """Length of road (m) hidden behind a vehicle ``height_m`` high whose far end stands at each ground position
+    ``xy`` (N, 2; CRS units; heights in the same unit), seen from ``camera``: over level ground, a roof edge ``D`` m
+    away horizontally and ``H`` m below the camera hides the road from ``D`` to ``D H / (H - h)``, that is
+    ``D h / (H - h)`` m behind it (inf where the camera is not higher than the roof). Along the line of sight;
+    seen along the road, that is the gap to a following vehicle that stays hidden."""
+    crs = camera_crs(camera)
+    m = metres_per_unit(crs) if crs is not None else 1.0
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    z = np.asarray(surface.elevation(xy[:, 0], xy[:, 1]), dtype=np.float64)
+    c = np.asarray(camera.position, dtype=np.float64)
+    d = np.hypot(xy[:, 0] - c[0], xy[:, 1] - c[1]) * m
+    above = (c[2] - z) * m - float(height_m)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(above > 1e-6, d * float(height_m) / above, np.inf)
+
+
 def line_warnings(camera: Camera, surface: Surface, lines: list[CountLine], options: TrajectoryOptions,
                   samples: int = 21) -> list[str]:
-    """A warning for each counting line more than 10 % of which lies where track points are not used (too far
-    away, or at the end of the surface): vehicles are not counted there."""
+    """Warnings about counting lines where counts cannot be trusted:
+
+    * more than 10 % of the line lies where track points are not used (too far away, or at the end of the
+      surface): vehicles are not counted there;
+    * seen from the camera, a car at the line hides more than :data:`MAX_HIDDEN_M` of road behind it
+      (:func:`hidden_behind_m`, median over the line's usable part): a vehicle following closer than that is hidden
+      there, often inside the blob of the one in front, and may go uncounted in dense traffic.
+    """
     from trafficgeo.traffic.trajectories import usable_positions
 
     out = []
@@ -85,6 +112,21 @@ def line_warnings(camera: Camera, surface: Surface, lines: list[CountLine], opti
             out.append(f"counting line {line.name}: {bad.mean():.0%} of it lies {reasons}, where track points are "
                        "not used: vehicles there are not counted; move the line nearer the camera (or raise "
                        "--max-metres-per-px)")
+        if bad.all():
+            continue
+        hidden = float(np.median(hidden_behind_m(camera, surface, xy[~bad])))
+        if hidden > MAX_HIDDEN_M:
+            crs = camera_crs(camera)
+            m = metres_per_unit(crs) if crs is not None else 1.0
+            ok = xy[~bad]
+            z = np.asarray(surface.elevation(ok[:, 0], ok[:, 1]), dtype=np.float64)
+            dist = float(np.median(np.hypot(ok[:, 0] - camera.position[0], ok[:, 1] - camera.position[1]))) * m
+            height = float(np.median(camera.position[2] - z)) * m
+            length = "all the road" if not np.isfinite(hidden) else f"{hidden:.0f} m of road"
+            out.append(f"counting line {line.name}: seen from {height:.1f} m above the road and {dist:.0f} m away, "
+                       f"a car {CAR_HEIGHT_M:g} m high hides {length} behind it: vehicles following closer than "
+                       "that are hidden there and may go uncounted in dense traffic; count nearer the camera or "
+                       "film from higher up")
     return out
 
 
