@@ -23,7 +23,7 @@ from rasterio.errors import NotGeoreferencedWarning
 from trafficgeo.errors import InputError
 from trafficgeo.geo import raster as raster_mod
 from trafficgeo.geo.pointcloud import PointCloud, read_point_cloud
-from trafficgeo.geo.raster import GeoRaster, read_dem, read_raster, write_geotiff
+from trafficgeo.geo.raster import GeoRaster, display_rgb, read_dem, read_raster, write_geotiff
 
 DATA = Path(__file__).parent / "data" / "autzen"
 ORTHO = DATA / "autzen_ortho_trim.tif"
@@ -407,3 +407,26 @@ def test_an_orthophoto_given_as_dem_is_refused(ortho: GeoRaster) -> None:
     assert ortho.data.shape[0] >= 3 and ortho.data.dtype == np.uint8
     with pytest.raises(InputError, match="8-bit bands: a colour image"):
         read_dem(ortho.path)
+
+
+def test_display_rgb_8bit_as_is_others_stretched_per_band_invalid_black() -> None:
+    """The one colour rule of gcp-ui and the report: 8-bit bands unchanged, other types cut at 2-98 % per band."""
+    rgb8 = np.arange(2 * 3 * 4, dtype=np.uint8).reshape(3, 2, 4)
+    assert np.array_equal(display_rgb(rgb8), np.moveaxis(rgb8, 0, -1))
+    ramp = np.linspace(0.0, 1.0, 101)
+    heights = np.stack([ramp * 10.0, ramp * 1000.0, -ramp])[:, None, :]  # float bands of very different ranges
+    valid = np.ones((1, 101), dtype=bool)
+    valid[0, 50] = False
+    heights[:, 0, 50] = np.nan
+    out = display_rgb(heights, valid)
+    assert out.shape == (1, 101, 3) and out.dtype == np.uint8
+    assert (out[0, :3, :2] == 0).all() and (out[0, -3:, :2] == 255).all()  # below 2 % / above 98 %: clipped
+    assert (out[0, :3, 2] == 255).all() and (out[0, -3:, 2] == 0).all()  # a falling band falls
+    assert (out[0, 50] == 0).all()  # the invalid cell
+    # one band is grey; a band of one value except a few cells is stretched over its whole range
+    dem = np.full((1, 10, 10), 1000, dtype=np.uint16)
+    dem[0, 0, 0] = 0
+    grey = display_rgb(dem)
+    assert grey.shape == (10, 10, 3) and grey[0, 0].tolist() == [0, 0, 0] and grey[5, 5].tolist() == [255] * 3
+    with pytest.raises(ValueError, match="bands, rows, cols"):
+        display_rgb(np.zeros((4, 4)))

@@ -425,6 +425,38 @@ def read_dem(path: str | os.PathLike[str], crs: str | pyproj.CRS | None = None) 
     return dem
 
 
+# ---------------------------------------------------------------------- display
+def display_rgb(data: np.ndarray, valid: np.ndarray | None = None,
+                stretch: tuple[float, float] = (2.0, 98.0)) -> np.ndarray:
+    """Colours to show a raster: ``data`` (bands, rows, cols) of any type -> (rows, cols, 3) uint8 RGB.
+
+    Bands 1-3 are red, green and blue (one or two bands: band 1 as grey). 8-bit data is shown as it is; other
+    types are stretched per band from the ``stretch`` percentiles of their valid cells (``valid`` (rows, cols)
+    bool, and finite) to 0-255, the usual 2-98 % cut of GIS viewers (the whole range where those two are equal).
+    Invalid cells are black (the caller masks them)."""
+    a = np.asarray(data)
+    if a.ndim != 3 or a.shape[0] < 1:
+        raise ValueError(f"display_rgb: data must be (bands, rows, cols), got shape {a.shape}")
+    bands = a[:3] if a.shape[0] >= 3 else a[:1]
+    ok = np.ones(a.shape[1:], dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
+    if bands.dtype == np.uint8:
+        out = np.where(ok, bands, 0).astype(np.uint8)
+    else:
+        out = np.zeros(bands.shape, dtype=np.uint8)
+        for b, band in enumerate(bands.astype(np.float64)):
+            good = ok & np.isfinite(band)
+            if not good.any():
+                continue
+            lo, hi = np.percentile(band[good], stretch)
+            if hi <= lo:  # mostly one value: stretch over the whole range instead
+                lo, hi = band[good].min(), band[good].max()
+            scaled = (band - lo) * (255.0 / (hi - lo)) if hi > lo else np.zeros_like(band)
+            out[b] = np.where(good, np.clip(np.rint(scaled), 0, 255), 0).astype(np.uint8)
+    if out.shape[0] == 1:
+        out = np.repeat(out, 3, axis=0)
+    return np.moveaxis(out, 0, -1)
+
+
 # ---------------------------------------------------------------------- writing
 def _rasterio_crs(crs: object) -> rasterio.crs.CRS | None:
     pj = _to_pyproj(crs)

@@ -382,7 +382,9 @@ def read_background(path: Path, bounds: tuple[float, float, float, float], crs: 
         except RasterioError as exc:
             raise InputError(f"--ortho {path}: could not be read ({' '.join(str(exc).split())}); check the "
                              "file") from None
-    img = _to_rgb(data)
+    from trafficgeo.geo.raster import display_rgb
+
+    img = display_rgb(data, mask > 0) / 255.0
     rgba = np.dstack([img, (mask > 0).astype(np.float64)])
     return F.Background(rgba, (float(left), float(bottom), float(right), float(top)))
 
@@ -415,22 +417,6 @@ def _open_raster(path: Path, option: str) -> Any:
                              "warp it first (gdalwarp in.tif out.tif)")
         raise InputError(f"{option} {path}: no georeferencing; give a GeoTIFF (or an image with a world file)")
     return ds
-
-
-def _to_rgb(data: np.ndarray) -> np.ndarray:
-    """(bands, rows, cols) of any dtype -> (rows, cols, 3) float in 0..1 (8-bit scaled, others stretched 2-98 %)."""
-    a = data.astype(np.float64)
-    if data.dtype == np.uint8:
-        a /= 255.0
-    else:
-        for b in range(a.shape[0]):
-            v = a[b][np.isfinite(a[b])]
-            lo, hi = (np.percentile(v, [2, 98]) if v.size else (0.0, 1.0))
-            a[b] = np.clip((a[b] - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
-    a = np.nan_to_num(a)
-    if a.shape[0] < 3:
-        a = np.repeat(a[:1], 3, axis=0)
-    return np.moveaxis(a[:3], 0, -1)
 
 
 def _unit_name(crs: Any, m: float) -> str:

@@ -35,7 +35,7 @@ from rasterio.errors import NotGeoreferencedWarning, RasterioError
 from trafficgeo.crs import crs_label, is_geographic, same_horizontal_crs
 from trafficgeo.errors import InputError
 from trafficgeo.geo.georef import GroundCheckOptions, check_gcp_heights
-from trafficgeo.geo.raster import GeoRaster, read_dem, read_raster
+from trafficgeo.geo.raster import GeoRaster, display_rgb, read_dem, read_raster
 from trafficgeo.geo.surface import DEMSurface
 
 #: Largest side (px) of the orthophoto image sent to the browser; larger orthophotos are shown block-averaged.
@@ -117,11 +117,10 @@ def load_video_frame(path: str | Path, at_s: float) -> FrameImage:
 
 # --------------------------------------------------------------------------------------------------- orthophoto
 def _to_display(raster: GeoRaster) -> np.ndarray:
-    """8-bit BGRA image of a raster: bands 1-3 as RGB (one band: grey), band 4 of 8-bit rasters as alpha; other
-    types are stretched from their 0.5th to 99.5th percentile; nodata cells are transparent."""
+    """8-bit BGRA image of a raster: colours from :func:`~trafficgeo.geo.raster.display_rgb`, band 4 of 8-bit
+    rasters as alpha; nodata cells are transparent."""
     data = raster.data
     n = data.shape[0]
-    rgb = data[:3] if n >= 3 else np.repeat(data[:1], 3, axis=0)
     valid = np.ones(data.shape[1:], dtype=bool)
     for b in range(min(n, 3)):
         band = data[b]
@@ -129,20 +128,13 @@ def _to_display(raster: GeoRaster) -> np.ndarray:
             valid &= np.isfinite(band)
         if raster.nodata is not None and not math.isnan(raster.nodata):
             valid &= band != raster.nodata
-    if rgb.dtype == np.uint8:
-        out = rgb
-    else:
-        vals = rgb[:, valid].astype(np.float64)
-        vals = vals[np.isfinite(vals)]
-        if vals.size == 0:
-            raise InputError(f"orthophoto {raster.label}: every cell is nodata; check the file")
-        lo, hi = np.percentile(vals, [0.5, 99.5])
-        scale = 255.0 / (hi - lo) if hi > lo else 1.0
-        out = np.clip((np.nan_to_num(rgb.astype(np.float64), nan=lo) - lo) * scale, 0, 255).astype(np.uint8)
+    if data.dtype != np.uint8 and not valid.any():
+        raise InputError(f"orthophoto {raster.label}: every cell is nodata; check the file")
+    rgb = display_rgb(data, valid)
     alpha = np.where(valid, 255, 0).astype(np.uint8)
     if n >= 4 and data.dtype == np.uint8:
         alpha = np.minimum(alpha, data[3])
-    return np.dstack([out[2], out[1], out[0], alpha])
+    return np.dstack([rgb[..., 2], rgb[..., 1], rgb[..., 0], alpha])
 
 
 @dataclass(frozen=True, eq=False)
