@@ -94,8 +94,9 @@ def line_warnings(camera: Camera, surface: Surface, lines: list[CountLine], opti
     * more than 10 % of the line lies where track points are not used (too far away, or at the end of the
       surface): vehicles are not counted there;
     * seen from the camera, a car at the line hides more than :data:`MAX_HIDDEN_M` of road behind it
-      (:func:`hidden_behind_m`, median over the line's usable part): a vehicle following closer than that is hidden
-      there, often inside the blob of the one in front, and may go uncounted in dense traffic.
+      (:func:`hidden_behind_m`, median over the line's usable part): the camera looks along the road at a grazing
+      angle there, vehicles close behind one another (in one lane or the next) overlap in the image, often in one
+      blob, and may go uncounted in dense traffic.
     """
     from trafficgeo.traffic.trajectories import usable_positions
 
@@ -124,9 +125,9 @@ def line_warnings(camera: Camera, surface: Surface, lines: list[CountLine], opti
             height = float(np.median(camera.position[2] - z)) * m
             length = "all the road" if not np.isfinite(hidden) else f"{hidden:.0f} m of road"
             out.append(f"counting line {line.name}: seen from {height:.1f} m above the road and {dist:.0f} m away, "
-                       f"a car {CAR_HEIGHT_M:g} m high hides {length} behind it: vehicles following closer than "
-                       "that are hidden there and may go uncounted in dense traffic; count nearer the camera or "
-                       "film from higher up")
+                       f"a car {CAR_HEIGHT_M:g} m high hides {length} behind it: vehicles close behind it, in its lane "
+                       "or the next, overlap it in the image there and may go uncounted in dense traffic; count "
+                       "nearer the camera or film from higher up")
     return out
 
 
