@@ -70,21 +70,26 @@ CAR_HEIGHT_M = 1.5  # m, the height of the car in the occlusion warning
 MAX_HIDDEN_M = 20.0  # m of road hidden behind a car at a counting line above which analyze warns
 
 
-def hidden_behind_m(camera: Camera, surface: Surface, xy: np.ndarray, height_m: float = CAR_HEIGHT_M) -> np.ndarray:
-    """Length of road (m) hidden behind a vehicle ``height_m`` high whose far end stands at each ground position
-    ``xy`` (N, 2; CRS units; heights in the same unit), seen from ``camera``: over level ground, a roof edge ``D`` m
-    away horizontally and ``H`` m below the camera hides the road from ``D`` to ``D H / (H - h)``, that is
-    ``D h / (H - h)`` m behind it (inf where the camera is not higher than the roof). Along the line of sight;
-    seen along the road, that is the gap to a following vehicle that stays hidden."""
+def _distance_and_height_m(camera: Camera, surface: Surface, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal distance from the camera and the camera's height above the ground (m) at ground positions
+    ``xy`` (N, 2; CRS units; heights in the same unit)."""
     crs = camera_crs(camera)
     m = metres_per_unit(crs) if crs is not None else 1.0
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     z = np.asarray(surface.elevation(xy[:, 0], xy[:, 1]), dtype=np.float64)
     c = np.asarray(camera.position, dtype=np.float64)
-    d = np.hypot(xy[:, 0] - c[0], xy[:, 1] - c[1]) * m
-    above = (c[2] - z) * m - float(height_m)
+    return np.hypot(xy[:, 0] - c[0], xy[:, 1] - c[1]) * m, (c[2] - z) * m
+
+
+def hidden_behind_m(camera: Camera, surface: Surface, xy: np.ndarray, height_m: float = CAR_HEIGHT_M) -> np.ndarray:
+    """Length of road (m) hidden behind a vehicle ``height_m`` high whose far end stands at each ground position
+    ``xy`` (N, 2; CRS units; heights in the same unit), seen from ``camera``: over level ground, a roof edge ``D`` m
+    away horizontally and ``H`` m below the camera hides the road from ``D`` to ``D H / (H - h)``, that is
+    ``D h / (H - h)`` m behind it along the line of sight (inf where the camera is not higher than the roof)."""
+    dist, height = _distance_and_height_m(camera, surface, xy)
+    above = height - float(height_m)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(above > 1e-6, d * float(height_m) / above, np.inf)
+        return np.where(above > 1e-6, dist * float(height_m) / above, np.inf)
 
 
 def line_warnings(camera: Camera, surface: Surface, lines: list[CountLine], options: TrajectoryOptions,
@@ -117,12 +122,7 @@ def line_warnings(camera: Camera, surface: Surface, lines: list[CountLine], opti
             continue
         hidden = float(np.median(hidden_behind_m(camera, surface, xy[~bad])))
         if hidden > MAX_HIDDEN_M:
-            crs = camera_crs(camera)
-            m = metres_per_unit(crs) if crs is not None else 1.0
-            ok = xy[~bad]
-            z = np.asarray(surface.elevation(ok[:, 0], ok[:, 1]), dtype=np.float64)
-            dist = float(np.median(np.hypot(ok[:, 0] - camera.position[0], ok[:, 1] - camera.position[1]))) * m
-            height = float(np.median(camera.position[2] - z)) * m
+            dist, height = (float(np.median(v)) for v in _distance_and_height_m(camera, surface, xy[~bad]))
             length = "all the road" if not np.isfinite(hidden) else f"{hidden:.0f} m of road"
             out.append(f"counting line {line.name}: seen from {height:.1f} m above the road and {dist:.0f} m away, "
                        f"a car {CAR_HEIGHT_M:g} m high hides {length} behind it: vehicles close behind it, in its lane "
