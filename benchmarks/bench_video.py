@@ -15,7 +15,9 @@ Part 2, accuracy against the world's truth, with the true camera and a DEM from 
   and at least 12 px tall (a detection matching a hidden vehicle is neither);
 * per-lane counts at the three lines (1 - sum |counted - true| / sum true);
 * speed at the lines: each crossing against the true crossing of the same line and lane nearest in time
-  (within 0.5 s), mean absolute error.
+  (within 0.5 s), mean absolute error;
+* what became of each true crossing (counted, in a wrong lane, missed) against which vehicles touch it in the
+  image and how visible it is at the line (:func:`trafficgeo.synth.scoring.crossing_outcomes`): the causes.
 
 Run ``python benchmarks/bench_video.py [--world DIR] [--seconds S] [--camera-height H]``.
 """
@@ -33,7 +35,7 @@ import pandas as pd
 
 from trafficgeo.camera.io import read_camera_json
 from trafficgeo.geo.load import load_surface
-from trafficgeo.synth.scoring import count_scores, detection_scores
+from trafficgeo.synth.scoring import count_scores, crossing_outcomes, detection_scores
 from trafficgeo.synth.world import WorldOptions, build_world
 from trafficgeo.traffic.analyze import analyze
 from trafficgeo.traffic.lanes import read_lanes
@@ -101,6 +103,14 @@ def main() -> None:
           f"{np.mean(np.abs(errs)):.2f} km/h (bias {np.mean(errs):+.2f}) | <= 2 km/h |")
     print("\ncounts per line and lane:")
     print(both.to_string())
+
+    outcomes, extra = crossing_outcomes(result.crossings, pd.read_csv(wdir / "truth_counts.csv"), truth)
+    outcomes = outcomes[outcomes["time"] < end]
+    bad = outcomes["outcome"] != "counted"
+    print("\nwhat became of each true crossing, by whose true boxes touch the vehicle's (within 3 px) at the line:")
+    print(pd.crosstab(outcomes["touching"], outcomes["outcome"]).to_string())
+    print(f"{int((bad & (outcomes['visible'] < 0.3)).sum())} of the {int(bad.sum())} missed or in a wrong lane were "
+          f"under 30 % visible at the line; {extra} counted crossings match no true one")
 
 
 if __name__ == "__main__":

@@ -74,3 +74,58 @@ def count_scores(crossings: pd.DataFrame, truth_counts: pd.DataFrame, *, end_s: 
             if abs(times[k] - tm) < max_dt:
                 errors.append(sp - t["speed_kmh"].iloc[k])
     return CountScore(both, acc, np.asarray(errors, dtype=np.float64))
+
+
+def crossing_outcomes(crossings: pd.DataFrame, truth_counts: pd.DataFrame, truth_tracks: pd.DataFrame, *,
+                      max_dt: float = 0.7, touch_px: float = 3.0) -> tuple[pd.DataFrame, int]:
+    """What became of each true crossing, and why it may have gone wrong: for finding the causes of count errors.
+
+    Each true crossing takes the nearest unused crossing of its line within ``max_dt`` seconds: first those of its
+    lane (true crossings in time order), then, for the ones left, of any lane. ``outcome`` is "counted", "wrong
+    lane" or "missed". With it, from the truth at the
+    frame nearest the crossing: ``visible`` (the vehicle's visible fraction) and ``touching``, which other
+    vehicles' true boxes come within ``touch_px`` pixels of its box: "none", or "+"-joined "same lane", "next
+    lane" (same direction) and "other direction". Returns the table (columns ``line, vehicle, lane, time,
+    outcome, visible, touching``) and the number of crossings matched to no true one (extra counts).
+    """
+    tc = truth_counts.assign(line=truth_counts["line"].astype(str),
+                             lane=truth_lane_name(truth_counts["direction"], truth_counts["lane"]))
+    tc = tc.sort_values("time", kind="stable").reset_index(drop=True)
+    line = crossings["line"].astype(str).to_numpy()
+    lane = crossings["lane"].astype(str).to_numpy()
+    time = crossings["time"].to_numpy(dtype=np.float64)
+    used = np.zeros(len(crossings), dtype=bool)
+    outcome = np.full(len(tc), "missed", dtype=object)
+    # First every true crossing takes a crossing of its own lane, then the rest any lane (in time order each).
+    for same_lane in (True, False):
+        for i, c in enumerate(tc.itertuples(index=False)):
+            if outcome[i] != "missed":
+                continue
+            cand = (line == c.line) & (np.abs(time - c.time) < max_dt) & ~used & ((lane == c.lane) | (not same_lane))
+            pick = np.flatnonzero(cand)
+            if pick.size:
+                k = pick[np.argmin(np.abs(time[pick] - c.time))]
+                used[k] = True
+                outcome[i] = "counted" if lane[k] == c.lane else "wrong lane"
+    boxed = truth_tracks.dropna(subset=["x1", "y1", "x2", "y2"])
+    by_vehicle = truth_tracks.groupby("vehicle").indices
+    by_frame = boxed.groupby("frame").indices
+    rows = []
+    for i, c in enumerate(tc.itertuples(index=False)):
+        mine = truth_tracks.iloc[by_vehicle[c.vehicle]] if c.vehicle in by_vehicle else truth_tracks.iloc[:0]
+        visible, touching = float("nan"), "none"
+        if len(mine):
+            me = mine.iloc[int(np.argmin(np.abs(mine["time"].to_numpy() - c.time)))]
+            visible = float(me["visible_fraction"])
+            if np.isfinite(me[["x1", "y1", "x2", "y2"]].to_numpy(dtype=np.float64)).all():
+                others = boxed.iloc[by_frame.get(me["frame"], np.zeros(0, dtype=int))]
+                others = others[others["vehicle"] != c.vehicle]
+                near = others[(others["x1"] < me["x2"] + touch_px) & (others["x2"] > me["x1"] - touch_px)
+                              & (others["y1"] < me["y2"] + touch_px) & (others["y2"] > me["y1"] - touch_px)]
+                kinds = {("same lane" if o.lane == me["lane"] else "next lane") if o.direction == me["direction"]
+                         else "other direction" for o in near.itertuples(index=False)}
+                touching = "+".join(sorted(kinds)) or "none"
+        rows.append({"line": c.line, "vehicle": c.vehicle, "lane": c.lane, "time": float(c.time),
+                     "outcome": outcome[i], "visible": visible, "touching": touching})
+    columns = ["line", "vehicle", "lane", "time", "outcome", "visible", "touching"]
+    return pd.DataFrame(rows, columns=columns), int((~used).sum())
