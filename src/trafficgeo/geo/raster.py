@@ -337,8 +337,10 @@ def _open_error(path: Path, exc: Exception) -> InputError:
     return InputError(f"{path} is not a raster GDAL can read ({reason}); give a GeoTIFF or an image with a world file")
 
 
-def _read(path: str | os.PathLike[str], crs: object, what: str, bands: Sequence[int] | None) -> GeoRaster:
-    """Open ``path`` with rasterio and read ``bands`` (1-based; all when None) with georeferencing."""
+def _read(path: str | os.PathLike[str], crs: object, what: str, bands: Sequence[int] | None, *,
+          heights: bool = False) -> GeoRaster:
+    """Open ``path`` with rasterio and read ``bands`` (1-based; all when None) with georeferencing. With
+    ``heights``, an 8-bit image of 3 or more bands is refused: a colour image (an orthophoto) where heights go."""
     p = Path(path)
     _check_file(p, what)
     try:
@@ -350,6 +352,9 @@ def _read(path: str | os.PathLike[str], crs: object, what: str, bands: Sequence[
                 has_gcps = bool(ds.gcps[0])
                 nodata = ds.nodata
                 descriptions = tuple(ds.descriptions)
+                if heights and ds.count >= 3 and ds.dtypes[0] == "uint8":
+                    raise InputError(f"{what} {p} has {ds.count} 8-bit bands: a colour image (an orthophoto?), not "
+                                     "heights; give the DEM GeoTIFF (one band of elevations), or the point cloud")
                 indexes = list(bands) if bands is not None else list(range(1, ds.count + 1))
                 data = ds.read(indexes)
     except RasterioIOError as exc:
@@ -395,14 +400,7 @@ def read_dem(path: str | os.PathLike[str], crs: str | pyproj.CRS | None = None) 
         InputError: as :func:`read_raster`; also when every cell is nodata, the CRS is geographic (lon/lat), or the
             file is an 8-bit colour image (an orthophoto given where the DEM goes: band 1 would be read as heights).
     """
-    raw = _read(path, crs, "DEM", [1])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(raw.path) as ds:
-            count, dtype = ds.count, ds.dtypes[0]
-    if count >= 3 and dtype == "uint8":
-        raise InputError(f"DEM {raw.path} has {count} 8-bit bands: a colour image (an orthophoto?), not heights; "
-                         "give the DEM GeoTIFF (one band of elevations), or the point cloud")
+    raw = _read(path, crs, "DEM", [1], heights=True)
     data = raw.data.astype(np.float64)
     if raw.nodata is not None and not math.isnan(raw.nodata):
         data[data == raw.nodata] = np.nan

@@ -82,11 +82,11 @@ def crossing_outcomes(crossings: pd.DataFrame, truth_counts: pd.DataFrame, truth
 
     Each true crossing takes the nearest unused crossing of its line within ``max_dt`` seconds: first those of its
     lane (true crossings in time order), then, for the ones left, of any lane. ``outcome`` is "counted", "wrong
-    lane" or "missed". With it, from the truth at the
-    frame nearest the crossing: ``visible`` (the vehicle's visible fraction) and ``touching``, which other
-    vehicles' true boxes come within ``touch_px`` pixels of its box: "none", or "+"-joined "same lane", "next
-    lane" (same direction) and "other direction". Returns the table (columns ``line, vehicle, lane, time,
-    outcome, visible, touching``) and the number of crossings matched to no true one (extra counts).
+    lane" or "missed". With it, from the truth at the frame nearest the crossing: ``visible`` (the vehicle's
+    visible fraction) and ``touching``, which other vehicles' true boxes come within ``touch_px`` pixels of its
+    box: "none", or "+"-joined "same lane", "next lane" (another lane of its direction) and "other direction".
+    Returns the table (columns ``line, vehicle, lane, time, outcome, visible, touching``) and the number of
+    crossings matched to no true one (extra counts).
     """
     tc = truth_counts.assign(line=truth_counts["line"].astype(str),
                              lane=truth_lane_name(truth_counts["direction"], truth_counts["lane"]))
