@@ -221,7 +221,8 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     with Progress("detect + track", BarColumn(), "{task.completed}/{task.total} frames", TimeRemainingColumn(),
                   console=con, transient=True) as bar:
         task = bar.add_task("video", total=info.frame_count)
-        detections, tracks = detect_and_track(wdir / "video.mp4", cam, surf, run, ProcessOptions(), restart=True,
+        options = ProcessOptions()
+        detections, tracks = detect_and_track(wdir / "video.mp4", cam, surf, run, options, restart=True,
                                               progress=lambda d, n, t: bar.update(task, completed=d, total=n))
     elapsed = time.perf_counter() - t0
     lanes = read_lanes(wdir / "lanes.gpkg", crs=surf.crs)
@@ -229,10 +230,9 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     result = analyze(cam, surf, tracks_from_table(tracks), lanes=lanes, lines=lines)
     write_analysis(run, result, cam)
     # as 'process' writes it; paths relative to the run folder, so the report finds the video and the camera
-    write_run_info(run, {"video": os.path.relpath(wdir / "video.mp4", run),
-                         "camera": os.path.relpath(out / "camera.json", run),
-                         "options": {"detector": "background", "start_s": 0.0, "end_s": None, "every": 1},
-                         "seconds": elapsed, "detections": len(detections), "track_rows": len(tracks)})
+    write_run_info(run, video=os.path.relpath(wdir / "video.mp4", run),
+                   camera=os.path.relpath(out / "camera.json", run), options=options, seconds=elapsed,
+                   detections=len(detections), track_rows=len(tracks))
     finish_run(run)
     print_analysis(result, con)
     precision, recall, n_boxes = detection_scores(detections, pd.read_csv(wdir / "truth_tracks.csv"))

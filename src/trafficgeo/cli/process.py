@@ -111,9 +111,8 @@ def process(
             annotate_video(video, annotate, tracks, result.points, camera=cam, lines=count_lines, surface=surf,
                            progress=lambda d, n: bar.update(task, completed=d, total=n))
         console.print(f"wrote {annotate}")
-    write_run_info(out, {"video": str(video), "camera": str(camera),
-                         "options": {"detector": detector, "start_s": start, "end_s": end, "every": every},
-                         "seconds": elapsed, "detections": len(detections), "track_rows": len(tracks)})
+    write_run_info(out, video=str(video), camera=str(camera), options=opts, seconds=elapsed,
+                   detections=len(detections), track_rows=len(tracks))
     finish_run(out)
     console.print(f"wrote detections.csv, tracks.csv, {', '.join(p.name for p in written)}, process.json in {out}")
     if report_html is not None:

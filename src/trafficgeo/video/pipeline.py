@@ -207,8 +207,14 @@ def finish_run(out_dir: str | Path) -> None:
         shutil.rmtree(ck)
 
 
-def write_run_info(out_dir: str | Path, doc: dict) -> None:
-    """``process.json``: what was processed, how, and how fast."""
+def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: ProcessOptions, seconds: float,
+                   detections: int, track_rows: int) -> None:
+    """``process.json``: what was processed (``video``, ``camera``: paths as given, or relative to ``out_dir``), how
+    (the detector and time range of ``options``), and how fast (``seconds`` of wall clock)."""
+    doc = {"video": video, "camera": camera,
+           "options": {"detector": options.detector, "start_s": options.start_s, "end_s": options.end_s,
+                       "every": options.every},
+           "seconds": seconds, "detections": detections, "track_rows": track_rows}
     write_json_atomic(Path(out_dir) / "process.json", doc)
 
 
