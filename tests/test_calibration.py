@@ -228,7 +228,8 @@ def test_paper_table2_runs_and_is_reported_honestly():
 
 
 def _i24_table(camera_name: str, tmp_path: Path) -> GCPTable:
-    rows = list(csv.DictReader(open(DATA / "i24-camera-gcps" / "camera_calibration_points_I24_validation_system.csv")))
+    with open(DATA / "i24-camera-gcps" / "camera_calibration_points_I24_validation_system.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
     rows = [r for r in rows if r["Camera"].strip() == camera_name]
     path = tmp_path / f"{camera_name}.csv"
     with open(path, "w") as fh:
