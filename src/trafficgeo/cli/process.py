@@ -137,7 +137,7 @@ def stitch(
     """Join the tracks of time chunks of one video (processed apart, e.g. on several machines) and analyze them."""
     import pandas as pd
 
-    from trafficgeo.io.atomic import atomic_path
+    from trafficgeo.io.atomic import write_csv_atomic
     from trafficgeo.traffic.tracks import tracks_from_table
     from trafficgeo.video.pipeline import stitch_tracks
 
@@ -154,6 +154,5 @@ def stitch(
     joined = stitch_tracks(tables)
     joined["class"] = joined["class"].fillna("")
     _analyze_and_write(cam, surf, tracks_from_table(joined), lane_set, count_lines, interval, out)
-    with atomic_path(out / "tracks.csv") as tmp:
-        joined.to_csv(tmp, index=False, float_format="%.3f")
+    write_csv_atomic(out / "tracks.csv", joined, float_format="%.3f")
     console.print(f"stitched {len(chunks)} chunks: {joined['track_id'].nunique()} tracks; wrote {out}")

@@ -59,6 +59,13 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
         fh.write(text)
 
 
+def write_csv_atomic(path: str | os.PathLike[str], table: Any, *, float_format: str | None = None) -> None:
+    """Write the pandas DataFrame ``table`` as CSV (no index; missing values as empty fields) to ``path``
+    atomically."""
+    with atomic_path(path) as tmp:
+        table.to_csv(tmp, index=False, na_rep="", float_format=float_format)
+
+
 def to_json_safe(obj: Any) -> Any:
     """Replace non-finite floats by None so the JSON stays standard (NaN is not JSON)."""
     if isinstance(obj, float) and not math.isfinite(obj):

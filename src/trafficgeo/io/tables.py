@@ -14,7 +14,7 @@ import pandas as pd
 import pyproj
 
 from trafficgeo.errors import InputError
-from trafficgeo.io.atomic import atomic_path
+from trafficgeo.io.atomic import write_csv_atomic
 
 TABLE_SUFFIXES = (".csv", ".txt")
 _ROUNDING = {"x": 4, "y": 4, "z": 4, "lon": 9, "lat": 9, "u": 4, "v": 4}
@@ -83,5 +83,4 @@ def write_point_table(path: str | Path, table: pd.DataFrame, crs: pyproj.CRS | N
         attrs = {c: out[c].to_numpy() for c in out.columns}
         write_gis(p, [points_layer(layer, x, y, z, attributes=attrs, crs=crs, lonlat=False)], crs)
         return
-    with atomic_path(p) as tmp:
-        out.to_csv(tmp, index=False, na_rep="")
+    write_csv_atomic(p, out)

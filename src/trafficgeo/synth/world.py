@@ -27,7 +27,7 @@ import numpy as np
 
 from trafficgeo.camera.io import write_camera_json
 from trafficgeo.camera.model import Camera
-from trafficgeo.io.atomic import atomic_path, write_text_atomic
+from trafficgeo.io.atomic import atomic_path, write_csv_atomic, write_text_atomic
 from trafficgeo.synth.gcp_scene import RoadSurface
 from trafficgeo.synth.orthophoto import RoadMarkings, dash_corners, render_orthophoto
 from trafficgeo.synth.sumo_world import VEHICLE_CLASSES, Demand, RoadSpec, Trajectories, run_sumo_world
@@ -193,16 +193,13 @@ def build_world(out_dir: str | Path, opts: WorldOptions | None = None, *, video:
                                                           crs=opts.crs))
     rows, _truth_gcps = make_gcps(camera, road, markings, opts, rng)
     gcp_df = pd.DataFrame(rows)
-    with atomic_path(out / "gcps.csv") as tmp:
-        gcp_df.to_csv(tmp, index=False)
+    write_csv_atomic(out / "gcps.csv", gcp_df)
     tracks = _truth_tracks(traj, z, camera, opts)
     counts = _truth_counts(traj, opts.count_stations)
     if video:
         tracks = _render_video(out / "video.mp4", camera, dem, ortho, traj, z, tracks, opts, progress)
-    with atomic_path(out / "truth_tracks.csv") as tmp:
-        tracks.to_csv(tmp, index=False, float_format="%.4f")
-    with atomic_path(out / "truth_counts.csv") as tmp:
-        counts.to_csv(tmp, index=False)
+    write_csv_atomic(out / "truth_tracks.csv", tracks, float_format="%.4f")
+    write_csv_atomic(out / "truth_counts.csv", counts)
     from trafficgeo.io.tables import write_point_table
 
     write_point_table(out / "truth_tracks.gpkg", tracks, ortho.crs, layer="truth_tracks")

@@ -210,7 +210,7 @@ def summary(analysis: Analysis) -> dict[str, object]:
 
 def write_analysis(out_dir: str | Path, analysis: Analysis, camera: Camera) -> list[Path]:
     """Write the outputs (module docstring) into ``out_dir``; returns the paths written."""
-    from trafficgeo.io.atomic import atomic_path, write_json_atomic
+    from trafficgeo.io.atomic import write_csv_atomic, write_json_atomic
     from trafficgeo.io.gis import write_gis
     from trafficgeo.io.tables import write_point_table
 
@@ -220,8 +220,7 @@ def write_analysis(out_dir: str | Path, analysis: Analysis, camera: Camera) -> l
     written = []
     for name, table in (("vehicles.csv", analysis.vehicles), ("counts.csv", analysis.counts),
                         ("crossings.csv", analysis.crossings)):
-        with atomic_path(out / name) as tmp:
-            table.to_csv(tmp, index=False, na_rep="", float_format="%.4f")
+        write_csv_atomic(out / name, table, float_format="%.4f")
         written.append(out / name)
     write_point_table(out / "trajectories.csv", analysis.points, crs)  # lon/lat to 1e-9 degrees
     written.append(out / "trajectories.csv")

@@ -150,15 +150,14 @@ def compare_with_simulation(observed: ObservedRun, simulated: pd.DataFrame, *,
 
 def write_comparison(out_dir: str | Path, comparison: Comparison, crs: pyproj.CRS | None) -> list[Path]:
     """``compare_counts.csv``, ``compare_speeds.csv``, ``simulated_crossings.csv`` and ``compare_summary.json``."""
-    from trafficgeo.io.atomic import atomic_path, write_json_atomic
+    from trafficgeo.io.atomic import write_csv_atomic, write_json_atomic
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, table in (("compare_counts.csv", comparison.counts), ("compare_speeds.csv", comparison.speeds),
                         ("simulated_crossings.csv", comparison.simulated_crossings)):
-        with atomic_path(out / name) as tmp:
-            table.to_csv(tmp, index=False, na_rep="", float_format="%.4f")
+        write_csv_atomic(out / name, table, float_format="%.4f")
         written.append(out / name)
     doc = {"counts": comparison.count_summary, "travel_times": comparison.travel_times, "crs": crs_label(crs)}
     write_json_atomic(out / "compare_summary.json", doc)

@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.errors import InputError
-from trafficgeo.io.atomic import atomic_path
+from trafficgeo.io.atomic import write_csv_atomic
 from trafficgeo.video.detect import Detections
 
 COLUMNS = ["frame", "x1", "y1", "x2", "y2", "score", "class"]
@@ -306,5 +306,4 @@ def write_detections(path: str | Path, table: pd.DataFrame) -> None:
     out["score"] = table["score"] if "score" in table.columns else 1.0
     out["class"] = table["class"].where(table["class"].notna(), "").astype(str) if "class" in table.columns else ""
     p = Path(path)
-    with atomic_path(p) as tmp:
-        out.to_csv(tmp, index=False, float_format="%.4f")
+    write_csv_atomic(p, out, float_format="%.4f")

@@ -29,7 +29,7 @@ import pandas as pd
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
-from trafficgeo.io.atomic import atomic_path, write_json_atomic
+from trafficgeo.io.atomic import atomic_path, write_csv_atomic, write_json_atomic
 from trafficgeo.video.detect import box_iou
 from trafficgeo.video.track import TrackerOptions, VehicleTracker
 
@@ -101,8 +101,7 @@ def _flush(folder: Path, state: _State, det_rows: list, trk_rows: list) -> None:
     name = f"part{len(state.parts):05d}"
     for suffix, rows, cols in (("det", det_rows, DETECTION_COLUMNS), ("trk", trk_rows, TRACK_COLUMNS)):
         table = pd.DataFrame(rows, columns=cols)
-        with atomic_path(folder / f"{name}.{suffix}.csv") as tmp:
-            table.to_csv(tmp, index=False, float_format="%.3f")
+        write_csv_atomic(folder / f"{name}.{suffix}.csv", table, float_format="%.3f")
     state.parts.append(name)
     _save_state(folder, state)
     det_rows.clear()
@@ -195,8 +194,7 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     detections = _collect(ck, state.parts, "det", DETECTION_COLUMNS)
     tracks = _collect(ck, state.parts, "trk", TRACK_COLUMNS)
     for name, table in (("detections.csv", detections), ("tracks.csv", tracks)):
-        with atomic_path(out / name) as tmp:
-            table.to_csv(tmp, index=False, float_format="%.3f")
+        write_csv_atomic(out / name, table, float_format="%.3f")
     return detections, tracks
 
 
