@@ -11,7 +11,7 @@ import pytest
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.surface import ConstantSurface
-from trafficgeo.synth.detections import DetectionNoise, noisy_tracks
+from trafficgeo.synth.detections import DetectionNoise, ideal_detections, noisy_tracks
 from trafficgeo.traffic.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions, world_trajectories
 
@@ -109,3 +109,22 @@ def test_noisy_tracks_fragments_and_misses(truth_boxes: pd.DataFrame) -> None:
         DetectionNoise(miss_rate=1.5)
     with pytest.raises(InputError, match="columns"):
         noisy_tracks(truth_boxes.drop(columns="visible_fraction"), (1920, 1080))
+
+
+def test_ideal_detections_are_the_visible_true_boxes_frame_by_frame(truth_boxes: pd.DataFrame) -> None:
+    frames = list(ideal_detections(truth_boxes, (1920, 1080), min_visible=0.5))
+    assert [f for f, _, _ in frames] == list(range(50))
+    assert np.allclose([t for _, t, _ in frames], np.arange(50) / 25)
+    assert [len(d) for _, _, d in frames] == [2] * 40 + [1] * 10  # b is hidden for its last 10 frames
+    _, _, d = frames[3]
+    assert np.allclose(d.boxes, [[130, 500, 230, 560], [670, 480, 820, 570]])
+    assert list(d.classes) == ["car", "truck"] and np.all(d.scores == 1.0)
+    # clipped to the image; a box left under 4 px wide there is not seen
+    edge = truth_boxes.assign(x1=truth_boxes["x1"] - 300, x2=truth_boxes["x2"] - 300)
+    first = next(ideal_detections(edge, (1920, 1080), min_visible=0.0))[2]
+    assert np.allclose(first.boxes[:, [0, 2]], [[400, 550]])  # a (-200..-100) is off the image
+    late = list(ideal_detections(truth_boxes.assign(x1=truth_boxes["x1"] + 1700, x2=truth_boxes["x2"] + 1700),
+                                 (1920, 1080)))[2][2]
+    assert len(late) == 1 and np.allclose(late.boxes[0, [0, 2]], [1820, 1919])  # b is off to the right
+    with pytest.raises(InputError, match="min_visible"):
+        next(ideal_detections(truth_boxes, (1920, 1080), min_visible=1.5))

@@ -15,17 +15,22 @@ From ``truth_tracks.csv`` (:mod:`trafficgeo.synth.world`), :func:`noisy_tracks`:
 
 The result has the columns ``analyze`` reads (``frame, track_id, class, x1, y1, x2, y2``) plus ``vehicle`` (the
 true vehicle of each row) so that every output can be scored against the truth.
+
+:func:`ideal_detections` is the other end: a detector that finds every vehicle it can see, exactly, and nothing
+else, frame by frame for a real tracker. What the tracker and ``analyze`` then lose is lost to occlusion and
+tracking, not to detection.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.detect import box_iou
+from trafficgeo.video.detect import Detections, box_iou
 
 
 @dataclass(frozen=True)
@@ -108,3 +113,29 @@ def noisy_tracks(truth: pd.DataFrame, image_size: tuple[int, int], noise: Detect
     df = _swap_ids(df.sort_values(["frame", "vehicle"]).reset_index(drop=True), noise, rng)
     return df[["frame", "track_id", "class", "x1", "y1", "x2", "y2", "vehicle"]].sort_values(
         ["track_id", "frame"], kind="stable").reset_index(drop=True)
+
+
+def ideal_detections(truth: pd.DataFrame, image_size: tuple[int, int], *, min_visible: float = 0.5,
+                     min_size_px: float = 4.0) -> Iterator[tuple[int, float, Detections]]:
+    """``(frame, time_s, detections)`` for each frame of a ``truth_tracks.csv`` table, in time order: the true
+    boxes (pixels, clipped to the ``(width, height)`` image) of the vehicles at least ``min_visible`` visible and at
+    least ``min_size_px`` wide and tall once clipped, with score 1 and their true class (see the module docstring).
+    A frame where no vehicle is seen yields empty detections."""
+    need = {"frame", "time", "class", "x1", "y1", "x2", "y2", "visible_fraction"}
+    if not need <= set(truth.columns):
+        raise InputError(f"truth tracks need columns {', '.join(sorted(need))}; build the world with its video")
+    if not 0.0 <= min_visible <= 1.0:
+        raise InputError(f"min_visible = {min_visible!r} must be a fraction in [0, 1]")
+    w, h = image_size
+    box = truth[["x1", "y1", "x2", "y2"]].to_numpy(dtype=np.float64, copy=True)
+    box[:, [0, 2]] = np.clip(box[:, [0, 2]], 0.0, w - 1.0)
+    box[:, [1, 3]] = np.clip(box[:, [1, 3]], 0.0, h - 1.0)
+    keep = (np.all(np.isfinite(box), axis=1) & (truth["visible_fraction"].to_numpy() >= min_visible)
+            & (box[:, 2] - box[:, 0] >= min_size_px) & (box[:, 3] - box[:, 1] >= min_size_px))
+    frames, times = truth["frame"].to_numpy(), truth["time"].to_numpy(dtype=np.float64)
+    classes = truth["class"].astype(str).to_numpy(dtype=object)
+    order = np.argsort(frames, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(frames[order]) != 0])
+    for group in np.split(order, starts[1:]):
+        rows = group[keep[group]]
+        yield int(frames[group[0]]), float(times[group[0]]), Detections(box[rows], np.ones(rows.size), classes[rows])
