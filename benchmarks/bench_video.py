@@ -95,8 +95,9 @@ def main() -> None:
     print(f"| analyze ({len(tracks)} track boxes) | {n / t_analyze:.0f} | {n / t_analyze / info.fps:.1f} | |")
 
     truth = pd.read_csv(wdir / "truth_tracks.csv")
+    truth_counts = pd.read_csv(wdir / "truth_counts.csv")
     precision, recall, n_true = detection_scores(detections, truth[truth["time"] < end])
-    score = count_scores(result.crossings, pd.read_csv(wdir / "truth_counts.csv"), end_s=end)
+    score = count_scores(result.crossings, truth_counts, end_s=end)
     both, count_acc = score.table, score.accuracy
     n_matched = score.speed_errors.size
     errs = score.speed_errors[np.isfinite(score.speed_errors)]  # tracks seen under 1 s carry no speed
@@ -110,7 +111,7 @@ def main() -> None:
     print("\ncounts per line and lane:")
     print(both.to_string())
 
-    outcomes, extra = crossing_outcomes(result.crossings, pd.read_csv(wdir / "truth_counts.csv"), truth)
+    outcomes, extra = crossing_outcomes(result.crossings, truth_counts, truth)
     outcomes = outcomes[outcomes["time"] < end]
     bad = outcomes["outcome"] != "counted"
     print("\nwhat became of each true crossing, by whose true boxes touch the vehicle's (within 3 px) at the line:")
@@ -130,8 +131,8 @@ def main() -> None:
                      zip(tracked.ids, tracked.boxes, tracked.scores, tracked.classes, strict=True)]
         ideal = analyze(camera, surface, tracks_from_table(pd.DataFrame(rows, columns=TRACK_COLUMNS)),
                         lanes=lanes, lines=lines)
-        s_ideal = count_scores(ideal.crossings, pd.read_csv(wdir / "truth_counts.csv"), end_s=end)
-        o_ideal, _ = crossing_outcomes(ideal.crossings, pd.read_csv(wdir / "truth_counts.csv"), truth)
+        s_ideal = count_scores(ideal.crossings, truth_counts, end_s=end)
+        o_ideal, _ = crossing_outcomes(ideal.crossings, truth_counts, truth)
         o_ideal = o_ideal[o_ideal["time"] < end]
         e = s_ideal.speed_errors[np.isfinite(s_ideal.speed_errors)]
         print(f"| {min_visible:.0%} visible | {s_ideal.accuracy:.1%} | {int((o_ideal['outcome'] != 'counted').sum())} "
