@@ -55,6 +55,8 @@ def analyze(
                                                  "centre")] = True,
     max_metres_per_px: Annotated[float, typer.Option(help="points farther away, where one pixel spans more road "
                                                      "(m), are not used")] = 1.5,
+    coast_hidden: Annotated[float, typer.Option(help="seconds a vehicle that vanishes behind a nearer one is "
+                                                "carried on, to count the lines it passes unseen (0: off)")] = 3.0,
     surface_crs: SurfaceCrsOpt = None,
     resolution: ResolutionOpt = 0.25,
     report_html: ReportHtmlOpt = None,
@@ -74,7 +76,7 @@ def analyze(
     if not interval > 0:
         raise InputError(f"--interval {interval} must be a positive number of seconds, e.g. 60")
     opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
-                             max_metres_per_px=max_metres_per_px)
+                             max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
     cam, doc = _camera(camera)
     image_tracks = read_tracks(tracks, fps=fps)
     surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))

@@ -6,7 +6,9 @@ Outputs of :func:`write_analysis` (all written atomically):
   speed over the observed path (km/h), length where estimated;
 * ``counts.csv`` - per counting line, lane, direction and interval: counts (also per class), flow (veh/h),
   time-mean and space-mean speed, headways and gaps (:func:`trafficgeo.traffic.lines.aggregate_counts`);
-* ``crossings.csv`` - every vehicle at every line: time, direction, lane, speed;
+* ``crossings.csv`` - every vehicle at every line: time, direction, lane, speed; ``hidden`` is true for a vehicle
+  that passed the line out of sight behind a nearer one, carried on from where it vanished
+  (:mod:`trafficgeo.traffic.occlusion`, ``TrajectoryOptions.coast_hidden_s``);
 * ``trajectories.csv``, ``trajectories.parquet`` (GeoParquet points) and ``trajectories.gpkg`` (layers ``points``,
   ``paths`` - one line per vehicle - and, when given, ``lanes`` and ``count_lines``);
 * ``summary.json`` - totals and the options used.
@@ -27,6 +29,7 @@ from trafficgeo.crs import metres_per_unit
 from trafficgeo.geo.mapping import Surface, camera_crs
 from trafficgeo.traffic.lanes import Lanes, lane_visits, main_lane
 from trafficgeo.traffic.lines import CountLine, aggregate_counts, find_crossings
+from trafficgeo.traffic.occlusion import hidden_crossings
 from trafficgeo.traffic.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions, WorldTracks, world_trajectories
 
@@ -149,8 +152,14 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
     if "length_m" in world.vehicles.columns and len(world.points):
         world.points["length_m"] = world.points["track_id"].map(world.vehicles.set_index("track_id")["length_m"])
     crs = camera_crs(camera)
-    crossings = find_crossings(world.points, lines or [], lanes,
-                               metres_per_unit=metres_per_unit(crs) if crs is not None else 1.0)
+    mpu = metres_per_unit(crs) if crs is not None else 1.0
+    crossings = find_crossings(world.points, lines or [], lanes, metres_per_unit=mpu)
+    hidden = hidden_crossings(world.points, tracks, camera.image_size, lines or [], lanes, crossings,
+                              coast_s=opts.coast_hidden_s, period=period, metres_per_unit=mpu)
+    crossings = crossings.assign(hidden=False)
+    if len(hidden):
+        crossings = pd.concat([crossings, hidden.assign(hidden=True)], ignore_index=True).sort_values(
+            ["line", "time"], kind="stable").reset_index(drop=True)
     counts = aggregate_counts(crossings, interval_s, *period)
     warnings = line_warnings(camera, surface, lines or [], opts)
     return Analysis(points=world.points, vehicles=world.vehicles, crossings=crossings, counts=counts,

@@ -60,17 +60,19 @@ class TrajectoryOptions:
     estimate_length: bool = True  # estimate each vehicle's length from its boxes (where the view allows)
     frame_margin_px: float = 2.0  # boxes this close to the frame's edge are cut off by it: not used
     max_metres_per_px: float = 1.5  # farther points, where one pixel spans more of the road (m), are not used
+    coast_hidden_s: float = 3.0  # s a track that vanishes behind a nearer vehicle is carried on to count lines; 0: off
 
     def __post_init__(self) -> None:
         checks = {"pixel_sigma": self.pixel_sigma > 0, "accel_sigma": self.accel_sigma > 0, "gate": self.gate > 0,
                   "split_outliers": self.split_outliers >= 1, "max_gap_s": self.max_gap_s > 0,
                   "check_gap_s": self.check_gap_s > 0, "rejoin_gap_s": self.rejoin_gap_s > 0,
-                  "max_metres_per_px": self.max_metres_per_px > 0,
+                  "max_metres_per_px": self.max_metres_per_px > 0, "coast_hidden_s": self.coast_hidden_s >= 0,
                   "min_points": self.min_points >= 2}
         for name, ok in checks.items():
             if not ok:
+                need = {"min_points": "at least 2", "coast_hidden_s": "0 (off) or more"}.get(name, "positive")
                 raise InputError(f"trajectory option {name}={getattr(self, name)!r} is out of range; it must be "
-                                 f"positive{' and at least 2' if name == 'min_points' else ''}")
+                                 f"{need}")
 
 
 @dataclass(frozen=True)
