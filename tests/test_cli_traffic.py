@@ -88,6 +88,7 @@ def test_analyze_writes_vehicles_counts_and_trajectories(scene: dict[str, Path],
     assert len(gpd.read_parquet(out / "trajectories.parquet")) == len(pts)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["vehicles"] == 3
+    assert summary["hidden_crossings"] == 0 and summary["options"]["coast_hidden_s"] == 3.0  # nothing hidden here
 
 
 def test_box_correction_moves_points_to_the_footprint_centre(scene: dict[str, Path], tmp_path: Path) -> None:

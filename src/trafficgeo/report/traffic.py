@@ -36,6 +36,9 @@ def print_analysis(analysis: Analysis, console: Console) -> None:
             table.add_row(row["line"], row["lane"] or "-", f"{row['direction']:+d}", str(row["count"]),
                           f"{row['count'] * 3600.0 / dur:.0f}", _kmh(sel["speed_kmh"].mean()))
         console.print(table)
+        if s["hidden_crossings"]:
+            console.print(f"{s['hidden_crossings']} of these crossings are of vehicles hidden behind a nearer one at "
+                          "the line, carried on from where they vanished ('hidden' in crossings.csv; --coast-hidden)")
 
 
 def print_comparison(comparison: Comparison, console: Console) -> None:

@@ -212,6 +212,7 @@ def summary(analysis: Analysis) -> dict[str, object]:
         "lane_changes": int(veh["lane_changes"].sum()) if len(veh) else 0,
         "crossings": [{"line": str(k[0]), "lane": str(k[1]), "direction": int(k[2]), "count": int(v)}
                       for k, v in (per_line.items() if len(per_line) else [])],
+        "hidden_crossings": int(analysis.crossings["hidden"].sum()) if "hidden" in analysis.crossings else 0,
         "options": analysis.options,
         "warnings": analysis.warnings,
     }
