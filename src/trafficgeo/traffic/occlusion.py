@@ -4,13 +4,14 @@ From a low camera looking along the road, a car close behind a truck can vanish 
 pass a counting line unseen. A track whose first or last image box is covered (by at least ``HIDDEN_COVER`` of its
 area) by the box of a nearer vehicle - one whose box reaches lower in the image - and does not touch the frame's
 edge went out of sight there, not out of the picture: a *hidden end*. :func:`hidden_crossings` carries each
-hidden end on (a last point forwards, a first point backwards) at its speed and heading for up to ``coast_s``
-seconds and counts the lines it passes in that time, in the lane it vanished in, unless the same line has a
-crossing in the same lane within ``HIDDEN_MATCH_S`` seconds (the vehicle seen again, or carried on from its other
-side). Such a crossing has no spot speed (the vehicle was not seen at the line).
+hidden end on (a last point forwards, a first point backwards) at the track's mean velocity over its last (first)
+second for up to ``coast_s`` seconds and counts the lines it passes in that time, in the lane it vanished in,
+unless the same line has a crossing in the same lane within ``HIDDEN_MATCH_S`` seconds (the vehicle seen again, or
+carried on from its other side). Such a crossing has no spot speed (the vehicle was not seen at the line).
 
-Positions are in the CRS of the points (``metres_per_unit`` converts), speeds in km/h, headings in degrees clockwise
-from grid north, times in seconds; boxes are image pixels ``x1, y1, x2, y2`` with y growing downwards.
+Positions and velocities are in the CRS units of the points (``metres_per_unit`` gives metres, for the spacing
+rule of :func:`~trafficgeo.traffic.lines.find_crossings`), times in seconds; boxes are image pixels
+``x1, y1, x2, y2`` with y growing downwards.
 """
 
 from __future__ import annotations
