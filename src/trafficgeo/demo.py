@@ -254,7 +254,8 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
               f"{m['video_spot_speed_mae_kmh']:.2f} km/h")
     con.print(t)
     con.print("The background detector misses vehicles that overlap in the image (this camera is 8 m high and looks "
-              "along the road): its counts fall short of the simulated tracker's above (see issue #6).")
+              "along the road), so its counts fall short of the simulated tracker's above; a learned "
+              "detector (--detector model.onnx) is the usual way to separate such vehicles.")
     return m
 
 
