@@ -9,7 +9,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from test_ui_browser import CLICK_JS, SYNCED_JS, ZOOM, app_page, browser, click, pick, scene  # noqa: F401
+import test_ui_browser
+from test_ui_browser import CLICK_JS, SYNCED_JS, ZOOM, pick
+
+# the browser, scene and page fixtures of test_ui_browser
+browser, scene, app_page = test_ui_browser.browser, test_ui_browser.scene, test_ui_browser.app_page
 
 # For every GCP marker of one map: the centre of its element and of its cross, and the screen point of its pair.
 MARKER_OFFSETS_JS = """kind => {
