@@ -11,8 +11,9 @@ Endpoints (JSON unless said otherwise; every error is a 4xx answer ``{"detail": 
 * ``POST /api/gcps/save`` ``{name}``, ``POST /api/gcps/load`` ``{name}``, ``POST /api/camera/save`` ``{name}``:
   files in the working folder.
 
-Bodies are validated strictly (no type coercion, no unknown keys, no NaN); changing requests must be JSON
-(``Content-Type: application/json``) and same-origin, so other web sites cannot drive the app through the browser.
+Request bodies are limited to ``MAX_BODY_BYTES`` (counted as they arrive, chunked or not) and validated strictly
+(no type coercion, no unknown keys, no NaN); changing requests must be JSON (``Content-Type: application/json``)
+and same-origin, so other web sites cannot drive the app through the browser.
 Frame pixels ``(u, v)``: ``(0, 0)`` = centre of the top-left pixel; orthophoto positions ``(col, row)``: ``(0, 0)``
 = top-left corner of the full-resolution raster; world coordinates are computed here in float64.
 """
@@ -115,6 +116,46 @@ def _validation_message(exc: RequestValidationError) -> str:
     return "invalid request: " + "; ".join(parts)
 
 
+class BodyLimit:
+    """ASGI middleware: a request body over ``max_bytes`` gets a 413, counted while it streams in (a chunked upload
+    has no Content-Length), so no more than ``max_bytes`` of one is ever held; the app gets the body buffered."""
+
+    def __init__(self, app: Any, max_bytes: int) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        chunks: list[bytes] = []
+        size = 0
+        while True:
+            message = await receive()
+            if message["type"] == "http.disconnect":
+                return  # the client went away mid-body: nothing to answer
+            body = message.get("body", b"")
+            size += len(body)
+            if size > self.max_bytes:
+                response = _error(413, f"the request body is larger than {self.max_bytes} bytes")
+                response.headers["Connection"] = "close"
+                await response(scope, receive, send)
+                return
+            chunks.append(body)
+            if not message.get("more_body", False):
+                break
+        replayed = False
+
+        async def replay() -> dict[str, Any]:
+            nonlocal replayed
+            if not replayed:
+                replayed = True
+                return {"type": "http.request", "body": b"".join(chunks), "more_body": False}
+            return await receive()
+
+        await self.app(scope, replay, send)
+
+
 def create_app(session: Session, *, allowed_hosts: Sequence[str] | None = None) -> FastAPI:
     """The web app over ``session`` (no global state: everything it serves comes from ``session``).
 
@@ -124,6 +165,7 @@ def create_app(session: Session, *, allowed_hosts: Sequence[str] | None = None) 
     app = FastAPI(title="trafficgeo gcp-ui", docs_url=None, redoc_url=None, openapi_url=None)
     app.state.session = session
     hosts = None if allowed_hosts is None else {h.lower() for h in allowed_hosts}
+    app.add_middleware(BodyLimit, max_bytes=MAX_BODY_BYTES)  # inside the guard below: refused hosts send nothing
 
     @app.middleware("http")
     async def guard(request: Request, call_next: Any) -> Response:

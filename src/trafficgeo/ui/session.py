@@ -590,7 +590,22 @@ def initial_table(gcps_path: Path | None, autosave_path: Path, crs: Any) -> tupl
     rows = [line for line in path.read_text(encoding="utf-8", errors="replace").splitlines() if line.strip()]
     if path == autosave_path and len(rows) <= 1:
         return None, path
-    return read_gcps(path, crs=crs), path
+    try:
+        return read_gcps(path, crs=crs), path
+    except InputError as exc:
+        if path != autosave_path:
+            raise
+        raise damaged_autosave(autosave_path, exc, gcps_path) from None
+
+
+def damaged_autosave(autosave_path: Path, exc: Exception, gcps_path: Path | None) -> InputError:
+    """The one-line error for an autosave that cannot be used: what is wrong, and that moving it aside starts over
+    (from the --gcps file when there is one)."""
+    reason = str(exc).removeprefix(f"{autosave_path} ").removeprefix(f"{autosave_path}: ")
+    then = (f"continue from {gcps_path}" if gcps_path is not None and gcps_path.is_file()
+            else "start with no GCPs")
+    return InputError(f"the autosave {autosave_path} cannot be read ({reason}); move it aside (rename or delete "
+                      f"it) to {then} (it only holds the unsaved changes of an earlier gcp-ui session)")
 
 
 def open_session(*, frame: str | Path | None = None, video: str | Path | None = None, at_s: float | None = None,
@@ -631,7 +646,12 @@ def open_session(*, frame: str | Path | None = None, video: str | Path | None = 
     session = Session(img, orthophoto, ground, workdir=wd, gcps_path=gcps_path, options=options)
     table, source = initial_table(gcps_path, session.autosave_path, session.crs)
     if table is not None:
-        session.set_table(table, autosave=False)
+        try:
+            session.set_table(table, autosave=False)
+        except (InputError, SessionError) as exc:
+            if source != session.autosave_path:
+                raise
+            raise damaged_autosave(session.autosave_path, exc, gcps_path) from None
         note = f"continuing with {table.n} GCP(s) from {source}"
         if source == session.autosave_path and gcps_path is not None and gcps_path.is_file():
             note += f" (newer than {gcps_path}: unsaved changes of the last session)"

@@ -5,13 +5,18 @@
  *   ortho map: latLng = (-row, col), with (col, row) full-resolution raster positions, (0, 0) = top-left corner.
  * World coordinates are computed by the server (float64, from the orthophoto's affine transform); this page only
  * sends pixel positions and shows what the server returns.
+ *
+ * A GCP moves only when the user drags its marker on purpose: a press on a marker becomes a drag only after the
+ * pointer has moved DRAG_THRESHOLD_PX screen pixels (|dx| + |dy|), and while a pointer is pressed no marker is
+ * moved, re-styled or re-created (updates wait for the release).
  */
 "use strict";
 (function () {
+  const DRAG_THRESHOLD_PX = 6;
   const app = window.gcpui = {
     ready: false, info: null, state: null, calibration: null, selected: null,
     pending: {frame: null, ortho: null}, frameMap: null, orthoMap: null, layers: {}, markers: new Map(),
-    tableStale: false,
+    tableStale: false, pressed: false, markersStale: false,
   };
 
   const $ = (id) => document.getElementById(id);
@@ -177,9 +182,12 @@
     renderCalibration();
   }
 
-  // Markers are updated in place (never re-created under the mouse), so a drag survives a refresh.
-  function makeMarker(kind, entry) {
-    const mk = L.marker(L.latLng(0, 0), {icon: icon(entry.id, ""), draggable: true, autoPan: true});
+  // Markers are made once and then updated in place (position, classes, label): their elements are never
+  // re-created, and nothing is changed while a pointer is pressed (see pointerPressed), so a press stays a click
+  // and a drag survives a refresh.
+  function makeMarker(kind, entry, layer, ll) {
+    const mk = L.marker(ll, {icon: icon(entry.id, ""), draggable: true, autoPan: true}).addTo(layer);
+    mk.dragging._draggable.options.clickTolerance = DRAG_THRESHOLD_PX;
     mk.on("click", () => select(entry.id, false));
     mk.on("dragstart", () => { mk.gcpDragging = true; });
     mk.on("dragend", () => {
@@ -187,11 +195,27 @@
       const ll = mk.getLatLng();
       change(entry.id, kind === "frame" ? {u: ll.lng, v: -ll.lat} : {col: ll.lng, row: -ll.lat});
     });
-    mk.gcpClass = null;
+    mk.gcpClass = "";
+    mk.gcpLabel = entry.id;
     return mk;
   }
 
+  function styleMarker(mk, label, cls) {
+    if (mk.gcpClass === cls && mk.gcpLabel === label) return;
+    const el = mk.getElement();
+    for (const c of ["check", "outlier", "selected"]) el.classList.toggle(c, cls.split(" ").includes(c));
+    el.querySelector(".lbl").textContent = label;
+    mk.options.icon = icon(label, cls);  // what Leaflet would draw if it ever re-created the element
+    mk.gcpClass = cls;
+    mk.gcpLabel = label;
+  }
+
   function renderMarkers() {
+    if (app.pressed) {
+      app.markersStale = true;  // never move a marker under a pressed pointer; render after the release
+      return;
+    }
+    app.markersStale = false;
     const pairs = app.state ? app.state.pairs : [];
     const seen = new Set();
     for (const p of pairs) {
@@ -199,22 +223,19 @@
       let entry = app.markers.get(p.id);
       if (!entry) {
         entry = {id: p.id};
-        entry.frame = makeMarker("frame", entry).addTo(app.layers.frameMarkers);
-        entry.ortho = makeMarker("ortho", entry).addTo(app.layers.orthoMarkers);
+        entry.frame = makeMarker("frame", entry, app.layers.frameMarkers, frameLL(p.u, p.v));
+        entry.ortho = makeMarker("ortho", entry, app.layers.orthoMarkers, orthoLL(p.col, p.row));
         app.markers.set(p.id, entry);
       }
       const cp = calPoint(p.id);
       const selected = app.selected === p.id;
       const cls = [p.role === "check" ? "check" : "", cp && cp.status === "outlier" ? "outlier" : "",
-        selected ? "selected" : ""].join(" ");
+        selected ? "selected" : ""].filter(Boolean).join(" ");
       for (const [mk, ll] of [[entry.frame, frameLL(p.u, p.v)], [entry.ortho, orthoLL(p.col, p.row)]]) {
         if (mk.gcpDragging) continue;
         if (!mk.getLatLng().equals(ll, 0)) mk.setLatLng(ll);
-        if (mk.gcpClass !== cls) {
-          mk.setIcon(icon(p.id, cls));
-          mk.gcpClass = cls;
-        }
-        mk.setZIndexOffset(selected ? 1000 : 0);
+        styleMarker(mk, p.id, cls);
+        if (mk.options.zIndexOffset !== (selected ? 1000 : 0)) mk.setZIndexOffset(selected ? 1000 : 0);
       }
     }
     for (const [id, entry] of app.markers) {
@@ -437,6 +458,21 @@
     }
   }
 
+  // While any pointer (mouse button, pen, finger) is pressed, markers are left as they are; the release renders them.
+  function watchPointer() {
+    const press = () => { app.pressed = true; };
+    const release = () => {
+      if (!app.pressed) return;
+      app.pressed = false;
+      // after Leaflet's own mouseup/click handlers (a click selects, a drag ends) have run
+      setTimeout(() => { if (!app.pressed && app.markersStale) renderMarkers(); }, 0);
+    };
+    document.addEventListener("pointerdown", press, true);
+    document.addEventListener("pointerup", release, true);
+    document.addEventListener("pointercancel", release, true);
+    window.addEventListener("blur", release);
+  }
+
   // ------------------------------------------------------------------------------------------------ start
   async function start() {
     try {
@@ -447,8 +483,8 @@
     }
     const f = app.info.frame;
     const o = app.info.ortho;
-    $("frame-title").textContent = `Frame ${f.width}×${f.height} px — ${f.source}`;
-    $("ortho-title").textContent = `Orthophoto ${o.cols}×${o.rows} px — ${app.info.crs}` +
+    $("frame-title").textContent = $("frame-title").title = `Frame ${f.width}×${f.height} px — ${f.source}`;
+    $("ortho-title").textContent = $("ortho-title").title = `Orthophoto ${o.cols}×${o.rows} px — ${app.info.crs}` +
       (app.info.ground ? ` — Z: ${app.info.ground.describe}` : " — no DEM or cloud: type Z");
     app.frameMap = makeMap($("frame-map"), L.latLngBounds(frameLL(-0.5, f.height - 0.5), frameLL(f.width - 0.5, -0.5)),
       "/api/frame.png");
@@ -471,6 +507,7 @@
     app.orthoMap.on("mousemove", (e) => {
       $("ortho-readout").textContent = `col ${fmt(e.latlng.lng, 2)}  row ${fmt(-e.latlng.lat, 2)}`;
     });
+    watchPointer();
     $("residual-scale").addEventListener("change", renderCalibration);
     $("show-grid").addEventListener("change", renderCalibration);
     $("show-footprint").addEventListener("change", renderCalibration);
