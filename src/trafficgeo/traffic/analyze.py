@@ -218,14 +218,17 @@ def summary(analysis: Analysis) -> dict[str, object]:
     }
 
 
-def write_analysis(out_dir: str | Path, analysis: Analysis, camera: Camera) -> list[Path]:
-    """Write the outputs (module docstring) into ``out_dir``; returns the paths written."""
+def write_analysis(out_dir: str | Path, analysis: Analysis, camera: Camera, *, publish: bool = True) -> list[Path]:
+    """Write the outputs (module docstring) into ``out_dir``; returns the paths written.
+
+    The folder's run manifest (:mod:`trafficgeo.io.run_manifest`) is removed first and, with ``publish``, written
+    last; a caller that adds files of its own (``process``) passes ``publish=False`` and publishes them all."""
     from trafficgeo.io.atomic import write_csv_atomic, write_json_atomic
     from trafficgeo.io.gis import write_gis
+    from trafficgeo.io.run_manifest import begin_outputs, publish_outputs
     from trafficgeo.io.tables import write_point_table
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = begin_outputs(out_dir)
     crs = camera_crs(camera)
     written = []
     for name, table in (("vehicles.csv", analysis.vehicles), ("counts.csv", analysis.counts),
@@ -242,4 +245,8 @@ def write_analysis(out_dir: str | Path, analysis: Analysis, camera: Camera) -> l
     doc = {**summary(analysis), "crs": crs.to_wkt() if crs is not None else None}
     write_json_atomic(out / "summary.json", doc)
     written.append(out / "summary.json")
+    for stale in {out / n for n in OUTPUT_FILES} - set(written):  # e.g. no GeoPackage without a CRS
+        stale.unlink(missing_ok=True)
+    if publish:
+        publish_outputs(out, written, command="analyze")
     return written
