@@ -183,7 +183,7 @@ def test_a_folder_that_cannot_take_a_file_is_found_first(tmp_path: Path, monkeyp
         raise PermissionError(errno.EROFS, "Read-only file system")
 
     monkeypatch.setattr("tempfile.mkstemp", refuse)
-    with pytest.raises(InputError, match="cannot write in .*Read-only file system"):
+    with pytest.raises(InputError, match=r"cannot write in .*Read-only file system"):
         check_writable_folder(tmp_path / "new" / "run")
     assert not (tmp_path / "new").exists()
 

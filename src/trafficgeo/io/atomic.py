@@ -51,8 +51,11 @@ WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EIO, errno.EFBIG}
 
 def write_failed(target: Path, why: str) -> OutputError:
     """The one-line error for an output the disk would not take (the partial file is already removed)."""
-    return OutputError(f"could not write {target}: {' '.join(str(why).split())}; nothing of it was kept - free "
-                       "space (or fix the disk) and run the command again")
+    text = " ".join(str(why).split())
+    if len(text) > 160:  # GDAL quotes whole SQL scripts; the cause is at the end ("... database or disk is full")
+        text = "..." + text[-120:]
+    return OutputError(f"could not write {target}: {text}; nothing of it was kept - free space (or fix the disk) "
+                       "and run the command again")
 
 
 @contextlib.contextmanager
