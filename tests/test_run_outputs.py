@@ -176,6 +176,19 @@ def test_an_unwritable_out_is_found_before_any_work(command: str, scene: dict[st
     assert f"--out {out}" in stderr and "is a file" in stderr
 
 
+@pytest.mark.parametrize("command", ["export-fcd", "report", "synth", "demo"])
+def test_output_paths_under_a_file_are_found_before_any_work(command: str, tmp_path: Path) -> None:
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    args = {"export-fcd": ["export-fcd", tmp_path, "-o", blocker / "o.fcd.xml"],
+            "report": ["report", tmp_path, "-o", blocker / "r.html"],
+            "synth": ["synth", "--out", blocker / "world"],
+            "demo": ["demo", "--out", blocker / "demo"]}[command]
+    code, _, stderr = invoke(*args)
+    assert code == 2 and _one_line(stderr), stderr
+    assert f"{blocker} is a file" in stderr
+
+
 def test_a_folder_that_cannot_take_a_file_is_found_first(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from trafficgeo.io.run_manifest import check_writable_folder
 

@@ -149,12 +149,14 @@ def export_fcd(
     import numpy as np
     import pandas as pd
 
+    from trafficgeo.io.run_manifest import check_writable_file
     from trafficgeo.io.sumo import write_fcd
     from trafficgeo.traffic.boxes import dimensions_for
     from trafficgeo.traffic.validation import read_observed_run
 
     if output.suffix.lower() != ".xml":
         raise InputError(f"--output {output}: SUMO FCD is XML; name it .xml (e.g. observed.fcd.xml)")
+    check_writable_file(output)
     observed = read_observed_run(run)
     path = run / "trajectories.csv"
     if "trajectories.csv" not in observed.outputs:

@@ -77,6 +77,18 @@ def check_writable_folder(folder: str | Path, option: str = "--out") -> None:
                          "write to") from None
 
 
+def check_writable_file(path: str | Path, option: str = "--output") -> None:
+    """Fail before any work when the file ``path`` could not be written: it is a folder, or its folder could not
+    be made or written in (:func:`check_writable_folder`)."""
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{option} {p}: is a folder; give the file to write")
+    if p.parent.exists() and not p.parent.is_dir():
+        raise InputError(f"{option} {p}: {p.parent} is a file, so nothing can be written under it; give another "
+                         "path")
+    check_writable_folder(p.parent, option)
+
+
 def begin_outputs(folder: str | Path, name: str = MANIFEST) -> Path:
     """Create ``folder`` if needed and remove its manifest ``name``, before the first output is written.
 
