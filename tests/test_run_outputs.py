@@ -306,6 +306,7 @@ def test_stitch_in_any_order_gives_the_same_crossings(scene: dict[str, Path], ch
     ("inside", "lies inside"),
     ("unfinished", "outputs incomplete or from different runs"),
     ("not_process", "has no tracks.csv"),
+    ("other_video", "is of video.mp4 but"),
 ])
 def test_stitch_refuses_chunks_that_would_count_twice(case: str, expect: str, scene: dict[str, Path],  # noqa: F811
                                                       chunks: dict[str, Path], tmp_path: Path) -> None:
@@ -317,6 +318,11 @@ def test_stitch_refuses_chunks_that_would_count_twice(case: str, expect: str, sc
         folders = [a, tmp_path / "copy"]
     elif case == "inside":
         folders = [chunks["inner"], a, chunks["b"]]
+    elif case == "other_video":
+        info = json.loads((chunks["b"] / "process.json").read_text())
+        (chunks["b"] / "process.json").write_text(json.dumps({**info, "video": "/data/other.mp4"}))
+        publish_outputs(chunks["b"], ["tracks.csv", "process.json"], command="process")
+        folders = [a, chunks["b"]]
     elif case == "unfinished":
         (chunks["b"] / MANIFEST).unlink()
         folders = [a, chunks["b"]]

@@ -29,14 +29,19 @@ def plan_chunks(ranges: Sequence[tuple[float, float]], names: Sequence[str] | No
     """The order in which to join chunks with time ``ranges`` ((start, end) s of video each), and warnings.
 
     Raises:
-        InputError: no chunks, a range that is not finite with start < end, two chunks of one video with the same
-            range, or a chunk whose range lies inside another's.
+        InputError: no chunks, chunks of different ``videos`` (names; None: unknown), a range that is not finite
+            with start < end, two chunks with the same range, or a chunk whose range lies inside another's.
     """
     n = len(ranges)
     if not n:
         raise InputError(f"no chunks to stitch; {HINT}")
     names = list(names) if names is not None else [f"chunk {k + 1}" for k in range(n)]
     videos = list(videos) if videos is not None else [None] * n
+    named = {v: k for k, v in enumerate(videos) if v}
+    if len(named) > 1:
+        a, b = sorted(named.values())[:2]
+        raise InputError(f"{names[a]} is of {videos[a]} but {names[b]} of {videos[b]}: stitch joins time chunks of "
+                         "one video; stitch each video's chunks apart")
     for k, (lo, hi) in enumerate(ranges):
         if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
             raise InputError(f"{names[k]}: time range {lo:g} to {hi:g} s is empty or not finite; {HINT}")
