@@ -20,6 +20,7 @@ from cli_support import invoke
 from trafficgeo.camera.io import read_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.raster import write_geotiff
+from trafficgeo.io.run_manifest import COMPARE_MANIFEST, MANIFEST, publish_outputs
 from trafficgeo.report import figures as F
 from trafficgeo.report.html import build_page, build_report
 from trafficgeo.traffic.boxes import cuboid_boxes
@@ -153,6 +154,7 @@ def _synthetic_run(folder: Path, crs: str, unit_m: float) -> dict[str, pd.DataFr
         "outlier_points": 0, "mean_speed_kmh": float(vehicles["mean_speed_kmh"].mean()), "classes": {"car": 5},
         "lane_changes": 0, "crossings": [], "options": {"interval_s": 5.0}, "warnings": ["a <b>warning</b>"],
         "crs": pyproj.CRS.from_user_input(crs).to_wkt()}))
+    publish_outputs(folder, [p.name for p in folder.iterdir() if p.is_file()], command="analyze")
     return {"points": points, "vehicles": vehicles, "crossings": crossings, "counts": counts}
 
 
@@ -463,6 +465,7 @@ def test_process_run_names_its_camera_and_video(site: dict[str, Path], tmp_path:
         "video": str(tmp_path / "clip.mp4"), "camera": str(cal / "camera.json"),
         "options": {"detector": "background", "start_s": 0.1, "end_s": None, "every": 1}, "seconds": 1.5,
         "detections": 10, "track_rows": 8}))
+    publish_outputs(run, [p.name for p in run.iterdir() if p.name != MANIFEST], command="process")
     page = build_page(run, dpi=40)
     assert page.sections == ("Calibration", "GCPs and residuals", "Accuracy map", "Traffic")
     assert f"{tmp_path / 'clip.mp4'} at 0.08 s" in page.html  # the frame shown at start_s (25 fps)
@@ -502,6 +505,8 @@ def test_compare_sumo_results_are_shown(feet_run: tuple[Path, dict[str, pd.DataF
                   "geh": [2.4, 30.4], "geh_ok": [True, False]}).to_csv(run / "compare_counts.csv", index=False)
     (run / "compare_summary.json").write_text(json.dumps({"counts": {"rows": 2, "share_geh_below_5": 0.5,
                                                                      "total_observed": 22, "total_simulated": 41}}))
+    publish_outputs(run, ["compare_counts.csv", "compare_summary.json"], command="compare-sumo",
+                    name=COMPARE_MANIFEST)
     page = build_page(run, dpi=40)
     assert "Observed vs simulated (compare-sumo)" in page.html and "50.0 % with GEH &lt; 5" in page.html
     assert page.html.count('<tr class="outlier">') == 1

@@ -64,7 +64,7 @@ def test_missing_file_and_bad_fps(tmp_path):
     with pytest.raises(InputError, match="not found"):
         read_tracks(tmp_path / "none.csv", fps=25)
     p = write(tmp_path, "t.csv", "frame,track_id,u,v\n1,a,2,3\n")
-    with pytest.raises(InputError, match="positive frame rate"):
+    with pytest.raises(InputError, match="is not a video frame rate"):
         read_tracks(p, fps=0)
     with pytest.raises(InputError, match="at least frame,id"):
         read_tracks(write(tmp_path, "short.txt", "1,2,3\n"), fps=10)

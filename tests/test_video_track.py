@@ -10,7 +10,7 @@ import pytest
 
 from trafficgeo.errors import InputError
 from trafficgeo.video.detect import Detections
-from trafficgeo.video.pipeline import stitch_tracks
+from trafficgeo.video.stitch import stitch_tracks
 from trafficgeo.video.track import TrackerOptions, VehicleTracker
 
 

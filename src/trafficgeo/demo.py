@@ -204,6 +204,7 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
 
     from rich.progress import BarColumn, Progress, TimeRemainingColumn
 
+    from trafficgeo.io.run_manifest import publish_outputs
     from trafficgeo.report.traffic import print_analysis
     from trafficgeo.synth.scoring import count_scores, detection_scores
     from trafficgeo.traffic.analyze import analyze, write_analysis
@@ -228,12 +229,13 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     lanes = read_lanes(wdir / "lanes.gpkg", crs=surf.crs)
     lines = read_count_lines(wdir / "count_lines.gpkg", crs=surf.crs)
     result = analyze(cam, surf, tracks_from_table(tracks), lanes=lanes, lines=lines)
-    write_analysis(run, result, cam)
+    written = write_analysis(run, result, cam, publish=False)
     # as 'process' writes it; paths relative to the run folder, so the report finds the video and the camera
     write_run_info(run, video=os.path.relpath(wdir / "video.mp4", run),
                    camera=os.path.relpath(out / "camera.json", run), options=options, seconds=elapsed,
                    detections=len(detections), track_rows=len(tracks))
     finish_run(run)
+    publish_outputs(run, ["detections.csv", "tracks.csv", *written, "process.json"], command="process")
     print_analysis(result, con)
     precision, recall, n_boxes = detection_scores(detections, pd.read_csv(wdir / "truth_tracks.csv"))
     score = count_scores(result.crossings, pd.read_csv(wdir / "truth_counts.csv"))

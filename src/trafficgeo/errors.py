@@ -18,3 +18,8 @@ class InputError(TrafficgeoError, ValueError):
 
 class CalibrationError(TrafficgeoError, RuntimeError):
     """Calibration ran but could not converge to a usable camera (CLI exit code 1)."""
+
+
+class OutputError(TrafficgeoError, RuntimeError):
+    """An output could not be written (disk full, read-only or failing disk); the partial file was removed and
+    any earlier file of that name is untouched (CLI exit code 1)."""

@@ -187,7 +187,9 @@ def demo(
     from dataclasses import replace
 
     from trafficgeo.demo import DEMO_WORLD, run_demo
+    from trafficgeo.io.run_manifest import check_writable_folder
 
+    check_writable_folder(out, "--out")
     if not duration > 0:
         raise InputError(f"--duration {duration} must be positive (s)")
     world = replace(DEMO_WORLD, seed=seed, duration_s=duration)

@@ -27,7 +27,7 @@ def _camera(path: Path):
 def _surface(spec: str, camera, doc, surface_crs: str | None, resolution: float, where: str):
     from trafficgeo.geo.load import load_surface
 
-    if not resolution > 0:
+    if not (resolution > 0 and resolution < float("inf")):
         raise InputError(f"--resolution {resolution} must be a positive cell size in metres, e.g. 0.25")
     return load_surface(spec, camera, doc, surface_crs=surface_crs, resolution_m=resolution, where=where)
 

@@ -16,12 +16,13 @@ from trafficgeo.errors import InputError
 
 
 def _analyze_and_write(cam, surf, image_tracks, lane_set, count_lines, interval: float, out: Path):
+    """Analyze and write the outputs, without publishing the run (the caller adds its files and publishes)."""
     from trafficgeo.report.traffic import print_analysis
     from trafficgeo.traffic.analyze import analyze as run_analysis
     from trafficgeo.traffic.analyze import write_analysis
 
     result = run_analysis(cam, surf, image_tracks, lanes=lane_set, lines=count_lines, interval_s=interval)
-    written = write_analysis(out, result, cam)
+    written = write_analysis(out, result, cam, publish=False)
     print_analysis(result, console)
     return result, written
 
@@ -57,6 +58,7 @@ def process(
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from trafficgeo.cli.report import check_html_path
+    from trafficgeo.traffic.lines import check_interval
     from trafficgeo.traffic.tracks import tracks_from_table
     from trafficgeo.video.pipeline import (
         ProcessOptions,
@@ -67,6 +69,7 @@ def process(
 
     _check_out_dir(out)
     check_html_path(report_html)
+    check_interval(interval)
     if annotate is not None and annotate.suffix.lower() != ".mp4":
         raise InputError(f"--annotate {annotate}: write the annotated video as .mp4")
     opts = ProcessOptions(detector=detector, start_s=start, end_s=end, every=every, checkpoint_s=checkpoint)
@@ -78,6 +81,9 @@ def process(
         from trafficgeo.video.roi import read_roi
 
         mask = read_roi(roi, cam.image_size)
+    from trafficgeo.io.run_manifest import begin_outputs, publish_outputs
+
+    begin_outputs(out)  # from here until the end, readers refuse the folder
     t0 = time.perf_counter()
     columns = (TextColumn("[progress.description]{task.description}"), BarColumn(),
                TextColumn("{task.completed}/{task.total} frames, {task.fields[rate]:.1f} fps, video {task.fields[t]}"),
@@ -114,6 +120,7 @@ def process(
     write_run_info(out, video=str(video), camera=str(camera), options=opts, seconds=elapsed,
                    detections=len(detections), track_rows=len(tracks))
     finish_run(out)
+    publish_outputs(out, ["detections.csv", "tracks.csv", *written, "process.json"], command="process")
     console.print(f"wrote detections.csv, tracks.csv, {', '.join(p.name for p in written)}, process.json in {out}")
     if report_html is not None:
         from trafficgeo.cli.report import write_page
@@ -121,10 +128,34 @@ def process(
         write_page(report_html, out, camera=camera)  # the video and its --start come from process.json
 
 
+def _read_chunk(folder: Path):
+    """A chunk's tracks and its time range (s of video: --start/--end of its process.json, else its track times)
+    and video name; the folder must be a finished run."""
+    import json
+
+    import pandas as pd
+
+    from trafficgeo.io.run_manifest import verify_outputs
+
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a folder; give the --out folders of finished 'trafficgeo process' runs")
+    manifest = verify_outputs(folder, require=("tracks.csv",))
+    table = pd.read_csv(folder / "tracks.csv", dtype={"class": str}, keep_default_na=False, na_values=[""])
+    info = json.loads((folder / "process.json").read_text()) if manifest.has("process.json") else {}
+    options = info.get("options") or {}
+    times = pd.to_numeric(table["time"], errors="coerce") if "time" in table.columns else pd.Series([], dtype=float)
+    start = options.get("start_s")
+    end = options.get("end_s")
+    start = float(start) if isinstance(start, int | float) else float(times.min()) if times.notna().any() else 0.0
+    end = float(end) if isinstance(end, int | float) else float(times.max()) if times.notna().any() else start
+    video = Path(str(info["video"])).name if isinstance(info.get("video"), str) else None
+    return table, (start, end), video
+
+
 @app.command()
 def stitch(
     chunks: Annotated[list[Path], typer.Argument(help="--out folders of 'process --start/--end' runs of one "
-                                                 "video, in time order, overlapping by a few seconds")],
+                                                 "video, overlapping by a few seconds (in any order)")],
     camera: Annotated[Path, typer.Option(help="camera JSON")],
     surface: SurfaceOpt,
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder")],
@@ -135,24 +166,32 @@ def stitch(
     resolution: ResolutionOpt = 0.25,
 ) -> None:
     """Join the tracks of time chunks of one video (processed apart, e.g. on several machines) and analyze them."""
-    import pandas as pd
-
     from trafficgeo.io.atomic import write_csv_atomic
+    from trafficgeo.io.run_manifest import publish_outputs
+    from trafficgeo.traffic.lines import check_interval
     from trafficgeo.traffic.tracks import tracks_from_table
-    from trafficgeo.video.pipeline import stitch_tracks
+    from trafficgeo.video.stitch import plan_chunks, stitch_tracks
 
     _check_out_dir(out)
-    tables = []
+    check_interval(interval)
+    seen: dict[Path, Path] = {}
     for folder in chunks:
-        path = folder / "tracks.csv"
-        if not path.is_file():
-            raise InputError(f"{folder}: no tracks.csv; give the --out folders of finished 'process' runs")
-        tables.append(pd.read_csv(path, dtype={"class": str}, keep_default_na=False, na_values=[""]))
+        key = folder.resolve()
+        if key in seen:
+            raise InputError(f"{folder}: given twice (as {seen[key]} too); give each chunk once")
+        if out.resolve() == key:
+            raise InputError(f"--out {out}: is one of the chunks; write the stitched run to a folder of its own")
+        seen[key] = folder
+    read = [_read_chunk(folder) for folder in chunks]
+    order, warnings = plan_chunks([r[1] for r in read], [str(c) for c in chunks], [r[2] for r in read])
+    for text in warnings:
+        console.print(f"warning: {text}", markup=False, highlight=False)
     cam, doc = _camera(camera)
     surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
     lane_set, count_lines = _layout(cam, surf, lanes, lines)
-    joined = stitch_tracks(tables)
+    joined = stitch_tracks([read[k][0] for k in order])
     joined["class"] = joined["class"].fillna("")
-    _analyze_and_write(cam, surf, tracks_from_table(joined), lane_set, count_lines, interval, out)
+    _, written = _analyze_and_write(cam, surf, tracks_from_table(joined), lane_set, count_lines, interval, out)
     write_csv_atomic(out / "tracks.csv", joined, float_format="%.3f")
+    publish_outputs(out, [*written, "tracks.csv"], command="stitch")
     console.print(f"stitched {len(chunks)} chunks: {joined['track_id'].nunique()} tracks; wrote {out}")

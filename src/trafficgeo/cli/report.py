@@ -22,6 +22,9 @@ def check_html_path(path: Path | None, option: str = "--report-html") -> None:
         raise InputError(f"{option} {path}: the report is an HTML page; name it .html (e.g. report.html)")
     if path.is_dir():
         raise InputError(f"{option} {path}: is a folder; give the file to write, e.g. {path / 'report.html'}")
+    from trafficgeo.io.run_manifest import check_writable_file
+
+    check_writable_file(path, option)
 
 
 def write_page(path: Path, run_dir: Path, **options: object) -> None:

@@ -53,8 +53,10 @@ def synth(
     """Generate a demo world: SUMO traffic, orthophoto, lidar, GCPs, true camera, H.264 video and truth."""
     from rich.progress import BarColumn, Progress, TimeRemainingColumn
 
+    from trafficgeo.io.run_manifest import check_writable_folder
     from trafficgeo.synth.world import WorldOptions, build_world
 
+    check_writable_folder(out, "--out")
     size = parse_image_size(image_size)
     for name, value in (("--length", length), ("--camera-height", camera_height), ("--duration", duration),
                         ("--fps", fps)):

@@ -22,8 +22,10 @@ ReportHtmlOpt = Annotated[Path | None, typer.Option(help="also write an HTML rep
 
 
 def _check_out_dir(out: Path) -> None:
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder; give a folder for the outputs")
+    """Fail before any work when ``--out`` cannot be written."""
+    from trafficgeo.io.run_manifest import check_writable_folder
+
+    check_writable_folder(out, "--out")
 
 
 def _layout(cam, surf, lanes: Path | None, lines: Path | None):
@@ -31,7 +33,9 @@ def _layout(cam, surf, lanes: Path | None, lines: Path | None):
     from trafficgeo.geo.mapping import camera_crs
     from trafficgeo.traffic.lanes import read_lanes
     from trafficgeo.traffic.lines import read_count_lines
+    from trafficgeo.traffic.plausibility import check_camera_above_surface
 
+    check_camera_above_surface(cam, surf)  # before any work: a surface in feet read as metres maps nothing
     crs = camera_crs(cam)
     return (read_lanes(lanes, crs=crs, camera=cam, surface=surf) if lanes is not None else None,
             read_count_lines(lines, crs=crs, camera=cam, surface=surf) if lines is not None else None)
@@ -68,13 +72,13 @@ def analyze(
     from trafficgeo.report.traffic import print_analysis
     from trafficgeo.traffic.analyze import analyze as run_analysis
     from trafficgeo.traffic.analyze import write_analysis
+    from trafficgeo.traffic.lines import check_interval
     from trafficgeo.traffic.tracks import read_tracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
 
     _check_out_dir(out)
     check_html_path(report_html)
-    if not interval > 0:
-        raise InputError(f"--interval {interval} must be a positive number of seconds, e.g. 60")
+    check_interval(interval)
     opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
                              max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
     cam, doc = _camera(camera)
@@ -108,6 +112,8 @@ def compare_sumo(
     out: Annotated[Path | None, typer.Option("--out", "-o", help="output folder (default: OBSERVED)")] = None,
 ) -> None:
     """Observed vs simulated traffic: per-lane counts (GEH), spot speeds (KS) and travel times."""
+    import math
+
     from trafficgeo.report.traffic import print_comparison
     from trafficgeo.traffic.lines import read_count_lines
     from trafficgeo.traffic.validation import (
@@ -119,6 +125,9 @@ def compare_sumo(
 
     out = out or observed
     _check_out_dir(out)
+    if not math.isfinite(time_offset):
+        raise InputError(f"--time-offset {time_offset}: give the simulation's time minus the observed time as a "
+                         "finite number of seconds, e.g. 0")
     run = read_observed_run(observed)
     count_lines = read_count_lines(lines, crs=run.crs) if lines is not None else None
     sim = simulated_points(fcd, run.crs, net=net, net_crs=net_crs, time_offset_s=time_offset)
@@ -140,15 +149,17 @@ def export_fcd(
     import numpy as np
     import pandas as pd
 
+    from trafficgeo.io.run_manifest import check_writable_file
     from trafficgeo.io.sumo import write_fcd
     from trafficgeo.traffic.boxes import dimensions_for
     from trafficgeo.traffic.validation import read_observed_run
 
     if output.suffix.lower() != ".xml":
         raise InputError(f"--output {output}: SUMO FCD is XML; name it .xml (e.g. observed.fcd.xml)")
+    check_writable_file(output)
     observed = read_observed_run(run)
     path = run / "trajectories.csv"
-    if not path.is_file():
+    if "trajectories.csv" not in observed.outputs:
         raise InputError(f"{run}: no trajectories.csv; give the --out folder of 'trafficgeo analyze'")
     pts = pd.read_csv(path, dtype={"track_id": str, "class": str, "lane": str}, keep_default_na=False,
                       na_values=[""])

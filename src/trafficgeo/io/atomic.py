@@ -7,6 +7,7 @@ Write to a temporary file in the destination folder, flush it to disk, then ``os
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import math
 import os
@@ -16,6 +17,8 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
+
+from trafficgeo.errors import OutputError
 
 
 @contextlib.contextmanager
@@ -35,10 +38,24 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, target)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+        if isinstance(exc, OSError) and exc.errno in WRITE_ERRNOS:
+            raise write_failed(target, exc.strerror or str(exc)) from exc
         raise
+
+
+WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EIO, errno.EFBIG}  # the disk refused the data
+
+
+def write_failed(target: Path, why: str) -> OutputError:
+    """The one-line error for an output the disk would not take (the partial file is already removed)."""
+    text = " ".join(str(why).split())
+    if len(text) > 160:  # GDAL quotes whole SQL scripts; the cause is at the end ("... database or disk is full")
+        text = "..." + text[-120:]
+    return OutputError(f"could not write {target}: {text}; nothing of it was kept - free space (or fix the disk) "
+                       "and run the command again")
 
 
 @contextlib.contextmanager

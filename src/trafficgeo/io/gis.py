@@ -34,12 +34,12 @@ import pyogrio
 import pyproj
 import shapely
 from numpy.typing import ArrayLike
-from pyogrio.errors import DataSourceError
+from pyogrio.errors import CRSError, DataLayerError, DataSourceError
 from shapely.geometry import mapping
 
 from trafficgeo.crs import crs_label, is_geographic, metres_per_unit, parse_crs, projected_to_lonlat
 from trafficgeo.errors import InputError
-from trafficgeo.io.atomic import atomic_path, write_text_atomic
+from trafficgeo.io.atomic import atomic_path, write_failed, write_text_atomic
 
 __all__ = ["GIS_SUFFIXES", "Layer", "points_layer", "read_gis", "write_gis"]
 
@@ -139,7 +139,8 @@ def _check_finite_xy(geoms: np.ndarray, where: str, hint: str) -> None:
     if np.any(bad):
         first = int(np.argmax(bad))
         x, y = coords[first]
-        raise InputError(f"{where} feature {int(index[first])} has coordinates x={x!r}, y={y!r}; {hint}")
+        raise InputError(f"{where} feature {int(index[first])} has coordinates x={float(x):g}, y={float(y):g}; "
+                         f"{hint}")
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -257,10 +258,13 @@ def _write_gpkg(target: Path, layers: list[Layer], crs: pyproj.CRS) -> None:
             tmp.unlink()  # GDAL creates a fresh GeoPackage; never open an existing (empty) file in update mode
             for layer in layers:
                 _write_gpkg_layer(tmp, layer, crs)
-        except BaseException:
+        except BaseException as exc:
             for sidecar in ("-journal", "-wal", "-shm"):
                 with contextlib.suppress(FileNotFoundError):
                     tmp.with_name(tmp.name + sidecar).unlink()
+            if isinstance(exc, DataSourceError | DataLayerError) and not isinstance(exc, CRSError):
+                # GDAL reports a full or failing disk as e.g. "Failed to commit transaction"
+                raise write_failed(target, str(exc)) from exc
             raise
 
 

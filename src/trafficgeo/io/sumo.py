@@ -333,6 +333,13 @@ def _parse_fcd_expat(p: Path) -> dict[str, object]:
     return {k: [r.get(k) for r in rows] for k in keys | {"time"}}
 
 
+def _plain(value: object) -> str:
+    """A value as a user typed it: numpy scalars as plain numbers (``nan``, not ``np.float64(nan)``)."""
+    if isinstance(value, np.generic):
+        value = value.item()
+    return f"{value:g}" if isinstance(value, float) else repr(value)
+
+
 def _fcd_columns(p: Path) -> dict[str, object]:
     text = p.read_bytes()
     root = _root_element(text[:1 << 20], p, _FCD_HINT)
@@ -542,8 +549,8 @@ def _points_numbers(points: pd.DataFrame) -> dict[str, np.ndarray]:
             bad = ~np.isfinite(values) if c in ("time", "x", "y") else (np.isnan(values) & points[c].notna().to_numpy())
             if bad.any():
                 row = int(np.flatnonzero(bad)[0])
-                raise InputError(f"write_fcd: points row {row}: {c} = {points[c].iloc[row]!r} is not a finite number; "
-                                 "fix or drop that row")
+                raise InputError(f"write_fcd: points row {row}: {c} = {_plain(points[c].iloc[row])} is not a finite "
+                                 "number; fix or drop that row")
             num[c] = values
     return num
 

@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.errors import InputError
+from trafficgeo.io.run_manifest import COMPARE_MANIFEST, MANIFEST, RunIncompleteError, verify_outputs
 from trafficgeo.report import figures as F
 
 CALIBRATION_REPORT_FORMAT = "trafficgeo.calibration-report/1"
@@ -74,6 +75,8 @@ class TrafficRun:
     folder: Path
     summary: dict[str, Any]
     process: dict[str, Any] | None = None
+    compare: bool = False  # compare-sumo results are in the folder and match their manifest
+    compare_problem: str | None = None  # why compare-sumo results in the folder are not used
 
 
 @dataclass(frozen=True)
@@ -160,12 +163,24 @@ def _resolve(text: Any, bases: list[Path]) -> Path | None:
 def _traffic_runs(dirs: list[Path]) -> tuple[TrafficRun, ...]:
     runs = []
     for d in dirs:
-        if (d / "summary.json").is_file() and ((d / "vehicles.csv").is_file() or (d / "trajectories.csv").is_file()):
+        if (d / MANIFEST).is_file() or ((d / "summary.json").is_file() and (
+                (d / "vehicles.csv").is_file() or (d / "trajectories.csv").is_file())):
+            manifest = verify_outputs(d)  # refuses a half-written run or a mix of two runs' files
+            if not manifest.has("summary.json"):
+                continue
             summary = _read_json(d / "summary.json")
             if not isinstance(summary, dict):
                 raise InputError(f"{d / 'summary.json'}: not a summary written by 'trafficgeo analyze'")
-            process = _read_json(d / "process.json") if (d / "process.json").is_file() else None
-            runs.append(TrafficRun(d, summary, process if isinstance(process, dict) else None))
+            process = _read_json(d / "process.json") if manifest.has("process.json") else None
+            compare, problem = False, None
+            if (d / "compare_counts.csv").is_file():
+                try:
+                    compare = verify_outputs(d, ("compare_counts.csv",), name=COMPARE_MANIFEST).has(
+                        "compare_counts.csv")
+                except RunIncompleteError:
+                    problem = ("compare-sumo results incomplete or from an earlier run of this folder; run "
+                               "'trafficgeo compare-sumo' again")
+            runs.append(TrafficRun(d, summary, process if isinstance(process, dict) else None, compare, problem))
     return tuple(runs)
 
 
@@ -960,9 +975,11 @@ def _traffic_section(b: _Build, run: TrafficRun, k: int) -> None:
         parts.append("<h3>Counts and speeds per line and lane</h3>" + _crossing_table(crossings, s))
     if counts is not None and len(counts):
         parts.append(_counts_table(counts))
-    compare = _read_table(run.folder / "compare_counts.csv")
+    compare = _read_table(run.folder / "compare_counts.csv") if run.compare else None
     if compare is not None and len(compare):
         parts.append(_comparison(b, run, compare))
+    elif run.compare_problem is not None:
+        b.skip(f"observed against simulated ({name})", run.compare_problem)
     if run.process is not None:
         parts.append("<h3>Video processing</h3>" + _process_table(run.process))
     b.sections.append((f"traffic-{k}", title, "\n".join(parts)))

@@ -106,12 +106,17 @@ def line_warnings(camera: Camera, surface: Surface, lines: list[CountLine], opti
       angle there, vehicles close behind one another (in one lane or the next) overlap in the image, often in one
       blob, and may go uncounted in dense traffic.
     """
+    from trafficgeo.traffic.plausibility import line_out_of_view_warning
     from trafficgeo.traffic.trajectories import usable_positions
 
     out = []
     for line in lines:
         at = shapely.line_interpolate_point(line.geometry, np.linspace(0.0, 1.0, samples), normalized=True)
         xy = shapely.get_coordinates(at)
+        unseen = line_out_of_view_warning(camera, surface, line.name, xy)
+        if unseen is not None:  # "move it nearer" would mislead: the line is not in view at all
+            out.append(unseen)
+            continue
         status = usable_positions(camera, surface, xy, options)
         bad = status != "ok"
         if bad.mean() > 0.1:  # a line's ends often reach over the shoulders: those do not matter
@@ -139,7 +144,9 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
             options: TrajectoryOptions | None = None, progress=None) -> Analysis:
     """The whole analysis of one set of image tracks (see the module docstring)."""
     from trafficgeo.traffic.lines import interval_edges
+    from trafficgeo.traffic.plausibility import check_camera_above_surface, lanes_warning
 
+    check_camera_above_surface(camera, surface)
     opts = options or TrajectoryOptions()
     period = (float(tracks.time.min()), float(tracks.time.max())) if len(tracks) else (0.0, 0.0)
     interval_edges(*period, interval_s)  # checks the interval before the work
@@ -162,6 +169,9 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
             ["line", "time"], kind="stable").reset_index(drop=True)
     counts = aggregate_counts(crossings, interval_s, *period)
     warnings = line_warnings(camera, surface, lines or [], opts)
+    lane_problem = lanes_warning(camera, surface, lanes, world.points)
+    if lane_problem is not None:
+        warnings.append(lane_problem)
     return Analysis(points=world.points, vehicles=world.vehicles, crossings=crossings, counts=counts,
                     period=period, dropped=world.dropped, lanes=lanes, lines=list(lines or []),
                     options={**asdict(opts), "interval_s": interval_s}, warnings=warnings)
@@ -218,14 +228,17 @@ def summary(analysis: Analysis) -> dict[str, object]:
     }
 
 
-def write_analysis(out_dir: str | Path, analysis: Analysis, camera: Camera) -> list[Path]:
-    """Write the outputs (module docstring) into ``out_dir``; returns the paths written."""
+def write_analysis(out_dir: str | Path, analysis: Analysis, camera: Camera, *, publish: bool = True) -> list[Path]:
+    """Write the outputs (module docstring) into ``out_dir``; returns the paths written.
+
+    The folder's run manifest (:mod:`trafficgeo.io.run_manifest`) is removed first and, with ``publish``, written
+    last; a caller that adds files of its own (``process``) passes ``publish=False`` and publishes them all."""
     from trafficgeo.io.atomic import write_csv_atomic, write_json_atomic
     from trafficgeo.io.gis import write_gis
+    from trafficgeo.io.run_manifest import begin_outputs, publish_outputs
     from trafficgeo.io.tables import write_point_table
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = begin_outputs(out_dir)
     crs = camera_crs(camera)
     written = []
     for name, table in (("vehicles.csv", analysis.vehicles), ("counts.csv", analysis.counts),
@@ -242,4 +255,8 @@ def write_analysis(out_dir: str | Path, analysis: Analysis, camera: Camera) -> l
     doc = {**summary(analysis), "crs": crs.to_wkt() if crs is not None else None}
     write_json_atomic(out / "summary.json", doc)
     written.append(out / "summary.json")
+    for stale in {out / n for n in OUTPUT_FILES} - set(written):  # e.g. no GeoPackage without a CRS
+        stale.unlink(missing_ok=True)
+    if publish:
+        publish_outputs(out, written, command="analyze")
     return written

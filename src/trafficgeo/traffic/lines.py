@@ -163,11 +163,21 @@ def same_vehicle(crossings: pd.DataFrame, *, spacing_m: float = MIN_SPACING_M, l
     return dup
 
 
+MIN_INTERVAL_S = 1.0  # s, the shortest counting interval: shorter ones count fractions of a vehicle
+
+
+def check_interval(interval_s: float) -> float:
+    """``interval_s`` (s) if it is a usable counting interval (finite, at least :data:`MIN_INTERVAL_S`)."""
+    if not (np.isfinite(interval_s) and interval_s >= MIN_INTERVAL_S):
+        raise InputError(f"--interval {float(interval_s):g} s: the counting interval must be a finite number of "
+                         f"seconds, at least {MIN_INTERVAL_S:g}, e.g. 60 or 900")
+    return float(interval_s)
+
+
 def interval_edges(start: float, end: float, interval_s: float) -> np.ndarray:
     """Interval boundaries (s) on multiples of ``interval_s`` covering [start, end); the first and last are
     clipped to the observation period."""
-    if not interval_s > 0:
-        raise InputError(f"--interval {interval_s} must be a positive number of seconds, e.g. 60")
+    check_interval(interval_s)
     if not end > start:
         return np.array([start, start])
     k0 = np.floor(start / interval_s)

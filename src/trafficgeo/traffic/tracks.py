@@ -80,6 +80,9 @@ def _read_mot(path: Path) -> pd.DataFrame:
     return df
 
 
+MIN_FPS, MAX_FPS = 0.1, 1000.0  # frames per second a track file's frame numbers may be timed with
+
+
 def read_tracks(path: str | Path, *, fps: float | None = None) -> ImageTracks:
     """Read tracks from a CSV or a MOT Challenge ``.txt`` (see the module docstring).
 
@@ -88,8 +91,9 @@ def read_tracks(path: str | Path, *, fps: float | None = None) -> ImageTracks:
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: tracks file not found; {CSV_HINT}")
-    if fps is not None and not (np.isfinite(fps) and fps > 0):
-        raise InputError(f"--fps {fps} must be a positive frame rate, e.g. 25")
+    if fps is not None and not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
+        raise InputError(f"--fps {fps:g} is not a video frame rate; give one from {MIN_FPS:g} to {MAX_FPS:g} "
+                         "frames per second, e.g. 25")
     mot = p.suffix.lower() == ".txt"
     if mot:
         df = _read_mot(p)

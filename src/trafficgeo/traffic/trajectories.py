@@ -26,7 +26,7 @@ degrees clockwise from north, accelerations in m/s^2, times in seconds.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import pandas as pd
@@ -42,6 +42,9 @@ MIN_MOVING_SPEED = 1.0  # m/s: below this a smoothed heading is noise
 MIN_SPEED_DURATION_S = 1.0  # a vehicle seen for less than this gets no speeds at all (a glimpse tells too little)
 EDGE_SIGMAS = 2.0  # points within this many pixel sigmas of the end of the surface are not used
 BOX_FIT_TOL_PX = 0.02  # the cuboid fit stops when the box's centre and bottom match to this (px): far below noise
+
+
+MAX_COAST_HIDDEN_S = 30.0  # s, the longest a vehicle hidden behind another is carried on
 
 
 @dataclass(frozen=True)
@@ -63,6 +66,13 @@ class TrajectoryOptions:
     coast_hidden_s: float = 3.0  # s a track that vanishes behind a nearer vehicle is carried on to count lines; 0: off
 
     def __post_init__(self) -> None:
+        numbers = {k: v for k, v in asdict(self).items() if isinstance(v, float | int) and not isinstance(v, bool)}
+        for name, value in numbers.items():
+            if not np.isfinite(value):
+                raise InputError(f"trajectory option {name}={float(value):g} must be a finite number")
+        if self.coast_hidden_s > MAX_COAST_HIDDEN_S:
+            raise InputError(f"trajectory option coast_hidden_s={self.coast_hidden_s:g} (--coast-hidden) is more than "
+                             f"{MAX_COAST_HIDDEN_S:g} s: nobody stays hidden that long; give e.g. 3 (0: off)")
         checks = {"pixel_sigma": self.pixel_sigma > 0, "accel_sigma": self.accel_sigma > 0, "gate": self.gate > 0,
                   "split_outliers": self.split_outliers >= 1, "max_gap_s": self.max_gap_s > 0,
                   "check_gap_s": self.check_gap_s > 0, "rejoin_gap_s": self.rejoin_gap_s > 0,

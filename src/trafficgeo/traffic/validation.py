@@ -22,6 +22,7 @@ import pyproj
 
 from trafficgeo.crs import crs_label
 from trafficgeo.errors import InputError
+from trafficgeo.io.run_manifest import verify_outputs
 from trafficgeo.traffic.compare import (
     compare_counts,
     compare_speeds_by,
@@ -47,6 +48,7 @@ class ObservedRun:
     crossings: pd.DataFrame
     lines: list[CountLine] = field(default_factory=list)
     lanes: Lanes | None = None
+    outputs: frozenset[str] = frozenset()  # the run's output files, checked against its manifest
 
 
 def read_observed_run(folder: str | Path) -> ObservedRun:
@@ -57,6 +59,7 @@ def read_observed_run(folder: str | Path) -> ObservedRun:
     for name in ("summary.json", "counts.csv", "crossings.csv"):
         if not (d / name).is_file():
             raise InputError(f"{d}: no {name}; {RUN_HINT}")
+    manifest = verify_outputs(d, require=("summary.json", "counts.csv", "crossings.csv"))
     try:
         summary = json.loads((d / "summary.json").read_text())
         period = (float(summary["period_s"][0]), float(summary["period_s"][1]))
@@ -71,8 +74,8 @@ def read_observed_run(folder: str | Path) -> ObservedRun:
         for col in ("lane", "class"):
             if col in table.columns:
                 table[col] = table[col].fillna("")
-    lines, lanes = _layout_layers(d / "trajectories.gpkg")
-    return ObservedRun(d, crs, period, interval, counts, crossings, lines, lanes)
+    lines, lanes = _layout_layers(d / "trajectories.gpkg") if manifest.has("trajectories.gpkg") else ([], None)
+    return ObservedRun(d, crs, period, interval, counts, crossings, lines, lanes, frozenset(manifest.files))
 
 
 def _layout_layers(gpkg: Path) -> tuple[list[CountLine], Lanes | None]:
@@ -151,9 +154,9 @@ def compare_with_simulation(observed: ObservedRun, simulated: pd.DataFrame, *,
 def write_comparison(out_dir: str | Path, comparison: Comparison, crs: pyproj.CRS | None) -> list[Path]:
     """``compare_counts.csv``, ``compare_speeds.csv``, ``simulated_crossings.csv`` and ``compare_summary.json``."""
     from trafficgeo.io.atomic import write_csv_atomic, write_json_atomic
+    from trafficgeo.io.run_manifest import COMPARE_MANIFEST, begin_outputs, publish_outputs
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = begin_outputs(out_dir, COMPARE_MANIFEST)
     written = []
     for name, table in (("compare_counts.csv", comparison.counts), ("compare_speeds.csv", comparison.speeds),
                         ("simulated_crossings.csv", comparison.simulated_crossings)):
@@ -162,4 +165,5 @@ def write_comparison(out_dir: str | Path, comparison: Comparison, crs: pyproj.CR
     doc = {"counts": comparison.count_summary, "travel_times": comparison.travel_times, "crs": crs_label(crs)}
     write_json_atomic(out / "compare_summary.json", doc)
     written.append(out / "compare_summary.json")
+    publish_outputs(out, written, command="compare-sumo", name=COMPARE_MANIFEST)
     return written

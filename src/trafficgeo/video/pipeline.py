@@ -10,7 +10,7 @@ a later time chunk) and the tracker is restored exactly. At the end the parts be
 Every output is written atomically.
 
 Time chunks: ``start_s``/``end_s`` process one part of a video into its own folder; :func:`stitch_tracks` joins
-the tracks of chunks that overlap by a few seconds (the same vehicles seen in both are matched by box overlap).
+the tracks of chunks that overlap by a few seconds (:mod:`trafficgeo.video.stitch`).
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.io.atomic import atomic_path, write_csv_atomic, write_json_atomic
-from trafficgeo.video.detect import box_iou
 from trafficgeo.video.track import TrackerOptions, VehicleTracker
 
 CHECKPOINT_DIR = ".checkpoint"
@@ -214,46 +213,3 @@ def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: Pro
                        "every": options.every},
            "seconds": seconds, "detections": detections, "track_rows": track_rows}
     write_json_atomic(Path(out_dir) / "process.json", doc)
-
-
-# ------------------------------------------------------------------------------------------------ chunks
-def stitch_tracks(chunks: list[pd.DataFrame], *, min_iou: float = 0.5) -> pd.DataFrame:
-    """Join the track tables of consecutive, overlapping time chunks of one video into one table.
-
-    Chunk ``k``'s ids become ``c<k>:<id>``. In the time both chunks cover, a track of chunk ``k+1`` whose boxes
-    overlap a track of chunk ``k`` with a mean IoU of at least ``min_iou`` over their common frames is the same
-    vehicle: it takes the earlier id. Each chunk keeps the frames up to the middle of the overlap, so no frame
-    is counted twice.
-    """
-    if not chunks:
-        raise InputError("no chunks to stitch; give the --out folders of 'trafficgeo process --start/--end'")
-    out = []
-    names = {}
-    prev = None
-    for k, table in enumerate(chunks):
-        t = table.copy()
-        t["track_id"] = [f"c{k}:{i}" for i in t["track_id"]]
-        if prev is not None and len(prev) and len(t):
-            lo, hi = t["time"].min(), prev["time"].max()
-            if hi > lo:  # overlap
-                a = prev[prev["time"] >= lo]
-                b = t[t["time"] <= hi]
-                m = a.merge(b, on="frame", suffixes=("_a", "_b"))
-                if len(m):
-                    m["iou"] = box_iou(m[["x1_a", "y1_a", "x2_a", "y2_a"]].to_numpy(),
-                                        m[["x1_b", "y1_b", "x2_b", "y2_b"]].to_numpy())
-                    score = m.groupby(["track_id_b", "track_id_a"])["iou"].mean().reset_index()
-                    score = score[score["iou"] >= min_iou].sort_values("iou", ascending=False)
-                    used_a, used_b = set(), set()
-                    for _, r in score.iterrows():
-                        if r["track_id_a"] not in used_a and r["track_id_b"] not in used_b:
-                            names[r["track_id_b"]] = names.get(r["track_id_a"], r["track_id_a"])
-                            used_a.add(r["track_id_a"])
-                            used_b.add(r["track_id_b"])
-                mid = 0.5 * (lo + hi)
-                out[-1] = out[-1][out[-1]["time"] < mid]
-                t = t[t["time"] >= mid]
-        t["track_id"] = [names.get(i, i) for i in t["track_id"]]
-        out.append(t)
-        prev = table.assign(track_id=[f"c{k}:{i}" for i in table["track_id"]])
-    return pd.concat(out, ignore_index=True).sort_values(["track_id", "time"], kind="stable").reset_index(drop=True)
