@@ -19,6 +19,13 @@ bottom corner). A second pass fits a level cuboid of the class's typical size, h
 to each box (:mod:`trafficgeo.traffic.boxes`) and smooths again; it also estimates each vehicle's length where the
 view allows.
 
+Speeds are along each point's direction of travel, the smoothed velocity's trend over ~+-2 s
+(:func:`trafficgeo.traffic.smoothing.along_track`): a smoothed path still wiggles sideways under position noise,
+and its arc length, or the magnitude of its velocity, includes that wiggle and reads high. A vehicle's ``speed_kmh``
+is its distance travelled along that direction (``travel_m``) over the time seen (``duration_s``);
+``mean_speed_kmh`` is the smoothed path's arc length (``path_length_m``) over that time, which reads high under
+noise, and ``median_speed_kmh`` the median of the point speeds.
+
 Units: positions in the camera CRS's units (columns ``x, y, z``), distances in metres, speeds in km/h, headings in
 degrees clockwise from north, accelerations in m/s^2, times in seconds.
 """
@@ -35,7 +42,7 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface, camera_crs, lonlat_of, pixels_to_world
-from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, smooth_track
+from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, along_track, smooth_track
 from trafficgeo.traffic.tracks import ImageTracks
 
 MIN_MOVING_SPEED = 1.0  # m/s: below this a smoothed heading is noise
@@ -410,10 +417,11 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
         duration = float(sm.time[-1] - sm.time[0])
         glimpse_ok = duration >= MIN_SPEED_DURATION_S
         path = float(step.sum())
+        along, travel = along_track(sm)
         point_tables.append(pd.DataFrame({
             "track_id": name, "source_track": source, "frame": tracks.frame[rows], "time": sm.time,
             "u": tracks.u[rows], "v": tracks.v[rows], "x_obs": measured[rows, 0], "y_obs": measured[rows, 1],
-            "x": x, "y": y, "speed_kmh": 3.6 * sm.speed if glimpse_ok else np.nan,
+            "x": x, "y": y, "speed_kmh": 3.6 * along if glimpse_ok else np.nan,
             "speed_std_kmh": 3.6 * sm.speed_std if glimpse_ok else np.nan,
             "heading_deg": sm.heading_deg, "accel_mps2": sm.accel, "position_std_m": sm.position_std,
             "outlier": sm.outlier, "distance_m": ground.distance_m[rows], "class": vclass,
@@ -421,12 +429,13 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
         vehicle_rows.append({
             "track_id": name, "source_track": source, "class": vclass, "first_time": float(sm.time[0]),
             "last_time": float(sm.time[-1]), "duration_s": duration, "points": int(rows.size),
-            "outliers": int(sm.outlier.sum()), "path_length_m": path,
-            "mean_speed_kmh": 3.6 * path / duration if duration >= MIN_SPEED_DURATION_S else np.nan,
-            "mean_speed_std_kmh": 3.6 * float(np.hypot(sm.position_std[0], sm.position_std[-1])) / duration
-            if duration >= MIN_SPEED_DURATION_S else np.nan,
-            "median_speed_kmh": float(np.median(3.6 * sm.speed)) if duration >= MIN_SPEED_DURATION_S else np.nan,
-            "speed_std_kmh": float(np.sqrt(np.mean(sm.speed_std**2))) * 3.6,
+            "outliers": int(sm.outlier.sum()), "path_length_m": path, "travel_m": travel,
+            "speed_kmh": 3.6 * travel / duration if glimpse_ok else np.nan,
+            "speed_std_kmh": 3.6 * float(np.hypot(sm.position_std[0], sm.position_std[-1])) / duration
+            if glimpse_ok else np.nan,
+            "mean_speed_kmh": 3.6 * path / duration if glimpse_ok else np.nan,
+            "median_speed_kmh": float(np.median(3.6 * along)) if glimpse_ok else np.nan,
+            "point_speed_std_kmh": float(np.sqrt(np.mean(sm.speed_std**2))) * 3.6,
             "min_distance_m": float(np.nanmin(ground.distance_m[rows])),
             "length_m": length, "length_std_m": length_std,
         })
@@ -443,8 +452,8 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
 POINT_COLUMNS = ["track_id", "source_track", "frame", "time", "u", "v", "x_obs", "y_obs", "x", "y", "speed_kmh",
                  "speed_std_kmh", "heading_deg", "accel_mps2", "position_std_m", "outlier", "distance_m", "class"]
 VEHICLE_COLUMNS = ["track_id", "source_track", "class", "first_time", "last_time", "duration_s", "points",
-                   "outliers", "path_length_m", "mean_speed_kmh", "mean_speed_std_kmh", "median_speed_kmh",
-                   "speed_std_kmh", "min_distance_m", "length_m", "length_std_m"]
+                   "outliers", "path_length_m", "travel_m", "speed_kmh", "speed_std_kmh", "mean_speed_kmh",
+                   "median_speed_kmh", "point_speed_std_kmh", "min_distance_m", "length_m", "length_std_m"]
 
 
 def _empty_points() -> pd.DataFrame:
