@@ -334,12 +334,62 @@ def part_synthetic(seed: int, vehicles: int = 30) -> None:
     print(f"largest |bias| of speed_kmh over the rows: {worst:.3f} km/h (target <= 0.1)")
 
 
+def _memory_child(world_dir: Path, copies: int, seed: int) -> None:
+    """In a fresh process: peak RSS of ``analyze`` on the demo world's tracker output repeated ``copies`` times
+    (distinct track ids), above the RSS after loading the inputs and a warm-up run; prints one JSON line."""
+    import json
+    import resource
+
+    camera = read_camera_json(world_dir / "camera_truth.json")
+    surface = load_surface(str(world_dir / "cloud.laz"), camera)
+    truth = pd.read_csv(world_dir / "truth_tracks.csv")
+    lanes = read_lanes(world_dir / "lanes.gpkg", crs=surface.crs)
+    lines = read_count_lines(world_dir / "count_lines.gpkg", crs=surface.crs)
+    noisy = noisy_tracks(truth, camera.image_size, DetectionNoise(), seed=seed)
+    noisy = noisy.assign(time=noisy["frame"] / WORLD.fps)
+    analyze(camera, surface, tracks_from_table(noisy[noisy["frame"] < 60]), lanes=lanes, lines=lines)  # warm-up
+    table = pd.concat([noisy.assign(track_id=noisy["track_id"].astype(str) + f"-{k}") for k in range(copies)],
+                      ignore_index=True)
+    tracks = tracks_from_table(table)
+    del table, noisy, truth
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux: kB
+    t = time.perf_counter()
+    result = analyze(camera, surface, tracks, lanes=lanes, lines=lines, interval_s=60.0)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    print(json.dumps({"points": len(tracks), "tracks": len(set(tracks.track_id)), "base_b": base,
+                      "peak_b": peak, "seconds": time.perf_counter() - t, "kept_points": len(result.points)}))
+
+
+def part_memory(world_dir: Path, seed: int, copies: int = 20) -> None:
+    """Peak memory of ``analyze`` per input track point, measured in a fresh process."""
+    import json
+    import subprocess
+    import sys
+
+    if not (world_dir / "world.json").is_file():
+        print(f"\nmemory part skipped: no world in {world_dir} (run the world part first)")
+        return
+    cmd = [sys.executable, __file__, "--memory-child", str(copies), "--world", str(world_dir), "--seed", str(seed)]
+    out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout.strip().splitlines()[-1]
+    r = json.loads(out)
+    per_point = (r["peak_b"] - r["base_b"]) / r["points"]
+    print(f"\nanalyze memory: {r['points']:,} track points ({r['tracks']} tracks: the demo world's tracker output "
+          f"{copies} times) in {r['seconds']:.0f} s; peak RSS {r['peak_b'] / 1e6:,.0f} MB, "
+          f"{(r['peak_b'] - r['base_b']) / 1e6:,.0f} MB above the loaded inputs: {per_point:,.0f} bytes per track "
+          "point (target <= 1,000)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--world", type=Path, default=ROOT / "out" / "bench-traffic-world")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--parts", default="synthetic,ngsim,world", help="comma-separated: synthetic, ngsim, world")
+    ap.add_argument("--parts", default="synthetic,ngsim,world,memory",
+                    help="comma-separated: synthetic, ngsim, world, memory")
+    ap.add_argument("--memory-child", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.memory_child:
+        _memory_child(args.world, args.memory_child, args.seed)
+        return
     print(f"python {platform.python_version()} on {platform.machine()}, numpy {np.__version__}")
     parts = set(args.parts.split(","))
     if "synthetic" in parts:
@@ -348,6 +398,8 @@ def main() -> None:
         part_ngsim(args.seed)
     if "world" in parts:
         part_world(args.world, args.seed)
+    if "memory" in parts:
+        part_memory(args.world, args.seed)
 
 
 if __name__ == "__main__":

@@ -41,7 +41,7 @@ import pandas as pd
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.errors import InputError
-from trafficgeo.geo.mapping import Surface, camera_crs, lonlat_of, pixels_to_world
+from trafficgeo.geo.mapping import GroundPoints, Surface, camera_crs, lonlat_of, pixels_to_world
 from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, along_track, smooth_track
 from trafficgeo.traffic.tracks import ImageTracks
 
@@ -49,6 +49,8 @@ MIN_MOVING_SPEED = 1.0  # m/s: below this a smoothed heading is noise
 MIN_SPEED_DURATION_S = 1.0  # a vehicle seen for less than this gets no speeds at all (a glimpse tells too little)
 EDGE_SIGMAS = 2.0  # points within this many pixel sigmas of the end of the surface are not used
 BOX_FIT_TOL_PX = 0.02  # the cuboid fit stops when the box's centre and bottom match to this (px): far below noise
+BLOCK_POINTS = 8192  # per-point passes (ground points, covariances, cuboid fits) run over this many points at a time,
+# so their temporaries stay a few MB whatever the number of points
 
 
 @dataclass(frozen=True)
@@ -128,6 +130,21 @@ def near_surface_edge(camera: Camera, surface: Surface, uv: np.ndarray, shift_px
     because their farther noisy neighbours are lost, so they are not used."""
     far = pixels_to_world(camera, uv - [0.0, shift_px], surface, with_lonlat=False, frame_margin_px=1e6)
     return ~far.ok
+
+
+def _blocks(n: int) -> list[slice]:
+    """Slices covering range(n) in pieces of :data:`BLOCK_POINTS`."""
+    return [slice(k, min(k + BLOCK_POINTS, n)) for k in range(0, n, BLOCK_POINTS)]
+
+
+def ground_points(camera: Camera, surface: Surface, uv: np.ndarray, **kwargs) -> GroundPoints:
+    """:func:`pixels_to_world` (without lon/lat) over pixels (N, 2) block by block (:data:`BLOCK_POINTS`)."""
+    parts = [pixels_to_world(camera, uv[sl], surface, with_lonlat=False, **kwargs) for sl in _blocks(uv.shape[0])]
+    if not parts:
+        return pixels_to_world(camera, uv, surface, with_lonlat=False, **kwargs)
+    return GroundPoints(xyz=np.concatenate([g.xyz for g in parts]), status=np.concatenate([g.status for g in parts]),
+                        distance_m=np.concatenate([g.distance_m for g in parts]),
+                        incidence_deg=np.concatenate([g.incidence_deg for g in parts]), lon=None, lat=None)
 
 
 # ------------------------------------------------------------------------------------------------ splitting
@@ -285,12 +302,14 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     crs = camera_crs(camera)
     m = metres_per_unit(crs) if crs is not None else 1.0
     uv = np.column_stack([tracks.u, tracks.v])
-    ground = pixels_to_world(camera, uv, surface, with_lonlat=False)
+    ground = ground_points(camera, surface, uv)
     status = ground.status.copy()
     status[ground.ok & clipped_boxes(camera, tracks.box, opts.frame_margin_px)] = "box_clipped"
     ok = status == "ok"
     cov = np.full((len(tracks), 2, 2), np.nan)
-    cov[ok] = ground_covariance(camera, surface, uv[ok], ground.xyz[ok], opts.pixel_sigma, m)
+    use = np.flatnonzero(ok)
+    for sl in _blocks(use.size):
+        cov[use[sl]] = ground_covariance(camera, surface, uv[use[sl]], ground.xyz[use[sl]], opts.pixel_sigma, m)
     origin = camera.position[:2]
     slices = _track_slices(tracks.track_id)
     n_steps = 2 * len(slices)
@@ -314,7 +333,9 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     # noisy points would keep those whose noise pulls them towards the camera and bias the rest.
     have = ok & np.isfinite(smoothed[:, 0])
     status[ok & ~have] = "short_track"
-    status[have] = usable_positions(camera, surface, smoothed[have], opts)
+    have_idx = np.flatnonzero(have)
+    for sl in _blocks(have_idx.size):
+        status[have_idx[sl]] = usable_positions(camera, surface, smoothed[have_idx[sl]], opts)
     ok = status == "ok"
     # Pass 2: the measurements (cuboid-fitted footprint centres with boxes), smoothed again on the same parts.
     measured = ground.xyz[:, :2].copy()  # the ground point each smoothed position was fitted to (CRS units)
@@ -379,8 +400,9 @@ def _fit_boxes(camera: Camera, surface: Surface, tracks: ImageTracks, heading: n
 
     dims = dimensions_for(tracks.vclass)
     good = np.zeros(len(tracks), dtype=bool)
-    use = np.flatnonzero(ok & np.all(np.isfinite(tracks.box), axis=1))
-    if use.size:
+    usable = np.flatnonzero(ok & np.all(np.isfinite(tracks.box), axis=1))
+    for sl in _blocks(usable.size):
+        use = usable[sl]
         fit = box_ground_points(camera, surface, tracks.box[use], heading[use], dims[use], iterations=15,
                                 tol_px=BOX_FIT_TOL_PX)
         good[use] = fit.status == "ok"
