@@ -1,13 +1,19 @@
 """Benchmark: speeds, lanes and counts from image tracks, against the truth and a naive baseline, in one run.
 
+Part 0, synthetic tracks: vehicles at known constant speeds (60-120 km/h) on a straight road and on a curve of
+radius 250 m, with 0.1-0.5 m position noise sideways and along the road (white; correlated over 0.3 s; or a 1 Hz
+sideways sway the smoother keeps), seen by a camera looking straight down (:mod:`trafficgeo.synth.noisy_paths`):
+bias and mean absolute error of the vehicle speed ``speed_kmh`` (distance along the direction of travel / time)
+and of the former headline, the smoothed path's arc length / time (``mean_speed_kmh``).
+
 Part 1, the demo world (SUMO traffic seen by the world's true camera, 60 s, 1080p, counting lines at stations
 -20, 20 and 60 m). Truth boxes become tracker output with realistic faults (:mod:`trafficgeo.synth.detections`:
 occlusion, 10 % missed detections, box jitter 1.5 px + 2 % of the box size, 10 % fragmented tracks, ID swaps of
 overlapping vehicles), then ``analyze`` (surface: a DEM from the world's lidar). Scored against the truth:
 
-* speed: each output vehicle's mean speed over its observed path vs the true vehicle's over the same time span
-  (all vehicles seen for at least 1 s - shorter glimpses get no speed, in both methods; and those whose own speed
-  uncertainty ``mean_speed_std_kmh`` is below 2 km/h); spot speeds at the counting lines vs the true speeds there;
+* speed: each output vehicle's ``speed_kmh`` (and the arc length / time) vs the true vehicle's path length over
+  the same time span (all vehicles seen for at least 1 s - shorter glimpses get no speed, in both methods; and
+  those whose own speed uncertainty ``speed_std_kmh`` is below 2 km/h); spot speeds at the lines vs the truth there;
 * lanes: the lane of every track point (and each vehicle's main lane) vs the true lane under its footprint centre;
 * counts: per line and lane, 1 - sum |counted - true| / sum true.
 
@@ -19,9 +25,14 @@ Part 2, real trajectories: NGSIM Peachtree Street (Atlanta, 10 Hz, EPSG:2240 US 
 with signals). Synthetic cameras every 140 m along the street, each 10 m up at its side and seeing it from ~11 to
 ~150 m, project the positions with 1 px noise; trafficgeo maps them back to a plane in feet and smooths them.
 Speeds against NGSIM's own ``v_Vel`` (ft/s), per track point and per vehicle and camera, against the naive
-baseline (raw displacement over 1 s; first-to-last displacement per vehicle).
+baseline (raw displacement over 1 s; first-to-last displacement per vehicle). Per vehicle part also against the
+part's NGSIM positions' own path length over its time (the two truths disagree on short parts).
 
-Run ``python benchmarks/bench_traffic.py [--world DIR] [--seed N]`` (the world is built into DIR once, ~90 s).
+Memory: ``analyze`` on the demo world's tracker output repeated 20 times, in a fresh process: peak RSS above the
+loaded inputs per track point.
+
+Run ``python benchmarks/bench_traffic.py [--world DIR] [--seed N] [--parts synthetic,ngsim,world,memory]`` (the
+world is built into DIR once, ~90 s).
 """
 
 from __future__ import annotations
