@@ -8,6 +8,9 @@ Measurements whose innovation exceeds the ``gate`` (chi-square, 2 dof) are rejec
 an ID switch) and the filter coasts through them; gaps in time are handled by the model. The Rauch-Tung-Striebel
 backward pass then uses every point for every estimate.
 
+:func:`along_track` gives speeds and the distance travelled along the direction of travel, which, unlike the
+smoothed path's arc length or the magnitude of its velocity, a sideways wiggle of the path does not lengthen.
+
 Conventions: heading in degrees clockwise from north (x east, y north); speed in m/s with its 1-sigma uncertainty;
 acceleration along the track in m/s^2.
 """
