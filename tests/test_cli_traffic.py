@@ -64,7 +64,7 @@ def test_analyze_writes_vehicles_counts_and_trajectories(scene: dict[str, Path],
     assert "3 vehicles" in stdout and "north40" in stdout
     veh = pd.read_csv(out / "vehicles.csv", dtype={"track_id": str, "lane": str}).set_index("track_id")
     for tid, _x, _y0, speed, cls, _dims in VEHICLES:
-        assert veh.loc[tid, "mean_speed_kmh"] == pytest.approx(3.6 * speed, abs=1.0), tid
+        assert veh.loc[tid, "speed_kmh"] == pytest.approx(3.6 * speed, abs=1.0), tid
         assert veh.loc[tid, "class"] == cls
     assert veh.loc["1", "lane"] == "inner" and veh.loc["2", "lane"] == "outer" and veh.loc["3", "lane"] == "inner"
     assert (veh["lane_changes"] == 0).all()

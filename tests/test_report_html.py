@@ -132,8 +132,8 @@ def _synthetic_run(folder: Path, crs: str, unit_m: float) -> dict[str, pd.DataFr
         tid = f"v{k}"
         pts.append(pd.DataFrame({"track_id": tid, "time": t, "x": x0 + x_m / unit_m, "y": y0 + y_m / unit_m,
                                  "speed_kmh": abs(speed) * 3.6, "lane": lane, "class": "car"}))
-        veh.append({"track_id": tid, "class": "car", "lane": lane, "mean_speed_kmh": abs(speed) * 3.6,
-                    "mean_speed_std_kmh": 0.5, "lane_changes": 0, "duration_s": 8.0, "path_length_m": abs(speed) * 8})
+        veh.append({"track_id": tid, "class": "car", "lane": lane, "speed_kmh": abs(speed) * 3.6,
+                    "speed_std_kmh": 0.5, "lane_changes": 0, "duration_s": 8.0, "path_length_m": abs(speed) * 8})
         tc = start + (50.0 - (0.0 if speed > 0 else 100.0)) / speed
         cross.append({"line": "L", "track_id": tid, "class": "car", "lane": lane, "direction": 1 if speed > 0 else -1,
                       "time": tc, "speed_kmh": abs(speed) * 3.6, "x": x0, "y": y0 + 50 / unit_m})
@@ -151,7 +151,7 @@ def _synthetic_run(folder: Path, crs: str, unit_m: float) -> dict[str, pd.DataFr
         table.to_csv(folder / name, index=False)
     (folder / "summary.json").write_text(json.dumps({
         "period_s": [0.0, 18.0], "vehicles": 5, "points": len(points), "dropped_points": {"too_far": 3},
-        "outlier_points": 0, "mean_speed_kmh": float(vehicles["mean_speed_kmh"].mean()), "classes": {"car": 5},
+        "outlier_points": 0, "mean_speed_kmh": float(vehicles["speed_kmh"].mean()), "classes": {"car": 5},
         "lane_changes": 0, "crossings": [], "options": {"interval_s": 5.0}, "warnings": ["a <b>warning</b>"],
         "crs": pyproj.CRS.from_user_input(crs).to_wkt()}))
     publish_outputs(folder, [p.name for p in folder.iterdir() if p.is_file()], command="analyze")

@@ -43,8 +43,8 @@ def test_speed_and_path_of_noisy_straight_tracks() -> None:
     tracks = _tracks_from_world(cam, tid, t, xyz, noise_px=1.0, seed=3)
     world = world_trajectories(cam, ConstantSurface(Z0), tracks, TrajectoryOptions(pixel_sigma=1.0))
     veh = world.vehicles.set_index("track_id")
-    assert veh.loc["a", "mean_speed_kmh"] == pytest.approx(50.0, abs=1.0)
-    assert veh.loc["b", "mean_speed_kmh"] == pytest.approx(80.0, abs=1.5)
+    assert veh.loc["a", "speed_kmh"] == pytest.approx(50.0, abs=1.0)
+    assert veh.loc["b", "speed_kmh"] == pytest.approx(80.0, abs=1.5)
     assert veh.loc["a", "path_length_m"] == pytest.approx(50 / 3.6 * (4.0 - 0.04), abs=1.0)
     pts = world.points
     a = pts[pts["track_id"] == "a"]
@@ -71,7 +71,7 @@ def test_id_switch_splits_the_track_and_single_outliers_do_not() -> None:
     assert names == ["a.1", "a.2"]
     veh = world.vehicles.set_index("track_id")
     assert veh.loc["a.1", "last_time"] < 2.0 <= veh.loc["a.2", "first_time"] + 0.3
-    assert veh.loc["a.1", "mean_speed_kmh"] == pytest.approx(43.2, abs=1.5)
+    assert veh.loc["a.1", "speed_kmh"] == pytest.approx(43.2, abs=1.5)
     first = world.points[world.points["track_id"] == "a.1"]
     assert bool(first["outlier"].to_numpy()[20])
 
@@ -88,7 +88,7 @@ def test_a_gap_is_bridged_only_by_consistent_motion() -> None:
     cut = world_trajectories(cam, ConstantSurface(Z0), _tracks_from_world(cam, tid[keep], t[keep], switched[keep],
                                                                           noise_px=0.5, seed=2))
     assert cut.vehicles["last_time"].max() < 1.2  # nothing of the other vehicle
-    assert cut.vehicles["mean_speed_kmh"].iloc[0] == pytest.approx(14.0 * 3.6, abs=1.5)
+    assert cut.vehicles["speed_kmh"].iloc[0] == pytest.approx(14.0 * 3.6, abs=1.5)
     same = world_trajectories(cam, ConstantSurface(Z0), _tracks_from_world(cam, tid[keep], t[keep], xyz[keep],
                                                                            noise_px=0.5, seed=2))
     assert list(same.vehicles["track_id"]) == ["a"] and same.vehicles["last_time"].iloc[0] > 2.1
@@ -110,7 +110,7 @@ def test_a_bad_stretch_is_cut_out_and_the_vehicle_joined_again() -> None:
     veh = world.vehicles.set_index("track_id")
     main = veh[veh["path_length_m"] == veh["path_length_m"].max()].iloc[0]
     assert main["first_time"] < 0.1 and main["last_time"] > 3.9
-    assert main["mean_speed_kmh"] == pytest.approx(14.0 * 3.6, abs=1.0)
+    assert main["speed_kmh"] == pytest.approx(14.0 * 3.6, abs=1.0)
     pts = world.points[world.points["track_id"] == main.name]
     assert not np.any((pts["time"] >= 1.8) & (pts["time"] < 2.2) & ~pts["outlier"])
     apart = world_trajectories(cam, ConstantSurface(Z0), tracks, TrajectoryOptions(rejoin_gap_s=1e-6))
@@ -146,7 +146,7 @@ def test_feet_crs_gives_the_same_metric_answer() -> None:
     np.testing.assert_allclose(w_ft.points["speed_kmh"], w_m.points["speed_kmh"], rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(w_ft.points["x"] * ft, w_m.points["x"], atol=1e-6)
     np.testing.assert_allclose(w_ft.points["distance_m"], w_m.points["distance_m"], rtol=1e-9)
-    assert w_ft.vehicles["mean_speed_kmh"].iloc[0] == pytest.approx(60.0, abs=1.0)
+    assert w_ft.vehicles["speed_kmh"].iloc[0] == pytest.approx(60.0, abs=1.0)
 
 
 def test_ground_covariance_grows_with_range_and_along_the_ray() -> None:

@@ -415,7 +415,7 @@ def trajectories_map(points: pd.DataFrame, axes: MapAxes, *, background: Backgro
     return fig
 
 
-def speed_histograms(vehicles: pd.DataFrame, *, column: str = "mean_speed_kmh", group: str = "lane") -> Any:
+def speed_histograms(vehicles: pd.DataFrame, *, column: str = "speed_kmh", group: str = "lane") -> Any:
     """One histogram per lane of the vehicles' speeds (km/h, ``column``), on a common scale; vehicles without a
     lane are grouped as "no lane". Bars have gid ``"speed-<lane>"``."""
     from matplotlib.ticker import MaxNLocator

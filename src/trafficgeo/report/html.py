@@ -958,10 +958,10 @@ def _traffic_section(b: _Build, run: TrafficRun, k: int) -> None:
                "or empty)")
     if not lanes:
         b.skip(f"lanes ({name})", "the run has no lanes: pass --lanes to analyze/process for per-lane results")
-    if vehicles is not None and len(vehicles) and "mean_speed_kmh" in vehicles.columns:
-        parts.append(_figure(F.speed_histograms(vehicles),
-                             "Distribution of the vehicles' mean speeds over their observed paths (km/h) per main "
-                             "lane; dashed: median.", b.dpi))
+    if vehicles is not None and len(vehicles) and _speed_columns(vehicles)[0] in vehicles.columns:
+        parts.append(_figure(F.speed_histograms(vehicles, column=_speed_columns(vehicles)[0]),
+                             "Distribution of the vehicles' speeds (distance travelled along the direction of travel "
+                             "over the time seen, km/h) per main lane; dashed: median.", b.dpi))
         parts.append("<h3>Vehicles</h3>" + _vehicle_tables(vehicles))
     else:
         b.skip(f"speed histograms and vehicle tables ({name})", "no vehicles (vehicles.csv missing or empty)")
@@ -1032,7 +1032,8 @@ def _run_summary(run: TrafficRun, s: dict[str, Any]) -> str:
             ["vehicles", s.get("vehicles"), ""], ["classes", classes, ""],
             ["track points / rejected as outliers", f"{s.get('points')} / {s.get('outlier_points')}", ""],
             ["points not used, by reason", dropped, ""],
-            ["mean speed over the observed paths", (s.get("mean_speed_kmh"), 1), "km/h"],
+            ["mean of the vehicles' speeds (distance travelled / time seen)", (s.get("mean_speed_kmh"), 1),
+             "km/h"],
             ["lane changes", s.get("lane_changes"), ""]]
     for key, label, unit in (("interval_s", "counting interval", "s"), ("pixel_sigma", "pixel noise of a track point",
                                                                          "px"),
@@ -1049,27 +1050,36 @@ def _q(a: np.ndarray, q: float) -> float:
     return float(np.percentile(a, q)) if a.size else float("nan")
 
 
+def _speed_columns(v: pd.DataFrame) -> tuple[str, str]:
+    """The vehicles' speed column and its 1-sigma: ``speed_kmh``, or ``mean_speed_kmh`` in runs written before
+    ``speed_kmh`` existed."""
+    return ("speed_kmh", "speed_std_kmh") if "speed_kmh" in v.columns else ("mean_speed_kmh", "mean_speed_std_kmh")
+
+
 def _vehicle_tables(v: pd.DataFrame) -> str:
     def col(g: pd.DataFrame, c: str) -> np.ndarray:
         return g[c].to_numpy(float) if c in g.columns else np.full(len(g), np.nan)
 
+    speed, speed_std = _speed_columns(v)
+
     rows = []
     for cls, g in v.groupby(v["class"].replace("", "unknown") if "class" in v.columns else pd.Series(
             ["all"] * len(v), index=v.index), sort=True):
-        sp = col(g, "mean_speed_kmh")
+        sp = col(g, speed)
         rows.append([cls, len(g), (_q(sp, 50), 1), (float(np.nanmean(sp)) if np.isfinite(sp).any() else np.nan, 1),
-                     (_q(sp, 15), 1), (_q(sp, 85), 1), (_q(col(g, "mean_speed_std_kmh"), 50), 2),
+                     (_q(sp, 15), 1), (_q(sp, 85), 1), (_q(col(g, speed_std), 50), 2),
                      (_q(col(g, "length_m"), 50), 2), (_q(col(g, "length_std_m"), 50), 2),
                      (_q(col(g, "duration_s"), 50), 1), (_q(col(g, "path_length_m"), 50), 1)])
     out = _table(["class", "vehicles", "median speed km/h", "mean speed km/h", "15th pct km/h", "85th pct km/h",
                   "median speed 1-sigma km/h", "median length m", "median length 1-sigma m", "median time seen s",
-                  "median path m"], rows, caption="per class: speeds are each vehicle's mean over its observed path")
+                  "median path m"], rows, caption="per class: each vehicle's speed is its distance travelled over the "
+                  "time seen")
     if "lane" in v.columns:
         rows = []
         for lane, g in v.groupby(v["lane"].replace("", "(none)"), sort=True):
-            sp = col(g, "mean_speed_kmh")
+            sp = col(g, speed)
             rows.append([lane, len(g), (_q(sp, 50), 1), (_q(sp, 15), 1), (_q(sp, 85), 1),
-                         (_q(col(g, "mean_speed_std_kmh"), 50), 2),
+                         (_q(col(g, speed_std), 50), 2),
                          int(g["lane_changes"].sum()) if "lane_changes" in g.columns else "-"])
         out += _table(["main lane", "vehicles", "median speed km/h", "15th pct km/h", "85th pct km/h",
                        "median speed 1-sigma km/h", "lane changes"], rows, caption="per main lane")

@@ -22,7 +22,8 @@ def print_analysis(analysis: Analysis, console: Console) -> None:
     classes = ", ".join(f"{k or 'unknown'} {v}" for k, v in s["classes"].items())
     console.print(f"{s['vehicles']} vehicles ({classes}) in {t1 - t0:.1f} s; {s['points']} track points, "
                   f"{s['outlier_points']} rejected as outliers; not used: {dropped}")
-    console.print(f"mean speed over the observed paths: {speed}; lane changes: {s['lane_changes']}")
+    console.print(f"mean vehicle speed (distance travelled / time seen): {speed}; lane changes: "
+                  f"{s['lane_changes']}")
     for text in analysis.warnings:
         console.print(f"[yellow]warning:[/yellow] {text}")
     if s["crossings"]:

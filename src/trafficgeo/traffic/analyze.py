@@ -2,8 +2,9 @@
 
 Outputs of :func:`write_analysis` (all written atomically):
 
-* ``vehicles.csv`` - one row per vehicle (track): class, lane(s), lane changes, first/last time, path length, mean
-  speed over the observed path (km/h), length where estimated;
+* ``vehicles.csv`` - one row per vehicle (track): class, lane(s), lane changes, first/last time, distance travelled
+  and speed (km/h) over the time seen, path length, length where estimated (speeds as in
+  :mod:`trafficgeo.traffic.trajectories`);
 * ``counts.csv`` - per counting line, lane, direction and interval: counts (also per class), flow (veh/h),
   time-mean and space-mean speed, headways and gaps (:func:`trafficgeo.traffic.lines.aggregate_counts`);
 * ``crossings.csv`` - every vehicle at every line: time, direction, lane, speed; ``hidden`` is true for a vehicle
@@ -217,7 +218,7 @@ def summary(analysis: Analysis) -> dict[str, object]:
         "points": len(analysis.points),
         "dropped_points": analysis.dropped,
         "outlier_points": int(analysis.points["outlier"].sum()) if len(analysis.points) else 0,
-        "mean_speed_kmh": float(veh["mean_speed_kmh"].mean()) if veh["mean_speed_kmh"].notna().any() else None,
+        "mean_speed_kmh": float(veh["speed_kmh"].mean()) if veh["speed_kmh"].notna().any() else None,
         "classes": {str(k): int(v) for k, v in veh["class"].value_counts().items()} if len(veh) else {},
         "lane_changes": int(veh["lane_changes"].sum()) if len(veh) else 0,
         "crossings": [{"line": str(k[0]), "lane": str(k[1]), "direction": int(k[2]), "count": int(v)}

@@ -4,7 +4,8 @@ A counting line is a polyline in the camera's CRS. A vehicle is counted once per
 
 * ``direction`` ``+1`` when it crosses from the left to the right of the line, looking from the line's first vertex
   to its last, and ``-1`` the other way;
-* the crossing time interpolated between the two trajectory points around it, and the speed there;
+* the crossing time interpolated between the two trajectory points around it, and the speed there (the points'
+  ``speed_kmh``: along the direction of travel, :mod:`trafficgeo.traffic.trajectories`);
 * its lane at the crossing point.
 
 A line may be limited to some lanes with a ``lanes`` attribute (comma-separated lane names).
@@ -192,10 +193,11 @@ def aggregate_counts(crossings: pd.DataFrame, interval_s: float, start: float, e
 
     Columns: ``line, lane, direction, interval_start, interval_end, count, count_<class>...,
     flow_veh_h`` (count over the interval's observed duration), ``time_mean_speed_kmh`` (arithmetic mean of the
-    spot speeds), ``space_mean_speed_kmh`` (their harmonic mean), ``mean_headway_s``, ``min_headway_s`` (time
-    since the previous vehicle over the same line, in the same lane and direction) and ``mean_gap_s`` (headway less
-    the time the previous vehicle took to pass its own length; needs ``length_m``). Intervals without vehicles
-    are listed with a count of 0 for every line, lane and direction seen.
+    spot speeds, which are along each vehicle's direction of travel), ``space_mean_speed_kmh`` (their harmonic
+    mean), ``mean_headway_s``, ``min_headway_s`` (time since the previous vehicle over the same line, in the same
+    lane and direction) and ``mean_gap_s`` (headway less the time the previous vehicle took to pass its own
+    length; needs ``length_m``). Intervals without vehicles are listed with a count of 0 for every line, lane and
+    direction seen.
     """
     edges = interval_edges(start, end, interval_s)
     classes = sorted(c for c in crossings["class"].astype(str).unique() if c) if len(crossings) else []

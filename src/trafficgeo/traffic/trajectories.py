@@ -19,6 +19,13 @@ bottom corner). A second pass fits a level cuboid of the class's typical size, h
 to each box (:mod:`trafficgeo.traffic.boxes`) and smooths again; it also estimates each vehicle's length where the
 view allows.
 
+Speeds are along each point's direction of travel, the smoothed velocity's trend over ~+-2 s
+(:func:`trafficgeo.traffic.smoothing.along_track`): a smoothed path still wiggles sideways under position noise,
+and its arc length, or the magnitude of its velocity, includes that wiggle and reads high. A vehicle's ``speed_kmh``
+is its distance travelled along that direction (``travel_m``) over the time seen (``duration_s``);
+``mean_speed_kmh`` is the smoothed path's arc length (``path_length_m``) over that time, which reads high under
+noise, and ``median_speed_kmh`` the median of the point speeds.
+
 Units: positions in the camera CRS's units (columns ``x, y, z``), distances in metres, speeds in km/h, headings in
 degrees clockwise from north, accelerations in m/s^2, times in seconds.
 """
@@ -34,14 +41,16 @@ import pandas as pd
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.errors import InputError
-from trafficgeo.geo.mapping import Surface, camera_crs, lonlat_of, pixels_to_world
-from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, smooth_track
+from trafficgeo.geo.mapping import GroundPoints, Surface, camera_crs, lonlat_of, pixels_to_world
+from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, along_track, smooth_track
 from trafficgeo.traffic.tracks import ImageTracks
 
 MIN_MOVING_SPEED = 1.0  # m/s: below this a smoothed heading is noise
 MIN_SPEED_DURATION_S = 1.0  # a vehicle seen for less than this gets no speeds at all (a glimpse tells too little)
 EDGE_SIGMAS = 2.0  # points within this many pixel sigmas of the end of the surface are not used
 BOX_FIT_TOL_PX = 0.02  # the cuboid fit stops when the box's centre and bottom match to this (px): far below noise
+BLOCK_POINTS = 8192  # per-point passes (ground points, covariances, cuboid fits) run over this many points at a time,
+# so their temporaries stay a few MB whatever the number of points
 
 
 MAX_COAST_HIDDEN_S = 30.0  # s, the longest a vehicle hidden behind another is carried on
@@ -131,6 +140,21 @@ def near_surface_edge(camera: Camera, surface: Surface, uv: np.ndarray, shift_px
     because their farther noisy neighbours are lost, so they are not used."""
     far = pixels_to_world(camera, uv - [0.0, shift_px], surface, with_lonlat=False, frame_margin_px=1e6)
     return ~far.ok
+
+
+def _blocks(n: int) -> list[slice]:
+    """Slices covering range(n) in pieces of :data:`BLOCK_POINTS`."""
+    return [slice(k, min(k + BLOCK_POINTS, n)) for k in range(0, n, BLOCK_POINTS)]
+
+
+def ground_points(camera: Camera, surface: Surface, uv: np.ndarray, **kwargs) -> GroundPoints:
+    """:func:`pixels_to_world` (without lon/lat) over pixels (N, 2) block by block (:data:`BLOCK_POINTS`)."""
+    parts = [pixels_to_world(camera, uv[sl], surface, with_lonlat=False, **kwargs) for sl in _blocks(uv.shape[0])]
+    if not parts:
+        return pixels_to_world(camera, uv, surface, with_lonlat=False, **kwargs)
+    return GroundPoints(xyz=np.concatenate([g.xyz for g in parts]), status=np.concatenate([g.status for g in parts]),
+                        distance_m=np.concatenate([g.distance_m for g in parts]),
+                        incidence_deg=np.concatenate([g.incidence_deg for g in parts]), lon=None, lat=None)
 
 
 # ------------------------------------------------------------------------------------------------ splitting
@@ -288,12 +312,14 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     crs = camera_crs(camera)
     m = metres_per_unit(crs) if crs is not None else 1.0
     uv = np.column_stack([tracks.u, tracks.v])
-    ground = pixels_to_world(camera, uv, surface, with_lonlat=False)
+    ground = ground_points(camera, surface, uv)
     status = ground.status.copy()
     status[ground.ok & clipped_boxes(camera, tracks.box, opts.frame_margin_px)] = "box_clipped"
     ok = status == "ok"
     cov = np.full((len(tracks), 2, 2), np.nan)
-    cov[ok] = ground_covariance(camera, surface, uv[ok], ground.xyz[ok], opts.pixel_sigma, m)
+    use = np.flatnonzero(ok)
+    for sl in _blocks(use.size):
+        cov[use[sl]] = ground_covariance(camera, surface, uv[use[sl]], ground.xyz[use[sl]], opts.pixel_sigma, m)
     origin = camera.position[:2]
     slices = _track_slices(tracks.track_id)
     n_steps = 2 * len(slices)
@@ -317,7 +343,9 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     # noisy points would keep those whose noise pulls them towards the camera and bias the rest.
     have = ok & np.isfinite(smoothed[:, 0])
     status[ok & ~have] = "short_track"
-    status[have] = usable_positions(camera, surface, smoothed[have], opts)
+    have_idx = np.flatnonzero(have)
+    for sl in _blocks(have_idx.size):
+        status[have_idx[sl]] = usable_positions(camera, surface, smoothed[have_idx[sl]], opts)
     ok = status == "ok"
     # Pass 2: the measurements (cuboid-fitted footprint centres with boxes), smoothed again on the same parts.
     measured = ground.xyz[:, :2].copy()  # the ground point each smoothed position was fitted to (CRS units)
@@ -382,8 +410,9 @@ def _fit_boxes(camera: Camera, surface: Surface, tracks: ImageTracks, heading: n
 
     dims = dimensions_for(tracks.vclass)
     good = np.zeros(len(tracks), dtype=bool)
-    use = np.flatnonzero(ok & np.all(np.isfinite(tracks.box), axis=1))
-    if use.size:
+    usable = np.flatnonzero(ok & np.all(np.isfinite(tracks.box), axis=1))
+    for sl in _blocks(usable.size):
+        use = usable[sl]
         fit = box_ground_points(camera, surface, tracks.box[use], heading[use], dims[use], iterations=15,
                                 tol_px=BOX_FIT_TOL_PX)
         good[use] = fit.status == "ok"
@@ -420,10 +449,11 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
         duration = float(sm.time[-1] - sm.time[0])
         glimpse_ok = duration >= MIN_SPEED_DURATION_S
         path = float(step.sum())
+        along, travel = along_track(sm)
         point_tables.append(pd.DataFrame({
             "track_id": name, "source_track": source, "frame": tracks.frame[rows], "time": sm.time,
             "u": tracks.u[rows], "v": tracks.v[rows], "x_obs": measured[rows, 0], "y_obs": measured[rows, 1],
-            "x": x, "y": y, "speed_kmh": 3.6 * sm.speed if glimpse_ok else np.nan,
+            "x": x, "y": y, "speed_kmh": 3.6 * along if glimpse_ok else np.nan,
             "speed_std_kmh": 3.6 * sm.speed_std if glimpse_ok else np.nan,
             "heading_deg": sm.heading_deg, "accel_mps2": sm.accel, "position_std_m": sm.position_std,
             "outlier": sm.outlier, "distance_m": ground.distance_m[rows], "class": vclass,
@@ -431,12 +461,13 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
         vehicle_rows.append({
             "track_id": name, "source_track": source, "class": vclass, "first_time": float(sm.time[0]),
             "last_time": float(sm.time[-1]), "duration_s": duration, "points": int(rows.size),
-            "outliers": int(sm.outlier.sum()), "path_length_m": path,
-            "mean_speed_kmh": 3.6 * path / duration if duration >= MIN_SPEED_DURATION_S else np.nan,
-            "mean_speed_std_kmh": 3.6 * float(np.hypot(sm.position_std[0], sm.position_std[-1])) / duration
-            if duration >= MIN_SPEED_DURATION_S else np.nan,
-            "median_speed_kmh": float(np.median(3.6 * sm.speed)) if duration >= MIN_SPEED_DURATION_S else np.nan,
-            "speed_std_kmh": float(np.sqrt(np.mean(sm.speed_std**2))) * 3.6,
+            "outliers": int(sm.outlier.sum()), "path_length_m": path, "travel_m": travel,
+            "speed_kmh": 3.6 * travel / duration if glimpse_ok else np.nan,
+            "speed_std_kmh": 3.6 * float(np.hypot(sm.position_std[0], sm.position_std[-1])) / duration
+            if glimpse_ok else np.nan,
+            "mean_speed_kmh": 3.6 * path / duration if glimpse_ok else np.nan,
+            "median_speed_kmh": float(np.median(3.6 * along)) if glimpse_ok else np.nan,
+            "point_speed_std_kmh": float(np.sqrt(np.mean(sm.speed_std**2))) * 3.6,
             "min_distance_m": float(np.nanmin(ground.distance_m[rows])),
             "length_m": length, "length_std_m": length_std,
         })
@@ -453,8 +484,8 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
 POINT_COLUMNS = ["track_id", "source_track", "frame", "time", "u", "v", "x_obs", "y_obs", "x", "y", "speed_kmh",
                  "speed_std_kmh", "heading_deg", "accel_mps2", "position_std_m", "outlier", "distance_m", "class"]
 VEHICLE_COLUMNS = ["track_id", "source_track", "class", "first_time", "last_time", "duration_s", "points",
-                   "outliers", "path_length_m", "mean_speed_kmh", "mean_speed_std_kmh", "median_speed_kmh",
-                   "speed_std_kmh", "min_distance_m", "length_m", "length_std_m"]
+                   "outliers", "path_length_m", "travel_m", "speed_kmh", "speed_std_kmh", "mean_speed_kmh",
+                   "median_speed_kmh", "point_speed_std_kmh", "min_distance_m", "length_m", "length_std_m"]
 
 
 def _empty_points() -> pd.DataFrame:
