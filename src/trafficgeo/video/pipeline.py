@@ -63,7 +63,7 @@ __all__ = ["CHECKPOINT_DIR", "PRIME_S", "ProcessOptions", "detect_and_track", "f
 
 DETECTION_COLUMNS = ["frame", "time", "x1", "y1", "x2", "y2", "score", "class"]
 TRACK_COLUMNS = ["frame", "time", "track_id", "x1", "y1", "x2", "y2", "score", "class"]
-PRIME_S = 4.0  # s of video a background model learns on before a segment (see the module docstring)
+PRIME_S = 10.0  # s of video a background model learns on before a segment (see the module docstring)
 
 
 @dataclass(frozen=True)
@@ -175,7 +175,8 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     detector = new_detector()  # before anything is written: a bad --detector leaves nothing behind
     learns = isinstance(detector, BackgroundDetector)
     model = Path(opts.detector) if not learns and Path(opts.detector).is_file() else None
-    key = run_key(video, camera=camera, surface=surface, roi=roi, options=asdict(opts), detector_file=model)
+    key = run_key(video, camera=camera, surface=surface, roi=roi, options={**asdict(opts), "prime_s": PRIME_S},
+                  detector_file=model)
     out = Path(out_dir)
     ck = out / CHECKPOINT_DIR
     fps = info.fps / opts.every
