@@ -299,6 +299,10 @@ def test_a_second_run_on_the_same_folder_is_refused(world: Path, tmp_path: Path)
         run = _python(LOCK, out)
     assert f"another trafficgeo run (pid {os.getpid()})" in run.stdout
     assert _python(LOCK, out, input_text="").stdout.strip() == "held"
+    new = tmp_path / "new"
+    code, _, stderr = invoke("process", world / "video.mp4", "--camera", world / "camera_truth.json", "--surface",
+                             "90", "--out", new, "--detector", tmp_path / "missing.onnx")
+    assert code == 2 and not new.exists()  # a refused run leaves no folder behind
 
 
 def test_stale_temporaries_of_a_killed_run_are_removed(world: Path, tmp_path: Path) -> None:

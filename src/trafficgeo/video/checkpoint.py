@@ -303,7 +303,8 @@ def hold_folder(folder: str | os.PathLike[str]) -> Iterator[None]:
     """Hold an exclusive lock on an output folder (``folder/.lock``, created with the folder) for the block.
 
     Another process holding it makes this raise :class:`InputError` at once, naming that process. Re-entrant within
-    one process. The lock goes with the process, however it ends (the file stays, unlocked).
+    one process. The lock goes with the process, however it ends (the file stays, unlocked; a folder this created
+    and that holds nothing else at the end is removed).
     """
     root = Path(folder)
     ident = root.resolve()
@@ -314,6 +315,7 @@ def hold_folder(folder: str | os.PathLike[str]) -> Iterator[None]:
         finally:
             _HELD[ident] -= 1
         return
+    created = not root.exists()
     root.mkdir(parents=True, exist_ok=True)
     path = root / LOCK_FILE
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
@@ -338,6 +340,9 @@ def hold_folder(folder: str | os.PathLike[str]) -> Iterator[None]:
             del _HELD[ident]
             with contextlib.suppress(OSError):
                 os.ftruncate(fd, 0)
+                if created and [p.name for p in root.iterdir()] == [LOCK_FILE]:  # a run that wrote nothing
+                    path.unlink()
+                    root.rmdir()
     finally:
         os.close(fd)  # closing the file releases the lock
 
