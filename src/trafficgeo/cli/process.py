@@ -94,7 +94,7 @@ def process(
                 bar.update(task, completed=done, total=total, rate=rate, t=f"{t:.1f} s")
 
             detections, tracks = detect_and_track(video, cam, surf, out, opts, roi=mask, restart=restart,
-                                                  progress=tick, notice=console.print)
+                                                  progress=tick, notice=lambda text: console.print(text, markup=False))
     except KeyboardInterrupt:
         console.print(f"interrupted; run the same command again to resume from the last checkpoint in {out}")
         sys.exit(130)
