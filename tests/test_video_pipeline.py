@@ -64,7 +64,7 @@ def test_an_interrupted_run_resumes_to_the_same_tracks(world: Path, tmp_path: Pa
 
     with pytest.raises(Stop):
         detect_and_track(world / "video.mp4", cam, None, tmp_path / "cut", opts, progress=stop_late)
-    assert (tmp_path / "cut" / CHECKPOINT_DIR / "state.pkl").is_file()
+    assert (tmp_path / "cut" / CHECKPOINT_DIR / "state.json").is_file()
     assert not (tmp_path / "cut" / "tracks.csv").exists()  # nothing final was written
     seen = []
     dets, tracks = detect_and_track(world / "video.mp4", cam, None, tmp_path / "cut", opts,

@@ -29,6 +29,7 @@ def _analyze_and_write(cam, surf, image_tracks, lane_set, count_lines, interval:
 
 @app.command()
 def process(
+    ctx: typer.Context,
     video: Annotated[Path, typer.Argument(help="video file (mp4/mov/...) from a fixed camera")],
     camera: Annotated[Path, typer.Option(help="camera JSON from 'trafficgeo calibrate' (on a frame of this "
                                          "video)")],
@@ -64,6 +65,7 @@ def process(
         ProcessOptions,
         detect_and_track,
         finish_run,
+        hold_folder,
         write_run_info,
     )
 
@@ -83,6 +85,7 @@ def process(
         mask = read_roi(roi, cam.image_size)
     from trafficgeo.io.run_manifest import begin_outputs, publish_outputs
 
+    ctx.with_resource(hold_folder(out))  # one run in a folder until the command ends
     begin_outputs(out)  # from here until the end, readers refuse the folder
     t0 = time.perf_counter()
     columns = (TextColumn("[progress.description]{task.description}"), BarColumn(),
@@ -97,7 +100,7 @@ def process(
                 bar.update(task, completed=done, total=total, rate=rate, t=f"{t:.1f} s")
 
             detections, tracks = detect_and_track(video, cam, surf, out, opts, roi=mask, restart=restart,
-                                                  progress=tick)
+                                                  progress=tick, notice=lambda text: console.print(text, markup=False))
     except KeyboardInterrupt:
         console.print(f"interrupted; run the same command again to resume from the last checkpoint in {out}")
         sys.exit(130)

@@ -1,7 +1,8 @@
 """Atomic file output: a reader never sees a half-written file.
 
 Write to a temporary file in the destination folder, flush it to disk, then ``os.replace`` it over the target
-(atomic on POSIX and Windows). On any error the temporary file is removed and the target is untouched.
+(atomic on POSIX and Windows). On any error the temporary file is removed and the target is untouched. A process
+killed while writing leaves its temporary file behind: :func:`remove_stale_temporaries` clears a folder of them.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import errno
 import json
 import math
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,6 +21,13 @@ from typing import IO, Any
 import numpy as np
 
 from trafficgeo.errors import OutputError
+
+# Temporary files are named ".<target name>.<8 random characters from mkstemp>.tmp<target suffix>".
+_TEMP_NAME = re.compile(r"\.(?P<target>.+)\.[a-z0-9_]{8}\.tmp(?P<suffix>\.[^.]*)?")
+
+
+def _temp_prefix_suffix(target: Path) -> tuple[str, str]:
+    return f".{target.name}.", f".tmp{target.suffix}"
 
 
 @contextlib.contextmanager
@@ -29,7 +38,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=f".tmp{target.suffix}", dir=target.parent)
+    prefix, suffix = _temp_prefix_suffix(target)
+    fd, tmp_name = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=target.parent)
     os.close(fd)
     tmp = Path(tmp_name)
     umask = os.umask(0)
@@ -106,3 +116,25 @@ def write_json_atomic(path: str | os.PathLike[str], doc: Any) -> None:
     """Write ``doc`` as indented standard JSON (NaN and infinities become null; numpy scalars and arrays become
     numbers and lists) to ``path`` atomically."""
     write_text_atomic(path, json.dumps(to_json_safe(doc), indent=2, allow_nan=False) + "\n")
+
+
+def is_temporary_name(name: str) -> bool:
+    """Whether a file name is one :func:`atomic_path` gives its temporary files."""
+    m = _TEMP_NAME.fullmatch(name)
+    return m is not None and Path(m["target"]).suffix == (m["suffix"] or "")
+
+
+def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
+    """Delete the temporary files that writers killed mid-write left in ``folder`` (not its sub-folders); returns
+    them. Only names of :func:`atomic_path`'s pattern are touched. Call it only while no other process writes
+    into ``folder`` (e.g. under a lock on it)."""
+    removed = []
+    root = Path(folder)
+    if not root.is_dir():
+        return removed
+    for path in sorted(root.iterdir()):
+        if is_temporary_name(path.name) and path.is_file() and not path.is_symlink():
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+                removed.append(path)
+    return removed

@@ -1,23 +1,36 @@
 """``process``: video -> detections -> tracks -> traffic data, streaming, with checkpoints to resume from.
 
 Frames are decoded one at a time (:func:`trafficgeo.video.reader.iter_frames`, real timestamps), detected
-(:mod:`trafficgeo.video.detect`) and tracked (:mod:`trafficgeo.video.track`). Detections and track boxes are
-buffered and flushed to ``OUT/.checkpoint/`` every ``checkpoint_s`` seconds of video together with the tracker's
-state, so memory stays bounded and an interrupted run (Ctrl-C, a crash, a reboot) resumes where the last
-checkpoint left off: the background model is re-learnt on the video just before it (as it is before the start of
-a later time chunk) and the tracker is restored exactly. At the end the parts become ``detections.csv`` and
-``tracks.csv``, ``analyze`` runs on the tracks (:mod:`trafficgeo.traffic.analyze`) and the checkpoint is removed.
-Every output is written atomically.
+(:mod:`trafficgeo.video.detect`) and tracked (:mod:`trafficgeo.video.track`). The time range is cut into segments of
+``checkpoint_s`` seconds of video; at the end of each, its frame times, detections and track boxes go to
+``OUT/.checkpoint/`` (plain data, :mod:`trafficgeo.video.checkpoint`), so memory stays bounded during detection and
+an interrupted run (Ctrl-C, a crash, a reboot, a full disk) resumes at the segment it was in.
 
-Time chunks: ``start_s``/``end_s`` process one part of a video into its own folder; :func:`stitch_tracks` joins
-the tracks of chunks that overlap by a few seconds (:mod:`trafficgeo.video.stitch`).
+A resumed run gives exactly the outputs of an uninterrupted one, by construction:
+
+* The background detector (OpenCV MOG2/KNN) has a state that cannot be saved, so **every** run starts a fresh
+  background model at each segment start, learnt on the ``PRIME_S`` seconds of video before it (on the first
+  ``PRIME_S`` seconds of the video if the segment starts earlier than that; longer if its warm-up needs more frames
+  than that holds); detections are a function of the video,
+  the options and the segment layout, never of where a run was interrupted. An uninterrupted run learns the next
+  segment's model on frames it decodes anyway (a second model runs through the last ``PRIME_S`` seconds of each
+  segment); a resumed run decodes them again.
+* The tracker (ByteTrack) is restored by feeding it again every stored detection of the earlier segments, at the
+  same frame times; its tracks must come out equal to the stored ones, or the checkpoint is not used.
+
+At the end the parts become ``detections.csv`` and ``tracks.csv``. A checkpoint whose detection is complete (the run
+was stopped during the analysis or while writing) goes straight to that. The caller runs ``analyze`` on the tracks
+(:mod:`trafficgeo.traffic.analyze`) and then removes the checkpoint (:func:`finish_run`). Every output is written
+atomically; the output folder is locked for the run (:func:`~trafficgeo.video.checkpoint.hold_folder`), and
+temporary files left by a killed run are removed when the next one starts.
+
+Time chunks: ``start_s``/``end_s`` process one part of a video into its own folder;
+:func:`trafficgeo.video.stitch.stitch_tracks` joins the tracks of chunks that overlap by a few seconds.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
-import pickle
+import itertools
 import shutil
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -29,13 +42,28 @@ import pandas as pd
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
-from trafficgeo.io.atomic import atomic_path, write_csv_atomic, write_json_atomic
+from trafficgeo.io.atomic import remove_stale_temporaries, write_csv_atomic, write_json_atomic
+from trafficgeo.video.checkpoint import (
+    CHECKPOINT_DIR,
+    Checkpoint,
+    Part,
+    PartBuffer,
+    hold_folder,
+    load_checkpoint,
+    read_part,
+    run_key,
+    save_checkpoint,
+    write_part,
+)
+from trafficgeo.video.detect import Detections
 from trafficgeo.video.track import TrackerOptions, VehicleTracker
 
-CHECKPOINT_DIR = ".checkpoint"
+__all__ = ["CHECKPOINT_DIR", "PRIME_S", "ProcessOptions", "detect_and_track", "finish_run", "hold_folder",
+           "write_run_info"]
+
 DETECTION_COLUMNS = ["frame", "time", "x1", "y1", "x2", "y2", "score", "class"]
 TRACK_COLUMNS = ["frame", "time", "track_id", "x1", "y1", "x2", "y2", "score", "class"]
-PRIME_S = 4.0  # s of video the background detector learns on before detecting (see detect_and_track)
+PRIME_S = 10.0  # s of video a background model learns on before a segment (see the module docstring)
 
 
 @dataclass(frozen=True)
@@ -58,76 +86,78 @@ class ProcessOptions:
             raise InputError(f"--checkpoint {self.checkpoint_s}: must be a positive number of seconds")
 
 
-@dataclass
-class _State:
-    """What a checkpoint holds: where to go on, the tracker, and the parts written so far."""
-
-    key: str
-    next_time_s: float
-    frames_done: int
-    parts: list[str]
-    tracker: VehicleTracker
+def _prime_seconds(detector: object, fps: float) -> float:
+    """How long (s of video) a fresh background model learns: ``PRIME_S``, or more if the detector's warm-up (in
+    frames) needs it at ``fps`` frames per second (sparse frames, ``--every``)."""
+    warmup = getattr(detector, "warmup", 0)
+    return max(PRIME_S, 1.5 * warmup / fps) if isinstance(warmup, int) and fps > 0 else PRIME_S
 
 
-def _run_key(video: Path, camera: Camera | None, options: ProcessOptions) -> str:
-    st = video.stat()
-    doc = {"video": str(video.resolve()), "size": st.st_size, "mtime": st.st_mtime_ns,
-           "camera": None if camera is None else camera.K.tolist() + camera.R.tolist() + camera.position.tolist(),
-           "options": json.loads(json.dumps(asdict(options), default=str))}
-    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
+def _prime_window(boundary_s: float, end_s: float, prime_s: float) -> tuple[float, float]:
+    """The video (s, ``[lo, hi)``) a fresh background model learns on before the segment starting at
+    ``boundary_s``."""
+    return (boundary_s - prime_s, boundary_s) if boundary_s >= prime_s else (0.0, min(prime_s, end_s))
 
 
-def _load_state(folder: Path, key: str) -> _State | None:
-    path = folder / "state.pkl"
-    if not path.is_file():
-        return None
-    try:
-        with path.open("rb") as fh:
-            state = pickle.load(fh)
-    except Exception:  # a damaged or foreign checkpoint: start again
-        return None
-    return state if isinstance(state, _State) and state.key == key else None
+def _replay(folder: Path, state: Checkpoint, tracker: VehicleTracker, variable_rate: bool) -> None:
+    """Feed the stored detections of ``state``'s parts to a fresh ``tracker``; :class:`ValueError` if the tracks do
+    not come out as stored."""
+    for entry in state.parts:
+        part = read_part(folder, entry)
+        a = part.arrays
+        ds, ts = part.frame_slices("det"), part.frame_slices("trk")
+        for j in range(part.n_frames):
+            d, t = slice(ds[j], ds[j + 1]), slice(ts[j], ts[j + 1])
+            time_s = float(a["frame_time"][j])
+            out = tracker.update(Detections(a["det_box"][d], a["det_score"][d], a["det_class"][d].astype(object)),
+                                 time_s if variable_rate else None)
+            if not (np.array_equal(out.ids, a["trk_id"][t]) and np.array_equal(out.boxes, a["trk_box"][t])):
+                raise ValueError(f"its tracks at {time_s:.2f} s differ from those its detections give now")
 
 
-def _save_state(folder: Path, state: _State) -> None:
-    with atomic_path(folder / "state.pkl") as tmp, open(tmp, "wb") as fh:
-        pickle.dump(state, fh)
+def _tables(part: Part) -> tuple[pd.DataFrame, pd.DataFrame]:
+    a = part.arrays
+    out = []
+    for p, columns in (("det", DETECTION_COLUMNS), ("trk", TRACK_COLUMNS)):
+        rows = a[f"{p}_frame"]
+        doc = {"frame": a["frame_index"][rows], "time": np.round(a["frame_time"][rows], 6)}
+        if p == "trk":
+            doc["track_id"] = a["trk_id"]
+        doc.update(dict(zip(("x1", "y1", "x2", "y2"), a[f"{p}_box"].T, strict=True)))
+        doc.update({"score": a[f"{p}_score"], "class": a[f"{p}_class"].astype(object)})
+        out.append(pd.DataFrame(doc, columns=columns))
+    return out[0], out[1]
 
 
-def _flush(folder: Path, state: _State, det_rows: list, trk_rows: list) -> None:
-    """Write the buffered rows as a new part, then the state that names it (so a crash in between loses nothing
-    that the state claims)."""
-    name = f"part{len(state.parts):05d}"
-    for suffix, rows, cols in (("det", det_rows, DETECTION_COLUMNS), ("trk", trk_rows, TRACK_COLUMNS)):
-        table = pd.DataFrame(rows, columns=cols)
-        write_csv_atomic(folder / f"{name}.{suffix}.csv", table, float_format="%.3f")
-    state.parts.append(name)
-    _save_state(folder, state)
-    det_rows.clear()
-    trk_rows.clear()
-
-
-def _collect(folder: Path, parts: list[str], suffix: str, columns: list[str]) -> pd.DataFrame:
-    tables = [pd.read_csv(folder / f"{p}.{suffix}.csv", dtype={"class": str}, keep_default_na=False,
-                          na_values=[""]) for p in parts]
-    tables = [t for t in tables if len(t)]
-    out = pd.concat(tables, ignore_index=True) if tables else pd.DataFrame(columns=columns)
-    if "class" in out.columns:
-        out["class"] = out["class"].fillna("")
-    return out
+def _write_tables(folder: Path, state: Checkpoint, out: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``detections.csv`` and ``tracks.csv`` from the parts; returns them as written (3 decimals)."""
+    tables = [_tables(read_part(folder, e)) for e in state.parts]
+    result = []
+    for k, (name, columns) in enumerate((("detections.csv", DETECTION_COLUMNS), ("tracks.csv", TRACK_COLUMNS))):
+        parts = [t[k] for t in tables if len(t[k])]
+        table = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=columns)
+        write_csv_atomic(out / name, table, float_format="%.3f")
+        back = pd.read_csv(out / name, dtype={"class": str}, keep_default_na=False, na_values=[""])
+        back["class"] = back["class"].fillna("")
+        result.append(back)
+    return result[0], result[1]
 
 
 def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface | None, out_dir: str | Path,
                      options: ProcessOptions | None = None, *, roi: np.ndarray | None = None,
                      restart: bool = False,
-                     progress: Callable[[int, int, float], None] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+                     progress: Callable[[int, int, float], None] | None = None,
+                     notice: Callable[[str], None] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Decode, detect and track (with checkpoints); returns the detections and track tables (also written as
     ``detections.csv`` and ``tracks.csv`` in ``out_dir``). ``progress(frames_done, frames_total, video_time_s)``
-    is called per frame. Without a ``camera`` (and ``surface``) the detector has no size filter in metres."""
-    from trafficgeo.video.detect import make_detector
-    from trafficgeo.video.reader import iter_frames, video_info
+    is called per frame; ``notice(text)`` with one line when a checkpoint is resumed ("resuming from 8.0 s") or
+    ignored (and why). Without a ``camera`` (and ``surface``) the detector has no size filter in metres. Holds the
+    lock on ``out_dir`` while it runs (:class:`InputError` if another process holds it)."""
+    from trafficgeo.video.detect import BackgroundDetector, make_detector
+    from trafficgeo.video.reader import video_info
 
     opts = options or ProcessOptions()
+    tell = notice or (lambda text: None)
     video = Path(video)
     info = video_info(video)
     if camera is not None and (info.width, info.height) != tuple(camera.image_size):
@@ -137,64 +167,112 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     end_s = min(opts.end_s, info.duration_s) if opts.end_s is not None else info.duration_s
     if opts.start_s >= end_s:
         raise InputError(f"--start {opts.start_s:g} s is past the end of {video} ({info.duration_s:.2f} s)")
+    cam = camera if surface is not None else None
+
+    def new_detector():
+        return make_detector(opts.detector, camera=cam, surface=surface, roi=roi)
+
+    detector = new_detector()  # before anything is written: a bad --detector leaves nothing behind
+    learns = isinstance(detector, BackgroundDetector)
+    model = Path(opts.detector) if not learns and Path(opts.detector).is_file() else None
+    key = run_key(video, camera=camera, surface=surface, roi=roi, options={**asdict(opts), "prime_s": PRIME_S},
+                  detector_file=model)
     out = Path(out_dir)
     ck = out / CHECKPOINT_DIR
-    key = _run_key(video, camera, opts)
-    state = None if restart else _load_state(ck, key)
-    if state is None:
-        if ck.exists():
-            shutil.rmtree(ck)
-        ck.mkdir(parents=True)
-        fps = info.fps / opts.every
-        state = _State(key, opts.start_s, 0, [], VehicleTracker(fps, opts.tracker))
+    fps = info.fps / opts.every
+    with hold_folder(out):
+        for folder in (out, ck):
+            remove_stale_temporaries(folder)
+        state, tracker = None, VehicleTracker(fps, opts.tracker)
+        if ck.exists() and not restart:
+            try:
+                state = load_checkpoint(ck, key)
+                if state.complete:
+                    tables = _write_tables(ck, state, out)
+                    tell(f"resuming from {state.next_time_s:.1f} s: detection and tracking had finished")
+                    return tables
+                _replay(ck, state, tracker, info.variable_frame_rate)
+            except ValueError as exc:
+                tell(f"ignoring the checkpoint in {ck}: {exc}; starting again")
+                state, tracker = None, VehicleTracker(fps, opts.tracker)
+        if state is None:
+            if ck.exists():
+                shutil.rmtree(ck)
+            ck.mkdir(parents=True)
+            state = Checkpoint(key, segment=0, next_time_s=opts.start_s)
+            save_checkpoint(ck, state)
+        elif state.parts:
+            tell(f"resuming from {state.next_time_s:.1f} s")
+        _run_segments(video, info, end_s, opts, ck, state, tracker, detector if not learns else None,
+                      new_detector, _prime_seconds(detector, fps), progress)
+        return _write_tables(ck, state, out)
+
+
+def _run_segments(video: Path, info, end_s: float, opts: ProcessOptions, ck: Path, state: Checkpoint,
+                  tracker: VehicleTracker, fixed_detector, new_detector, prime_s: float, progress) -> None:
+    """Detect and track from ``state`` to ``end_s``, writing a part and the state at each segment's end; with no
+    ``fixed_detector``, each segment gets a fresh background model learnt on ``prime_s`` seconds of video before
+    it."""
+    from trafficgeo.video.reader import iter_frames
+
+    def boundary(k: int) -> float:
+        return opts.start_s + k * opts.checkpoint_s
+
+    def primed(k: int, anchor: int):
+        """A fresh model learnt on segment k's window: the frames of the run's phase (index = anchor mod every)."""
+        detector = new_detector()
+        lo, hi = _prime_window(boundary(k), end_s, prime_s)
+        pad = 1.0 / info.fps
+        for f in iter_frames(video, start_s=max(0.0, lo - pad), end_s=hi + pad):
+            if lo <= f.time_s < hi and (f.index - anchor) % opts.every == 0:
+                detector.detect(f.image, f.time_s)
+        return detector
+
     total = max(1, round((end_s - opts.start_s) * info.fps / opts.every))
-    detector = make_detector(opts.detector, camera=camera if surface is not None else None, surface=surface, roi=roi)
-    if opts.detector in ("background", "mog2", "knn"):
-        # Learn the background before detecting, so that vehicles are found from the first frame on.
-        t0 = state.next_time_s
-        if t0 - opts.start_s < PRIME_S:
-            # A run learns on its first PRIME_S seconds (or the video before them, if there is that much), then
-            # processes them from their beginning; a run resumed within them repeats that exactly.
-            if opts.start_s >= PRIME_S:
-                windows = [(opts.start_s - PRIME_S, opts.start_s)]
-            else:
-                windows = [(opts.start_s, min(opts.start_s + PRIME_S, end_s))]
-            windows.append((opts.start_s, t0))
-        else:  # resumed later on: learn on the video just before the checkpoint
-            windows = [(t0 - PRIME_S, t0)]
-        for lo, hi in windows:
-            if hi > lo:
-                for frame in iter_frames(video, start_s=lo, end_s=hi, every=opts.every):
-                    if frame.time_s < hi - 1e-6:
-                        detector.detect(frame.image, frame.time_s)
-    det_rows: list = []
-    trk_rows: list = []
-    next_flush = state.next_time_s + opts.checkpoint_s
     done = state.frames_done
-    for frame in iter_frames(video, start_s=state.next_time_s, end_s=end_s, every=opts.every):
-        if frame.time_s < state.next_time_s - 1e-6:
-            continue
-        if frame.time_s >= next_flush:
-            state.next_time_s, state.frames_done = frame.time_s, done
-            _flush(ck, state, det_rows, trk_rows)
-            next_flush = frame.time_s + opts.checkpoint_s
-        dets = detector.detect(frame.image, frame.time_s)
-        tracked = state.tracker.update(dets, frame.time_s if info.variable_frame_rate else None)
-        t = round(frame.time_s, 6)
-        det_rows += [(frame.index, t, *b, s, c) for b, s, c in zip(dets.boxes, dets.scores, dets.classes,
-                                                                   strict=True)]
-        trk_rows += [(frame.index, t, int(i), *b, s, c) for i, b, s, c in
-                     zip(tracked.ids, tracked.boxes, tracked.scores, tracked.classes, strict=True)]
-        done += 1
-        if progress is not None:
-            progress(done, total, frame.time_s)
-    state.next_time_s, state.frames_done = end_s, done
-    _flush(ck, state, det_rows, trk_rows)
-    detections = _collect(ck, state.parts, "det", DETECTION_COLUMNS)
-    tracks = _collect(ck, state.parts, "trk", TRACK_COLUMNS)
-    for name, table in (("detections.csv", detections), ("tracks.csv", tracks)):
-        write_csv_atomic(out / name, table, float_format="%.3f")
-    return detections, tracks
+    buffer = PartBuffer()
+    frames = iter_frames(video, start_s=state.next_time_s, end_s=end_s, every=opts.every) \
+        if state.next_time_s < end_s else iter([])
+    first = next(frames, None)
+    if first is not None:
+        seg = state.segment
+        while boundary(seg + 1) <= first.time_s:
+            seg += 1
+        state.segment, state.next_time_s, state.next_frame = seg, first.time_s, first.index
+        loop_start = boundary(seg)  # windows from here on are decoded by this run
+        detector = fixed_detector if fixed_detector is not None else primed(seg, first.index)
+        pending: dict[int, object] = {}  # segment -> the model learning on its window during this run
+        for frame in itertools.chain([first], frames):
+            t = frame.time_s
+            if t >= boundary(seg + 1):
+                seg += 1
+                while boundary(seg + 1) <= t:
+                    seg += 1
+                state.parts.append(write_part(ck, len(state.parts), buffer.to_part()))
+                buffer = PartBuffer()
+                state.segment, state.next_time_s, state.next_frame, state.frames_done = seg, t, frame.index, done
+                save_checkpoint(ck, state)
+                if fixed_detector is None:
+                    learnt = pending.pop(seg, None)
+                    detector = learnt if learnt is not None else primed(seg, frame.index)
+                    pending = {k: d for k, d in pending.items() if k > seg}
+            if fixed_detector is None:
+                k = seg + 1
+                while boundary(k) - prime_s <= t and boundary(k) < end_s:
+                    if t < boundary(k) and boundary(k) - prime_s >= loop_start:
+                        if k not in pending:
+                            pending[k] = new_detector()
+                        pending[k].detect(frame.image, t)
+                    k += 1
+            dets = detector.detect(frame.image, t)
+            tracked = tracker.update(dets, t if info.variable_frame_rate else None)
+            buffer.add(frame.index, t, dets, tracked)
+            done += 1
+            if progress is not None:
+                progress(done, total, t)
+    state.parts.append(write_part(ck, len(state.parts), buffer.to_part()))
+    state.next_time_s, state.frames_done, state.complete = end_s, done, True
+    save_checkpoint(ck, state)
 
 
 def finish_run(out_dir: str | Path) -> None:

@@ -6,7 +6,8 @@ with the weak ones (a partly hidden vehicle keeps its identity), and keeps a los
 (not the tracker's prediction): trafficgeo smooths positions later, in world coordinates, where the motion is
 simple (:mod:`trafficgeo.traffic.trajectories`).
 
-A tracker is plain Python state: it can be pickled at a checkpoint and restored to resume a run exactly.
+A tracker's state is a function of the detections fed to it (and their frame times) only: no counter or cache is
+shared between trackers, so a resumed run restores it by feeding the stored detections to a fresh one.
 """
 
 from __future__ import annotations
