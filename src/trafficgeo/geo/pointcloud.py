@@ -398,12 +398,12 @@ def cloud_to_dem(
 
     The value at a cell centre is that of the least-squares plane through the ground points within a radius chosen
     for that centre (:mod:`trafficgeo.geo._groundfit`): from about 6 points (at the cloud's typical spacing) up to
-    about 96, growing by sqrt(2) while the larger plane agrees with the smaller ones within 2 standard errors
-    (from the cloud's own noise, estimated robustly). Smooth road is averaged over many points; crowns, kerbs
-    and ditches keep a small radius. The grid samples a surface, so cells finer than the point spacing are fine
-    (and cells are not biased towards where their points happen to lie, as cell means and medians are on a
-    sloped or crowned road). Cells holding points that get no plane (fewer than 32 ground points in all, or at the
-    footprint's edge) get the median z of their points.
+    about 96, growing by sqrt(2) while the larger plane agrees with the smaller ones (and the TIN of the points)
+    within 2 standard errors (from the cloud's own noise, estimated robustly). Smooth road is averaged over many
+    points; kerbs and ditches keep a small radius. The grid samples a surface, so cells finer than the point
+    spacing are fine (and cells are not biased towards where their points happen to lie, as cell means and
+    medians are on a sloped or crowned road). Cells holding points that get no plane (fewer than 32 ground points
+    in all, or at the footprint's edge) get the median z of their points.
 
     Args:
         cloud: the point cloud.
