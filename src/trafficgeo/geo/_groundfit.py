@@ -187,28 +187,55 @@ def noise_sigma(xyz: np.ndarray, k: int = 16, n_sample: int = 20_000) -> tuple[f
     return sigma, float(np.median(dist[:, -1]))
 
 
+@njit(cache=True, nogil=True)
+def _tin_walk(transform: np.ndarray, neighbors: np.ndarray, simplices: np.ndarray, z: np.ndarray,
+              qx: np.ndarray, qy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """TIN value and variance factor at each node by a visibility walk through a Delaunay triangulation (scipy's
+    ``transform``, ``neighbors``, ``simplices``), starting from the previous node's triangle. NaN outside."""
+    n = qx.shape[0]
+    out = np.full(n, np.nan)
+    var = np.full(n, np.nan)
+    s = 0
+    max_steps = 4 * transform.shape[0] + 10
+    for i in range(n):
+        x, y = qx[i], qy[i]
+        for _ in range(max_steps):
+            t = transform[s]
+            b0 = t[0, 0] * (x - t[2, 0]) + t[0, 1] * (y - t[2, 1])
+            b1 = t[1, 0] * (x - t[2, 0]) + t[1, 1] * (y - t[2, 1])
+            b2 = 1.0 - b0 - b1
+            if not (b0 == b0 and b1 == b1):
+                break  # degenerate triangle: no value here
+            k = 0
+            low = b0
+            if b1 < low:
+                k, low = 1, b1
+            if b2 < low:
+                k, low = 2, b2
+            if low >= -1e-12:
+                c = simplices[s]
+                out[i] = b0 * z[c[0]] + b1 * z[c[1]] + b2 * z[c[2]]
+                var[i] = b0 * b0 + b1 * b1 + b2 * b2
+                break
+            nxt = neighbors[s, k]
+            if nxt < 0:
+                break  # outside the triangulation
+            s = nxt
+    return out, var
+
+
 def _tin(xyz: np.ndarray, qx: np.ndarray, qy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Linear TIN (Delaunay) value at the nodes and its variance factor (sum of squared barycentric weights);
     NaN outside the triangulation."""
     from scipy.spatial import Delaunay, QhullError
 
-    n = qx.shape[0]
-    z = np.full(n, np.nan)
-    v = np.full(n, np.nan)
     try:
         tri = Delaunay(xyz[:, :2])
     except (QhullError, ValueError):
-        return z, v
-    q = np.column_stack((qx, qy))
-    simplex = tri.find_simplex(q)
-    ok = simplex >= 0
-    t = tri.transform[simplex[ok]]
-    b = np.einsum("nij,nj->ni", t[:, :2], q[ok] - t[:, 2])
-    w = np.column_stack((b, 1.0 - b.sum(axis=1)))
-    corners = tri.simplices[simplex[ok]]
-    z[ok] = np.einsum("ni,ni->n", w, xyz[corners, 2])
-    v[ok] = np.einsum("ni,ni->n", w, w)
-    return z, v
+        return np.full(qx.shape, np.nan), np.full(qx.shape, np.nan)
+    return _tin_walk(tri.transform, tri.neighbors.astype(np.int64), tri.simplices.astype(np.int64),
+                     np.ascontiguousarray(xyz[:, 2]), np.ascontiguousarray(qx, dtype=np.float64),
+                     np.ascontiguousarray(qy, dtype=np.float64))
 
 
 def adaptive_ground(xyz: np.ndarray, qx: np.ndarray, qy: np.ndarray, *, sigma_floor: float, gamma: float = GAMMA,
