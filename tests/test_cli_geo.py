@@ -513,12 +513,14 @@ def test_dem_from_autzen_in_feet(autzen_dem: Path) -> None:
     x, y = np.asarray(las.x)[ground], np.asarray(las.y)[ground]
     assert b.left <= x.min() and x.max() < b.right and b.bottom <= y.min() and y.max() < b.top
     assert b.left / (1 / FT) == pytest.approx(round(b.left / (1 / FT)), abs=1e-6)
-    # cells holding ground points carry their median (checked on a few cells)
+    # cells holding ground points lie close to their points (a local plane, not their median; checked on a few)
     col = np.floor((x - b.left) / (1 / FT)).astype(int)
     row = np.floor((b.top - y) / (1 / FT)).astype(int)
+    diff = []
     for k in np.linspace(0, len(x) - 1, 25).astype(int):
         same = (col == col[k]) & (row == row[k])
-        assert data[row[k], col[k]] == pytest.approx(np.median(np.asarray(las.z)[ground][same]), abs=1e-3)
+        diff.append(data[row[k], col[k]] - np.median(np.asarray(las.z)[ground][same]))
+    assert np.median(np.abs(diff)) < 0.1 and np.max(np.abs(diff)) < 1.0  # feet
 
 
 def test_georef_on_laz_in_feet(feet_cam, feet_pixels: Path, autzen_dem: Path, tmp_path: Path) -> None:

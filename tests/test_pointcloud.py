@@ -274,15 +274,19 @@ def test_dem_from_autzen_grid(autzen: PointCloud, autzen_dem) -> None:
     assert 0.75 < np.isfinite(z).mean() < 0.95  # NaN outside the convex hull of the ground points
 
 
-def test_dem_cells_hold_the_median_of_their_points(autzen: PointCloud, autzen_dem) -> None:
+def test_dem_cells_follow_their_points(autzen: PointCloud, autzen_dem) -> None:
+    """Cells hold a local plane's value (tests/test_cloud_surface.py), close to the median of their own points."""
     ground = autzen.xyz[autzen.classification == 2]
     col, row = autzen_dem.map_to_pixel(ground[:, 0], ground[:, 1])
     ci, ri = np.floor(col).astype(int), np.floor(row).astype(int)
     cells = ri * autzen_dem.cols + ci
     uniq, counts = np.unique(cells, return_counts=True)
-    for cell in uniq[counts >= 4][:25]:
+    diff = []
+    for cell in uniq[counts >= 4][:300]:
         r, c = divmod(int(cell), autzen_dem.cols)
-        assert autzen_dem.data[0, r, c] == pytest.approx(np.median(ground[cells == cell, 2]), abs=1e-9)
+        diff.append(autzen_dem.data[0, r, c] - np.median(ground[cells == cell, 2]))
+    diff = np.abs(np.array(diff))
+    assert np.isfinite(diff).all() and np.median(diff) < 0.1 and np.percentile(diff, 90) < 0.5  # feet
 
 
 def test_dem_one_metre_cells_are_feet() -> None:

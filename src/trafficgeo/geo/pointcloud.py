@@ -51,6 +51,10 @@ ASPRS_GROUND = 2
 MAX_DEM_CELLS = 50_000_000
 #: 1.4826 * MAD estimates the standard deviation of normally distributed values.
 MAD_TO_SIGMA = 1.4826
+#: Fewer ground points than this: cell medians instead of local planes.
+_FIT_MIN_POINTS = 32
+#: Lower bound of the lidar noise used by the local-plane fit, metres (noise-free or 1 mm-quantized clouds).
+_SIGMA_FLOOR_M = 0.0005
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -390,7 +394,16 @@ def cloud_to_dem(
     bounds: tuple[float, float, float, float] | None = None,
     ground: ArrayLike | None = None,
 ) -> GeoRaster:
-    """Ground DEM of ``cloud``: median ground z per cell, gaps inside the ground footprint filled by a linear TIN.
+    """Ground DEM of ``cloud``: at each cell centre, a local plane through the ground points with an adaptive radius.
+
+    The value at a cell centre is that of the least-squares plane through the ground points within a radius chosen
+    for that centre (:mod:`trafficgeo.geo._groundfit`): from about 6 points (at the cloud's typical spacing) up to
+    about 96, growing by sqrt(2) while the larger plane agrees with the smaller ones (and the TIN of the points)
+    within 2 standard errors (from the cloud's own noise, estimated robustly). Smooth road is averaged over many
+    points; kerbs and ditches keep a small radius. The grid samples a surface, so cells finer than the point
+    spacing are fine (and cells are not biased towards where their points happen to lie, as cell means and
+    medians are on a sloped or crowned road). Cells holding points that get no plane (fewer than 32 ground points
+    in all, or at the footprint's edge) get the median z of their points.
 
     Args:
         cloud: the point cloud.
@@ -401,9 +414,10 @@ def cloud_to_dem(
 
     Returns:
         A north-up :class:`GeoRaster` ``(1, rows, cols)`` float64 with the cloud's CRS, nodata NaN and description
-        ``"ground elevation (<unit>)"``. Cells holding ground points get their median z; empty cells whose centre
-        lies inside the convex hull of the ground points are interpolated linearly (Delaunay TIN over the centres
-        of the filled cells; within half a cell of the hull edge a cell may stay NaN); every other cell is NaN.
+        ``"ground elevation (<unit>)"``. Cell centres inside the convex hull of the ground points get the local
+        plane's value (clamped to the z range of the points it was fitted to); centres in data holes (no 6 points
+        around them) are interpolated linearly (Delaunay TIN over the fitted centres; within half a cell of the hull
+        edge a cell may stay NaN); every other cell is NaN.
 
     Raises:
         InputError: no ground points (in the bounds), or a grid of more than :data:`MAX_DEM_CELLS` cells.
@@ -447,24 +461,38 @@ def cloud_to_dem(
         )
     x0, y_top = i0 * res, j_end * res
     transform = Affine(res, 0.0, x0, 0.0, -res, y_top)
-    col = np.clip(np.floor((pts[:, 0] - x0) / res).astype(np.int64), 0, cols - 1)
-    row = np.clip(np.floor((y_top - pts[:, 1]) / res).astype(np.int64), 0, rows - 1)
+    # Work in pixel units (col, row of cell centres) for the footprint and the TIN, in local CRS units for the fit.
+    local_pts = np.column_stack(((pts[:, 0] - x0) / res, (y_top - pts[:, 1]) / res))
+    footprint = _Footprint(local_pts)
+    all_cells = np.arange(rows * cols)
+    centres = np.column_stack((all_cells % cols + 0.5, all_cells // cols + 0.5)).astype(np.float64)
+    in_hull = footprint.contains(centres)
+    col = np.clip(np.floor(local_pts[:, 0]).astype(np.int64), 0, cols - 1)
+    row = np.clip(np.floor(local_pts[:, 1]).astype(np.int64), 0, rows - 1)
     cells, med, _ = _group_quantile(row * cols + col, pts[:, 2], 0.5)
     grid = np.full(rows * cols, np.nan)
-    grid[cells] = med
-    empty = np.flatnonzero(np.isnan(grid))
-    if empty.size and cells.size >= 3:
-        # Work in pixel units (col, row of cell centres): small, well-conditioned numbers.
-        local_pts = np.column_stack(((pts[:, 0] - x0) / res, (y_top - pts[:, 1]) / res))
-        centres = np.column_stack((empty % cols + 0.5, empty // cols + 0.5)).astype(np.float64)
-        in_hull = _Footprint(local_pts).contains(centres)
-        if in_hull.any():
-            filled = np.column_stack((cells % cols + 0.5, cells // cols + 0.5)).astype(np.float64)
-            try:
-                tin = LinearNDInterpolator(filled, med)
-                grid[empty[in_hull]] = tin(centres[in_hull])
-            except QhullError:  # filled cells collinear: nothing to interpolate across
-                pass
+    if pts.shape[0] >= _FIT_MIN_POINTS:
+        from trafficgeo.geo._groundfit import adaptive_ground
+
+        use = in_hull.copy()
+        use[cells] = True
+        node = all_cells[use]
+        origin = pts[:, :2].mean(axis=0)
+        rel = np.column_stack((pts[:, 0] - origin[0], pts[:, 1] - origin[1], pts[:, 2]))
+        qx = x0 + (node % cols + 0.5) * res - origin[0]
+        qy = y_top - (node // cols + 0.5) * res - origin[1]
+        grid[node], _, _ = adaptive_ground(rel, qx, qy, sigma_floor=_SIGMA_FLOOR_M / metres_per_unit(cloud.crs))
+    # Cells holding points that got no plane (too few points, or at the footprint's edge): their median z.
+    unset = np.isnan(grid[cells])
+    grid[cells[unset]] = med[unset]
+    filled = np.flatnonzero(np.isfinite(grid))
+    empty = np.flatnonzero(np.isnan(grid) & in_hull)
+    if empty.size and filled.size >= 3:
+        try:
+            tin = LinearNDInterpolator(centres[filled], grid[filled])
+            grid[empty] = tin(centres[empty])
+        except QhullError:  # filled cells collinear: nothing to interpolate across
+            pass
     return GeoRaster(
         grid.reshape(1, rows, cols),
         transform,
