@@ -13,6 +13,7 @@ from trafficgeo.cli import app, console
 from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt, _camera, _surface
 from trafficgeo.cli.traffic import IntervalOpt, LanesOpt, LinesOpt, ReportHtmlOpt, _check_out_dir, _layout
 from trafficgeo.errors import InputError
+from trafficgeo.video.detector_names import DETECTOR_HELP
 
 
 def _analyze_and_write(cam, surf, image_tracks, lane_set, count_lines, interval: float, out: Path):
@@ -36,8 +37,7 @@ def process(
     lanes: LanesOpt = None,
     lines: LinesOpt = None,
     interval: IntervalOpt = 60.0,
-    detector: Annotated[str, typer.Option(help="'background' (MOG2, no weights), 'knn', or a YOLO .onnx model "
-                                          "file")] = "background",
+    detector: Annotated[str, typer.Option(help=DETECTOR_HELP)] = "background",
     start: Annotated[float, typer.Option(help="start time (s)")] = 0.0,
     end: Annotated[float | None, typer.Option(help="end time (s); default: the end of the video")] = None,
     every: Annotated[int, typer.Option(help="use every n-th frame")] = 1,

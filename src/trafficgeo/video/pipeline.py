@@ -30,7 +30,8 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.io.atomic import atomic_path, write_csv_atomic, write_json_atomic
-from trafficgeo.video.detect import box_iou
+from trafficgeo.video.detect import box_iou, check_detector
+from trafficgeo.video.detector_names import is_background
 from trafficgeo.video.track import TrackerOptions, VehicleTracker
 
 CHECKPOINT_DIR = ".checkpoint"
@@ -43,7 +44,7 @@ PRIME_S = 4.0  # s of video the background detector learns on before detecting (
 class ProcessOptions:
     """What ``process`` does with a video (times in seconds of video)."""
 
-    detector: str = "background"  # "background" (MOG2), "knn", or a path to an ONNX model
+    detector: str = "background"  # a name of detector_names.DETECTOR_NAMES, or the path of an ONNX model
     start_s: float = 0.0
     end_s: float | None = None
     every: int = 1  # use every n-th frame
@@ -51,6 +52,7 @@ class ProcessOptions:
     tracker: TrackerOptions = field(default_factory=TrackerOptions)
 
     def __post_init__(self) -> None:
+        check_detector(self.detector)  # a bad name or model fails here, before anything is written
         if not (self.start_s >= 0 and (self.end_s is None or self.end_s > self.start_s)):
             raise InputError(f"--start {self.start_s} / --end {self.end_s}: need 0 <= start < end (seconds)")
         if not (isinstance(self.every, int) and self.every >= 1):
@@ -150,7 +152,7 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
         state = _State(key, opts.start_s, 0, [], VehicleTracker(fps, opts.tracker))
     total = max(1, round((end_s - opts.start_s) * info.fps / opts.every))
     detector = make_detector(opts.detector, camera=camera if surface is not None else None, surface=surface, roi=roi)
-    if opts.detector in ("background", "mog2", "knn"):
+    if is_background(opts.detector):
         # Learn the background before detecting, so that vehicles are found from the first frame on.
         t0 = state.next_time_s
         if t0 - opts.start_s < PRIME_S:
