@@ -208,13 +208,15 @@ def finish_run(out_dir: str | Path) -> None:
 
 
 def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: ProcessOptions, seconds: float,
-                   detections: int, track_rows: int) -> None:
+                   detections: int, track_rows: int, read: dict | None = None) -> None:
     """``process.json``: what was processed (``video``, ``camera``: paths as given, or relative to ``out_dir``), how
-    (the detector and time range of ``options``), and how fast (``seconds`` of wall clock)."""
+    (the detector and time range asked for in ``options``), what was read (``read``: ``start_s``/``end_s`` of the
+    frames decoded (s, the end of the last frame), ``frames``, and ``complete``: false when the video ended before
+    the asked end, e.g. a truncated file), and how fast (``seconds`` of wall clock)."""
     doc = {"video": video, "camera": camera,
            "options": {"detector": options.detector, "start_s": options.start_s, "end_s": options.end_s,
                        "every": options.every},
-           "seconds": seconds, "detections": detections, "track_rows": track_rows}
+           "read": read, "seconds": seconds, "detections": detections, "track_rows": track_rows}
     write_json_atomic(Path(out_dir) / "process.json", doc)
 
 
