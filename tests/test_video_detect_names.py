@@ -177,3 +177,17 @@ def test_blobs_no_single_vehicle_explains_are_of_unknown_class(monkeypatch: pyte
     kept, classes = det._metric(_Blobs(boxes, areas, [[1], [2], [3], [4]]))
     assert len(kept.areas) == 4
     assert list(classes) == ["truck", "", "", "car"]
+
+
+def test_counts_per_class_add_up_with_unknown_vehicles() -> None:
+    import pandas as pd
+
+    from trafficgeo.traffic.lines import aggregate_counts
+
+    cr = pd.DataFrame({"line": "L1", "track_id": ["a", "b", "c", "d"], "class": ["car", "", "truck", None],
+                       "lane": "1", "direction": 1, "time": [1.0, 2.0, 3.0, 4.0], "speed_kmh": 50.0,
+                       "x": 0.0, "y": 0.0})
+    counts = aggregate_counts(cr, 60.0, 0.0, 60.0)
+    assert counts[["count", "count_car", "count_truck", "count_unknown"]].iloc[0].tolist() == [4, 1, 1, 2]
+    assert "count_unknown" not in aggregate_counts(cr.assign(**{"class": "car"}), 60.0, 0.0, 60.0).columns
+    assert "count_unknown" not in aggregate_counts(cr.assign(**{"class": ""}), 60.0, 0.0, 60.0).columns
