@@ -191,3 +191,17 @@ def test_counts_per_class_add_up_with_unknown_vehicles() -> None:
     assert counts[["count", "count_car", "count_truck", "count_unknown"]].iloc[0].tolist() == [4, 1, 1, 2]
     assert "count_unknown" not in aggregate_counts(cr.assign(**{"class": "car"}), 60.0, 0.0, 60.0).columns
     assert "count_unknown" not in aggregate_counts(cr.assign(**{"class": ""}), 60.0, 0.0, 60.0).columns
+
+
+def test_unknown_class_points_take_their_tracks_dimensions() -> None:
+    """A vehicle of unknown class in some frames (merged with another in the image) is fitted with its track's
+    class there, not a car's."""
+    from trafficgeo.traffic.trajectories import _known_classes
+    from trafficgeo.traffic.tracks import ImageTracks
+
+    n = 6
+    tracks = ImageTracks(track_id=np.array(["a", "a", "a", "b", "b", "c"]), frame=np.arange(n),
+                         time=np.arange(n, dtype=float), u=np.zeros(n), v=np.zeros(n), box=np.zeros((n, 4)),
+                         vclass=np.array(["truck", "", "truck", "", "", "car"], dtype=object),
+                         score=np.ones(n))
+    assert list(_known_classes(tracks)) == ["truck", "truck", "truck", "", "", "car"]

@@ -362,6 +362,20 @@ def usable_positions(camera: Camera, surface: Surface, xy: np.ndarray, opts: Tra
     return out
 
 
+def _known_classes(tracks: ImageTracks) -> np.ndarray:
+    """Per-point classes, those of unknown class (``""``: e.g. a blob of vehicles merged in the image) replaced
+    by their track's majority class, so that a vehicle keeps its own dimensions in the frames where it is not
+    told apart."""
+    vclass = np.asarray(tracks.vclass, dtype=object).copy()
+    blank = vclass == ""
+    if blank.any() and not blank.all():
+        ids = np.asarray(tracks.track_id)
+        for tid in np.unique(ids[blank]):
+            rows = ids == tid
+            vclass[rows & blank] = _majority(vclass[rows])
+    return vclass
+
+
 def _fit_boxes(camera: Camera, surface: Surface, tracks: ImageTracks, heading: np.ndarray, ok: np.ndarray,
                measured: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Cuboid-fitted footprint centres of all usable boxes, written into ``measured`` (CRS units) where the fit
@@ -370,7 +384,7 @@ def _fit_boxes(camera: Camera, surface: Surface, tracks: ImageTracks, heading: n
     success mask (N,) and the class dimensions used (N, 3) m."""
     from trafficgeo.traffic.boxes import box_ground_points, dimensions_for
 
-    dims = dimensions_for(tracks.vclass)
+    dims = dimensions_for(_known_classes(tracks))
     good = np.zeros(len(tracks), dtype=bool)
     use = np.flatnonzero(ok & np.all(np.isfinite(tracks.box), axis=1))
     if use.size:
