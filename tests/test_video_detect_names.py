@@ -74,6 +74,13 @@ def test_one_table_of_detector_names(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------- warm-up
+def test_the_pipeline_primes_longer_than_the_warm_up() -> None:
+    from trafficgeo.video.detect import WARMUP_S
+    from trafficgeo.video.pipeline import PRIME_S
+
+    assert 0 < WARMUP_S < PRIME_S
+
+
 def test_warm_up_is_counted_in_seconds_at_3_fps() -> None:
     """At 3 fps a 2 s warm-up is 6 frames: detections start with the frame at 2 s, not after 50 frames."""
     rng = np.random.default_rng(2)
@@ -196,8 +203,8 @@ def test_counts_per_class_add_up_with_unknown_vehicles() -> None:
 def test_unknown_class_points_take_their_tracks_dimensions() -> None:
     """A vehicle of unknown class in some frames (merged with another in the image) is fitted with its track's
     class there, not a car's."""
-    from trafficgeo.traffic.trajectories import _known_classes
     from trafficgeo.traffic.tracks import ImageTracks
+    from trafficgeo.traffic.trajectories import _known_classes
 
     n = 6
     tracks = ImageTracks(track_id=np.array(["a", "a", "a", "b", "b", "c"]), frame=np.arange(n),
