@@ -212,3 +212,13 @@ def test_unknown_class_points_take_their_tracks_dimensions() -> None:
                          vclass=np.array(["truck", "", "truck", "", "", "car"], dtype=object),
                          score=np.ones(n))
     assert list(_known_classes(tracks)) == ["truck", "truck", "truck", "", "", "car"]
+
+
+def test_a_vehicle_mostly_of_unknown_class_is_unknown() -> None:
+    """A track whose boxes are mostly blobs no single vehicle explains is not a "truck" for a few truck-like ones."""
+    from trafficgeo.traffic.trajectories import _vehicle_class
+
+    assert _vehicle_class(np.array(["truck", "", "", ""], dtype=object)) == ""
+    assert _vehicle_class(np.array(["truck", "truck", "", "van"], dtype=object)) == "truck"
+    assert _vehicle_class(np.array(["car", "", "car", "van", ""], dtype=object)) == "car"
+    assert _vehicle_class(np.array(["", ""], dtype=object)) == ""

@@ -258,6 +258,14 @@ def _majority(values: np.ndarray) -> str:
     return str(names[np.argmax(counts)])
 
 
+def _vehicle_class(values: np.ndarray) -> str:
+    """A vehicle's class from its points': the most frequent one, or "" (unknown) when more of its points are of
+    unknown class (e.g. blobs of vehicles merged in the image) than of that class."""
+    best = _majority(values)
+    names = np.asarray([str(v) for v in values], dtype=object)
+    return best if np.sum(names == best) >= np.sum(names == "") else ""
+
+
 def _fill_heading(sm: SmoothedTrack) -> np.ndarray:
     """Smoothed heading (deg) where the vehicle moves; the heading of the nearest moving point elsewhere; NaN for a
     vehicle that never moves."""
@@ -419,7 +427,7 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
     for name, source, rows, sm, (length, length_std) in parts:
         x = origin[0] + sm.x / m
         y = origin[1] + sm.y / m
-        vclass = _majority(tracks.vclass[rows])
+        vclass = _vehicle_class(tracks.vclass[rows])
         step = np.hypot(np.diff(sm.x), np.diff(sm.y))
         duration = float(sm.time[-1] - sm.time[0])
         glimpse_ok = duration >= MIN_SPEED_DURATION_S
