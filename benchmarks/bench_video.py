@@ -13,6 +13,9 @@ Part 2, accuracy against the world's truth, with the true camera and a DEM from 
 
 * detection precision and recall at IoU >= 0.5 against the rendered truth boxes of vehicles at least half visible
   and at least 12 px tall (a detection matching a hidden vehicle is neither);
+* the classes: true class against detected class of the detections matched to one vehicle (IoU >= 0.5, any
+  visibility), the classes given to detections that match no single vehicle (most hold several), and the
+  vehicles of each class in ``vehicles.csv`` against the world's vehicles seen in the time used;
 * per-lane counts at the three lines (1 - sum |counted - true| / sum true);
 * speed at the lines: each crossing against the true crossing of the same line and lane nearest in time
   (within 0.5 s), mean absolute error;
@@ -46,12 +49,49 @@ from trafficgeo.traffic.analyze import analyze
 from trafficgeo.traffic.lanes import read_lanes
 from trafficgeo.traffic.lines import read_count_lines
 from trafficgeo.traffic.tracks import tracks_from_table
+from trafficgeo.video.detect import box_iou
 from trafficgeo.video.pipeline import TRACK_COLUMNS, ProcessOptions, detect_and_track
 from trafficgeo.video.reader import iter_frames, video_info
 from trafficgeo.video.track import VehicleTracker
 
 ROOT = Path(__file__).resolve().parents[1]
 WORLD = WorldOptions(seed=5, fps=30.0, duration_s=60.0, count_stations=(-20.0, 20.0, 60.0))
+
+
+def class_confusion(detections: pd.DataFrame, truth: pd.DataFrame, *, iou: float = 0.5) -> pd.DataFrame:
+    """Counts of (true class, detected class) over the detections (``frame, x1, y1, x2, y2, class``) matched
+    one-to-one to a truth box of ``truth_tracks.csv`` at IoU >= ``iou`` (greedy, best first); a detection matched
+    to none counts under the true class "(none: N vehicles inside)", N the truth boxes whose bottom centre it holds.
+    Class "" is shown as "unknown"."""
+    truth = truth.dropna(subset=["x1", "y1", "x2", "y2"])
+    truth = truth[truth["visible_fraction"] > 0]
+    det_groups = detections.groupby("frame").indices
+    tru_groups = truth.groupby("frame").indices
+    dbox = detections[["x1", "y1", "x2", "y2"]].to_numpy(dtype=np.float64)
+    dcls = detections["class"].fillna("").astype(str).replace("", "unknown").to_numpy()
+    tbox = truth[["x1", "y1", "x2", "y2"]].to_numpy(dtype=np.float64)
+    tcls = truth["class"].astype(str).to_numpy()
+    rows = []
+    for f, di in det_groups.items():
+        ti = tru_groups.get(f, np.zeros(0, dtype=int))
+        match = np.full(di.size, -1)
+        if ti.size:
+            m = box_iou(dbox[di][:, None], tbox[ti][None, :])
+            used = set()
+            for i, j in sorted(zip(*np.nonzero(m >= iou), strict=True), key=lambda p: -m[p]):
+                if match[i] < 0 and j not in used:
+                    match[i] = j
+                    used.add(j)
+        for i, d in enumerate(di):
+            if match[i] >= 0:
+                rows.append((tcls[ti[match[i]]], dcls[d]))
+                continue
+            b, t = dbox[d], tbox[ti]
+            cx, cy = 0.5 * (t[:, 0] + t[:, 2]), t[:, 3]
+            inside = int(np.sum((cx >= b[0] - 2) & (cx <= b[2] + 2) & (cy >= b[1] - 2) & (cy <= b[3] + 2)))
+            rows.append((f"(none: {min(inside, 3)}{'+' if inside >= 3 else ''} vehicles inside)", dcls[d]))
+    table = pd.DataFrame(rows, columns=["true", "detected"])
+    return pd.crosstab(table["true"], table["detected"])
 
 
 def main() -> None:
@@ -108,6 +148,14 @@ def main() -> None:
           ">= 98 % |")
     print(f"| speed at the lines, mean abs error ({errs.size} of {n_matched} matched crossings with a speed) | "
           f"{np.mean(np.abs(errs)):.2f} km/h (bias {np.mean(errs):+.2f}) | <= 2 km/h |")
+    print("\nclasses of the detections: true class (rows) against detected class (columns):")
+    print(class_confusion(detections, truth[truth["time"] < end]).to_string())
+    seen = truth[(truth["time"] < end) & (truth["visible_fraction"] > 0)].drop_duplicates("vehicle")
+    vehicle_classes = pd.DataFrame({"world (seen)": seen["class"].value_counts(),
+                                    "vehicles.csv": result.vehicles["class"].fillna("").astype(str)
+                                    .replace("", "unknown").value_counts()}).fillna(0).astype(int)
+    print("\nvehicles per class:")
+    print(vehicle_classes.to_string())
     print("\ncounts per line and lane:")
     print(both.to_string())
 

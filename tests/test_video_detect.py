@@ -130,7 +130,7 @@ def synthetic_run() -> dict[str, object]:
     roi[200:] = True  # only the lower part (the car's lane)
     out: dict[str, object] = {"bg": bg, "frames": frames}
     for name, kw in (("plain", {}), ("roi", {"roi": roi}), ("full", {"scale": 1.0}), ("knn", {"method": "knn"})):
-        det = BackgroundDetector(warmup=20, **kw)
+        det = BackgroundDetector(warmup_s=0.8, **kw)  # 20 frames at 25 fps
         out[name] = [det.detect(f, k / 25.0) for k, f in enumerate(frames)]
         out[name + "_detector"] = det
     return out
@@ -171,12 +171,12 @@ def test_background_input_errors() -> None:
         BackgroundDetector(scale=0.0)
     with pytest.raises(InputError, match="both"):
         BackgroundDetector(surface=object())
-    det = BackgroundDetector(warmup=0, roi=np.ones((10, 10), dtype=bool))
+    det = BackgroundDetector(warmup_s=0, roi=np.ones((10, 10), dtype=bool))
     with pytest.raises(InputError, match="uint8"):
         det.detect(np.zeros((H, W), dtype=np.uint8), 0.0)
     with pytest.raises(InputError, match="roi"):
         det.detect(np.zeros((H, W, 3), dtype=np.uint8), 0.0)
-    det = BackgroundDetector(warmup=0)
+    det = BackgroundDetector(warmup_s=0)
     det.detect(np.zeros((H, W, 3), dtype=np.uint8), 0.0)
     with pytest.raises(InputError, match="size changed"):
         det.detect(np.zeros((H // 2, W, 3), dtype=np.uint8), 0.0)
@@ -264,7 +264,7 @@ def _demo_world_scores(demo_world: Path, **options: object) -> tuple[float, floa
 
     camera = read_camera_json(demo_world / "camera_truth.json")
     truth = pd.read_csv(demo_world / "truth_tracks.csv")
-    det = BackgroundDetector(camera=camera, surface=ConstantSurface(90.0), warmup=50, **options)
+    det = BackgroundDetector(camera=camera, surface=ConstantSurface(90.0), warmup_s=2.0, **options)
     tp = n_good = n_det = n_true_det = same_class = covered = 0
     times = []
     with av.open(str(demo_world / "video.mp4")) as container:
@@ -273,7 +273,7 @@ def _demo_world_scores(demo_world: Path, **options: object) -> tuple[float, floa
             t0 = time.perf_counter()
             d = det.detect(img, k / 25.0)
             times.append(time.perf_counter() - t0)
-            if k < det.warmup:
+            if k < 50:  # the warm-up: 2 s at 25 fps
                 continue
             g = truth[(truth["frame"] == k) & (truth["visible_fraction"] > 0)]
             boxes = g[["x1", "y1", "x2", "y2"]].to_numpy()
@@ -295,7 +295,7 @@ def _demo_world_scores(demo_world: Path, **options: object) -> tuple[float, floa
     recall = tp / max(n_good, 1)
     precision = n_true_det / max(n_det, 1)
     class_ok = same_class / max(tp, 1)
-    ms = 1000 * float(np.median(times[det.warmup:]))
+    ms = 1000 * float(np.median(times[50:]))
     print(f"\ndemo world 640x360 {options}: recall {recall:.3f} ({tp}/{n_good}), precision {precision:.3f} "
           f"({n_true_det}/{n_det}), class agreement {class_ok:.3f}, covered {covered / max(n_good, 1):.3f}, "
           f"{ms:.1f} ms/frame")
@@ -335,7 +335,7 @@ def test_camera_frame_size_mismatch(demo_world: Path) -> None:
     from trafficgeo.geo.surface import ConstantSurface
 
     camera = read_camera_json(demo_world / "camera_truth.json")
-    det = BackgroundDetector(camera=camera, surface=ConstantSurface(90.0), warmup=0)
+    det = BackgroundDetector(camera=camera, surface=ConstantSurface(90.0), warmup_s=0)
     with pytest.raises(InputError, match="calibrated for 640x360"):
         det.detect(np.zeros((720, 1280, 3), dtype=np.uint8), 0.0)
 
@@ -352,12 +352,12 @@ def test_background_speed_1080p() -> None:
         frames.append(cv2.add(f, rng.integers(0, 4, f.shape, dtype=np.uint8)))
     report = []
     for scale in (0.5, 1.0):
-        det = BackgroundDetector(scale=scale, warmup=8)
-        for f in frames[:8]:
-            det.detect(f, 0.0)
+        det = BackgroundDetector(scale=scale, warmup_s=8 / 25)
+        for k, f in enumerate(frames[:8]):
+            det.detect(f, k / 25)
         t0 = time.perf_counter()
-        for f in frames[8:]:
-            det.detect(f, 0.0)
+        for k, f in enumerate(frames[8:], 8):
+            det.detect(f, k / 25)
         ms = 1000 * (time.perf_counter() - t0) / (len(frames) - 8)
         report.append(f"scale {scale}: {ms:.1f} ms")
         if scale == 0.5:
@@ -393,7 +393,7 @@ def test_onnx_detector_letterbox_and_nms(tmp_path: Path) -> None:
     img = np.full((720, 1280, 3), 80, dtype=np.uint8)
     lb, r, (left, top) = letterbox(img, 640)
     assert lb.shape == (640, 640, 3) and r == 0.5 and (left, top) == (0, 140)
-    a = np.zeros((1, 84, 4), dtype=np.float32)
+    a = np.zeros((1, 84, 8400), dtype=np.float32)  # the anchors of a 640 px input
     a[0, :4, 0] = [320, 320, 100, 60]  # a car (class 2) at 0.9
     a[0, 4 + 2, 0] = 0.9
     a[0, :4, 1] = [322, 321, 100, 60]  # the same car again at 0.8: suppressed by NMS
@@ -428,7 +428,7 @@ def test_onnx_detector_errors(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="not a usable ONNX model"):
         OnnxDetector(garbage)
     few = tmp_path / "few_classes.onnx"
-    _yolo_model(few, np.zeros((1, 4 + 3, 5), dtype=np.float32))  # 3 classes: COCO ids 5 and 7 do not exist
+    _yolo_model(few, np.zeros((1, 4 + 3, 8400), dtype=np.float32))  # 3 classes: COCO ids 5 and 7 do not exist
     with pytest.raises(InputError, match="class_map"):
         OnnxDetector(few)
     det = OnnxDetector(few, class_map={2: "car"})
@@ -556,7 +556,7 @@ def test_background_defaults_keep_close_and_small_vehicles_apart() -> None:
     """By default no closing joins two vehicles a few pixels apart, and a small far vehicle (~150 px^2 at 1080p)
     passes the minimum area."""
     bg = np.full((1080, 1920, 3), 90, dtype=np.uint8)
-    det = BackgroundDetector(warmup=0)
+    det = BackgroundDetector(warmup_s=0)
     det.detect(bg, 0.0)
     frame = bg.copy()
     rects = [(600, 500, 660, 540), (666, 500, 726, 540), (1200, 300, 1216, 312)]  # x1, y1, x2, y2 (exclusive)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Annotated
 
@@ -13,6 +14,7 @@ from trafficgeo.cli import app, console
 from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt, _camera, _surface
 from trafficgeo.cli.traffic import IntervalOpt, LanesOpt, LinesOpt, ReportHtmlOpt, _check_out_dir, _layout
 from trafficgeo.errors import InputError
+from trafficgeo.video.detector_names import DETECTOR_HELP
 
 
 def _analyze_and_write(cam, surf, image_tracks, lane_set, count_lines, interval: float, out: Path):
@@ -27,6 +29,30 @@ def _analyze_and_write(cam, surf, image_tracks, lane_set, count_lines, interval:
     return result, written
 
 
+def _what_was_read(video: Path, opts, read: dict, caught: list) -> tuple[dict, str | None]:
+    """What the frames seen (``read``: first/last frame time (s) and frames, from the progress ticks) and the
+    reader's warnings (``caught``) say about the time range read: ``process.json``'s ``read`` and a one-line
+    warning when fewer seconds were decoded than asked (or than the file says it holds), else None."""
+    from trafficgeo.video.reader import VideoReadWarning, video_info
+
+    for w in caught:  # other warnings are shown as usual
+        if not issubclass(w.category, VideoReadWarning):
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    info = video_info(video)
+    asked = opts.end_s if opts.end_s is not None else info.duration_s
+    said = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, VideoReadWarning)))
+    step = opts.every / info.fps if info.fps > 0 else 0.0
+    end = None if read["last"] is None else read["last"] + step  # the end of the last frame used
+    doc = {"start_s": read["first"], "end_s": end, "frames": read["frames"]}
+    short = end is not None and asked - end > 0.5 * step + 1e-6
+    if not (short or said):
+        return {**doc, "complete": True}, None
+    got = f"{read['first']:.2f}-{end:.2f} s ({read['frames']} frames)" if end is not None else "no frame"
+    why = said[-1] if said else f"the video is {info.duration_s:.2f} s long"  # the main pass: the last
+    return ({**doc, "complete": False},
+            f"warning: read {got} of the asked {opts.start_s:g}-{asked:.2f} s; {why}")
+
+
 @app.command()
 def process(
     ctx: typer.Context,
@@ -38,8 +64,7 @@ def process(
     lanes: LanesOpt = None,
     lines: LinesOpt = None,
     interval: IntervalOpt = 60.0,
-    detector: Annotated[str, typer.Option(help="'background' (MOG2, no weights), 'knn', or a YOLO .onnx model "
-                                          "file")] = "background",
+    detector: Annotated[str, typer.Option(help=DETECTOR_HELP)] = "background",
     start: Annotated[float, typer.Option(help="start time (s)")] = 0.0,
     end: Annotated[float | None, typer.Option(help="end time (s); default: the end of the video")] = None,
     every: Annotated[int, typer.Option(help="use every n-th frame")] = 1,
@@ -51,10 +76,13 @@ def process(
     surface_crs: SurfaceCrsOpt = None,
     resolution: ResolutionOpt = 0.25,
     report_html: ReportHtmlOpt = None,
+    strict: Annotated[bool, typer.Option(help="exit 1 (after writing the outputs) when fewer seconds of video "
+                                         "could be decoded than asked: a truncated or damaged file")] = False,
 ) -> None:
     """Detect, track and georeference the vehicles of a video; then counts, speeds and lanes as 'analyze'.
 
-    Interrupted runs resume from their last checkpoint when the same command is run again.
+    Interrupted runs resume from their last checkpoint when the same command is run again. A video that ends
+    early (truncated or damaged) is used as far as it decodes, with a warning; process.json says what was read.
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -68,6 +96,7 @@ def process(
         hold_folder,
         write_run_info,
     )
+    from trafficgeo.video.reader import VideoReadWarning
 
     _check_out_dir(out)
     check_html_path(report_html)
@@ -88,6 +117,7 @@ def process(
     ctx.with_resource(hold_folder(out))  # one run in a folder until the command ends
     begin_outputs(out)  # from here until the end, readers refuse the folder
     t0 = time.perf_counter()
+    read: dict = {"first": None, "last": None, "frames": 0}  # frame times (s) and frames seen
     columns = (TextColumn("[progress.description]{task.description}"), BarColumn(),
                TextColumn("{task.completed}/{task.total} frames, {task.fields[rate]:.1f} fps, video {task.fields[t]}"),
                TimeRemainingColumn())
@@ -98,13 +128,21 @@ def process(
             def tick(done: int, total: int, t: float) -> None:
                 rate = done / max(time.perf_counter() - t0, 1e-9)
                 bar.update(task, completed=done, total=total, rate=rate, t=f"{t:.1f} s")
+                read.update(first=read["first"] if read["first"] is not None else t if done == 1 else start,
+                            last=t, frames=done)
 
-            detections, tracks = detect_and_track(video, cam, surf, out, opts, roi=mask, restart=restart,
-                                                  progress=tick, notice=lambda text: console.print(text, markup=False))
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", VideoReadWarning)
+                detections, tracks = detect_and_track(video, cam, surf, out, opts, roi=mask, restart=restart,
+                                                      progress=tick,
+                                                      notice=lambda text: console.print(text, markup=False))
     except KeyboardInterrupt:
         console.print(f"interrupted; run the same command again to resume from the last checkpoint in {out}")
         sys.exit(130)
     elapsed = time.perf_counter() - t0
+    read_doc, short = _what_was_read(video, opts, read, caught)
+    if short:
+        console.print(short, markup=False, soft_wrap=True)
     console.print(f"{len(detections)} detections, {tracks['track_id'].nunique() if len(tracks) else 0} tracks "
                   f"in {elapsed:.1f} s")
     if not len(tracks):
@@ -121,7 +159,7 @@ def process(
                            progress=lambda d, n: bar.update(task, completed=d, total=n))
         console.print(f"wrote {annotate}")
     write_run_info(out, video=str(video), camera=str(camera), options=opts, seconds=elapsed,
-                   detections=len(detections), track_rows=len(tracks))
+                   detections=len(detections), track_rows=len(tracks), read=read_doc)
     finish_run(out)
     publish_outputs(out, ["detections.csv", "tracks.csv", *written, "process.json"], command="process")
     console.print(f"wrote detections.csv, tracks.csv, {', '.join(p.name for p in written)}, process.json in {out}")
@@ -129,6 +167,8 @@ def process(
         from trafficgeo.cli.report import write_page
 
         write_page(report_html, out, camera=camera)  # the video and its --start come from process.json
+    if short and strict:
+        sys.exit(1)  # --strict: the video ended before the asked end
 
 
 def _read_chunk(folder: Path):

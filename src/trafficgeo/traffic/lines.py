@@ -191,16 +191,18 @@ def interval_edges(start: float, end: float, interval_s: float) -> np.ndarray:
 def aggregate_counts(crossings: pd.DataFrame, interval_s: float, start: float, end: float) -> pd.DataFrame:
     """Counts per line, lane, direction and interval over the observed period [start, end) (s).
 
-    Columns: ``line, lane, direction, interval_start, interval_end, count, count_<class>...,
-    flow_veh_h`` (count over the interval's observed duration), ``time_mean_speed_kmh`` (arithmetic mean of the
-    spot speeds, which are along each vehicle's direction of travel), ``space_mean_speed_kmh`` (their harmonic
-    mean), ``mean_headway_s``, ``min_headway_s`` (time since the previous vehicle over the same line, in the same
-    lane and direction) and ``mean_gap_s`` (headway less the time the previous vehicle took to pass its own
-    length; needs ``length_m``). Intervals without vehicles are listed with a count of 0 for every line, lane and
-    direction seen.
+    Columns: ``line, lane, direction, interval_start, interval_end, count, count_<class>...`` (with
+    ``count_unknown`` for the vehicles of unknown class ``""`` when others have a class, so that they add up to
+    ``count``), ``flow_veh_h`` (count over the interval's observed duration), ``time_mean_speed_kmh``
+    (arithmetic mean of the spot speeds, which are along each vehicle's direction of travel),
+    ``space_mean_speed_kmh`` (their harmonic mean), ``mean_headway_s``, ``min_headway_s`` (time since the previous
+    vehicle over the same line, in the same lane and direction) and ``mean_gap_s`` (headway less the time the
+    previous vehicle took to pass its own length; needs ``length_m``). Intervals without vehicles are listed with a
+    count of 0 for every line, lane and direction seen.
     """
     edges = interval_edges(start, end, interval_s)
-    classes = sorted(c for c in crossings["class"].astype(str).unique() if c) if len(crossings) else []
+    names = set(crossings["class"].fillna("").astype(str)) if len(crossings) else set()
+    classes = sorted(c for c in names if c) + ([""] if "" in names and len(names) > 1 else [])  # "": unknown
     groups = crossings.groupby(["line", "lane", "direction"], sort=True) if len(crossings) else []
     rows = []
     for (line, lane, direction), g in groups:
@@ -221,9 +223,9 @@ def aggregate_counts(crossings: pd.DataFrame, interval_s: float, start: float, e
             dur = edges[k + 1] - edges[k]
             row = {"line": line, "lane": lane, "direction": int(direction), "interval_start": edges[k],
                    "interval_end": edges[k + 1], "count": int(sel.sum())}
-            cls = g["class"].astype(str).to_numpy()[sel]
+            cls = g["class"].fillna("").astype(str).to_numpy()[sel]
             for c in classes:
-                row[f"count_{c}"] = int(np.sum(cls == c))
+                row[f"count_{c or 'unknown'}"] = int(np.sum(cls == c))
             s = speed[sel]
             s = s[np.isfinite(s) & (s > 0)]
             row["flow_veh_h"] = row["count"] * 3600.0 / dur if dur > 0 else np.nan
@@ -235,6 +237,6 @@ def aggregate_counts(crossings: pd.DataFrame, interval_s: float, start: float, e
             row["mean_gap_s"] = float(np.nanmean(gp)) if np.isfinite(gp).any() else np.nan
             rows.append(row)
     columns = ["line", "lane", "direction", "interval_start", "interval_end", "count",
-               *[f"count_{c}" for c in classes], "flow_veh_h", "time_mean_speed_kmh", "space_mean_speed_kmh",
-               "mean_headway_s", "min_headway_s", "mean_gap_s"]
+               *[f"count_{c or 'unknown'}" for c in classes], "flow_veh_h", "time_mean_speed_kmh",
+               "space_mean_speed_kmh", "mean_headway_s", "min_headway_s", "mean_gap_s"]
     return pd.DataFrame(rows, columns=columns)

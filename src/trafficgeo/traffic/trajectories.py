@@ -292,6 +292,14 @@ def _majority(values: np.ndarray) -> str:
     return str(names[np.argmax(counts)])
 
 
+def _vehicle_class(values: np.ndarray) -> str:
+    """A vehicle's class from its points': the most frequent one, or "" (unknown) when more of its points are of
+    unknown class (e.g. blobs of vehicles merged in the image) than of that class."""
+    best = _majority(values)
+    names = np.asarray([str(v) for v in values], dtype=object)
+    return best if np.sum(names == best) >= np.sum(names == "") else ""
+
+
 def _fill_heading(sm: SmoothedTrack) -> np.ndarray:
     """Smoothed heading (deg) where the vehicle moves; the heading of the nearest moving point elsewhere; NaN for a
     vehicle that never moves."""
@@ -400,6 +408,20 @@ def usable_positions(camera: Camera, surface: Surface, xy: np.ndarray, opts: Tra
     return out
 
 
+def _known_classes(tracks: ImageTracks) -> np.ndarray:
+    """Per-point classes, those of unknown class (``""``: e.g. a blob of vehicles merged in the image) replaced
+    by their track's majority class, so that a vehicle keeps its own dimensions in the frames where it is not
+    told apart."""
+    vclass = np.asarray(tracks.vclass, dtype=object).copy()
+    blank = vclass == ""
+    if blank.any() and not blank.all():
+        ids = np.asarray(tracks.track_id)
+        for tid in np.unique(ids[blank]):
+            rows = ids == tid
+            vclass[rows & blank] = _majority(vclass[rows])
+    return vclass
+
+
 def _fit_boxes(camera: Camera, surface: Surface, tracks: ImageTracks, heading: np.ndarray, ok: np.ndarray,
                measured: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Cuboid-fitted footprint centres of all usable boxes, written into ``measured`` (CRS units) where the fit
@@ -408,7 +430,7 @@ def _fit_boxes(camera: Camera, surface: Surface, tracks: ImageTracks, heading: n
     success mask (N,) and the class dimensions used (N, 3) m."""
     from trafficgeo.traffic.boxes import box_ground_points, dimensions_for
 
-    dims = dimensions_for(tracks.vclass)
+    dims = dimensions_for(_known_classes(tracks))
     good = np.zeros(len(tracks), dtype=bool)
     usable = np.flatnonzero(ok & np.all(np.isfinite(tracks.box), axis=1))
     for sl in _blocks(usable.size):
@@ -444,7 +466,7 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
     for name, source, rows, sm, (length, length_std) in parts:
         x = origin[0] + sm.x / m
         y = origin[1] + sm.y / m
-        vclass = _majority(tracks.vclass[rows])
+        vclass = _vehicle_class(tracks.vclass[rows])
         step = np.hypot(np.diff(sm.x), np.diff(sm.y))
         duration = float(sm.time[-1] - sm.time[0])
         glimpse_ok = duration >= MIN_SPEED_DURATION_S

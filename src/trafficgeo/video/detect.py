@@ -12,11 +12,13 @@ OpenCV pixel-centre convention (pixel (0, 0) is the *centre* of the top-left pix
   (rules in the class docstring). It finds what moves: vehicles that touch in the image often stay one blob.
 * :class:`OnnxDetector` runs a YOLOv8/YOLO11-style ONNX export with onnxruntime on the CPU. trafficgeo never
   downloads weights: bring your own ``.onnx`` file.
-* :func:`make_detector` builds either from a short spec (``"background"``, ``"mog2"``, ``"knn"`` or a path).
+* :func:`make_detector` builds either from a short spec (a name of
+  :data:`trafficgeo.video.detector_names.DETECTOR_NAMES` or the path of an ``.onnx`` file).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +29,7 @@ import numpy as np
 
 from trafficgeo.errors import InputError
 from trafficgeo.geo.surface import OK
+from trafficgeo.video.detector_names import DETECTOR_NAMES, ONNX_HINT, detector_kind  # noqa: F401 (re-exported)
 
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera
@@ -35,9 +38,10 @@ if TYPE_CHECKING:
 # COCO class ids (0-based, as YOLO exports number them) of the road vehicles, and their trafficgeo names.
 COCO_VEHICLES: dict[int, str] = {1: "bicycle", 2: "car", 3: "motorcycle", 5: "bus", 7: "truck"}
 WARMUP_FRAMES = 20  # warm-up frames kept for the initial background (their per-pixel mode)
+# s of video the background detector learns on before it reports anything; below the 4 s that `process` primes
+# it on (pipeline.PRIME_S). On the demo world's bench 3 s counted 90.0 % per lane, 2 s 77.3 %, 1.67 s 84.5 %.
+WARMUP_S = 3.0
 GAIN_STEP = 8  # grid step (detection-scale px) of the pixels that measure a frame's brightness
-ONNX_HINT = ("trafficgeo never downloads weights: export a YOLOv8/YOLO11 detector with e.g. ultralytics "
-             "`yolo export model=yolov8n.pt format=onnx` on a machine of your choice and pass --model PATH")
 
 
 # ---------------------------------------------------------------------------------------------------- Detections
@@ -155,6 +159,8 @@ class SizeRules:
         valley_ratio: a column is a valley when its foreground density is below this fraction of the densest
             column on each side of it.
         motorcycle_max_length_m, motorcycle_max_width_m: a "car" shorter and narrower than these is a "motorcycle".
+        truck_min_fill: a blob of the "truck" class whose foreground fills less than this fraction of its box is
+            of unknown class (``""``): more likely vehicles merged into one blob than one truck.
     """
 
     classes: Mapping[str, tuple[float, float, float, float]] = field(default_factory=lambda: {
@@ -170,10 +176,11 @@ class SizeRules:
     valley_ratio: float = 0.6
     motorcycle_max_length_m: float = 3.0
     motorcycle_max_width_m: float = 1.4
+    truck_min_fill: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("min_length_m", "max_length_m", "min_width_m", "max_width_m", "lane_width_m", "split_lanes",
-                     "defect_ratio", "valley_ratio", "max_log_mismatch"):
+                     "defect_ratio", "valley_ratio", "max_log_mismatch", "truck_min_fill"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise InputError(f"SizeRules.{name} = {value!r} must be a positive number")
@@ -477,8 +484,9 @@ class BackgroundDetector:
 
     Per frame (``detect``):
 
-    1. The frame is downscaled by ``scale`` (INTER_AREA; default 0.5 for speed). During the first ``warmup``
-       frames nothing is reported: up to 20 of them, evenly spaced, are kept, and their per-pixel temporal mode
+    1. The frame is downscaled by ``scale`` (INTER_AREA; default 0.5 for speed). During the first ``warmup_s``
+       seconds of video (frame times, whatever the frame rate) nothing is reported: up to 20 of their frames,
+       evenly spaced in time, are kept, and their per-pixel temporal mode
        (:func:`temporal_mode`: the colour seen most often, which in traffic is the road's even where vehicles cover
        it more than half of the time) initialises OpenCV's MOG2 (or KNN) model (``detectShadows=True``). From
        then on every frame updates the model with ``learning_rate`` per frame, by default ``1 / history``, a fixed
@@ -522,14 +530,18 @@ class BackgroundDetector:
        than a car (the shortest class) or wider than 6 m but could not be split (vehicles hiding each other:
        dropping the blob would lose them all, keeping it makes at least one track). Blobs too small for a vehicle
        are dropped. A blob cut by the frame border (its ground contact or its extent is not seen) is kept without
-       the size check. Without a camera every blob is kept and its class is ``""``.
+       the size check. A blob no single vehicle explains (kept by ``keep_merged``, or cut by the border and not
+       plausible) and a "truck" whose foreground fills less than ``rules.truck_min_fill`` of its box (vehicles
+       merged into one blob leave empty corners, a truck's body does not) have class ``""`` (unknown). Without a
+       camera every blob is kept and its class is ``""``.
     8. Score: the blob's fill ratio, foreground pixels / box area (in (0, 1]): compact vehicles score high, sparse
        noise or merged clutter low.
 
-    Not thread-safe (the background model is state); use one detector per video. ``time_s`` is not used.
+    Not thread-safe (the background model is state); use one detector per video. ``detect`` needs the frames'
+    times (s, increasing): the warm-up is counted in them.
     """
 
-    def __init__(self, *, method: str = "mog2", scale: float = 0.5, warmup: int = 50,
+    def __init__(self, *, method: str = "mog2", scale: float = 0.5, warmup_s: float = WARMUP_S,
                  learning_rate: float | None = None, history: int = 500, threshold: float | None = None,
                  shadow_threshold: float = 0.5, camera: Camera | None = None,
                  surface: Surface | None = None, roi: np.ndarray | None = None, min_area_px: float | None = None,
@@ -541,9 +553,9 @@ class BackgroundDetector:
         Args:
             method: "mog2" or "knn" (OpenCV background subtractors).
             scale: downscale factor of the frame the model runs on (0 < scale <= 1).
-            warmup: frames whose temporal mode initialises the background; nothing is reported for them (50 = 2 s
-                at 25 fps; longer in dense traffic). With 0 the first frame initialises it (nothing is reported
-                for it).
+            warmup_s: seconds of video (from the first frame's time) whose frames' temporal mode initialises the
+                background; nothing is reported for them (longer in dense traffic). The first frame at or after
+                ``warmup_s`` is detected in. With 0 the first frame initialises it (nothing is reported for it).
             learning_rate: background learning rate per frame in [0, 1] (default ``1 / history``), or -1 for
                 OpenCV's automatic rate.
             history: frames of history of the model.
@@ -570,8 +582,8 @@ class BackgroundDetector:
             raise InputError(f"BackgroundDetector: unknown method {method!r}; use 'mog2' or 'knn'")
         if not (np.isfinite(scale) and 0 < scale <= 1):
             raise InputError(f"BackgroundDetector: scale {scale!r} must be in (0, 1], e.g. 0.5")
-        if int(warmup) != warmup or warmup < 0:
-            raise InputError(f"BackgroundDetector: warmup {warmup!r} must be a whole number of frames >= 0")
+        if not (np.isfinite(warmup_s) and warmup_s >= 0):
+            raise InputError(f"BackgroundDetector: warmup_s {warmup_s!r} must be a number of seconds >= 0, e.g. 3")
         if learning_rate is None:
             learning_rate = 1.0 / history if history >= 1 else -1.0
         if not (learning_rate == -1 or (np.isfinite(learning_rate) and 0 <= learning_rate <= 1)):
@@ -590,7 +602,7 @@ class BackgroundDetector:
                 raise InputError(f"BackgroundDetector: {name} {value!r} must be >= 0")
         self.method = method
         self.scale = float(scale)
-        self.warmup = int(warmup)
+        self.warmup_s = float(warmup_s)
         self.learning_rate = float(learning_rate)
         self.camera = camera
         self.surface = surface
@@ -610,7 +622,9 @@ class BackgroundDetector:
                                                             detectShadows=True)
         self._model.setShadowThreshold(float(shadow_threshold))
         self._buffer: list[np.ndarray] = []
-        self._stride = max(1, -(-self.warmup // WARMUP_FRAMES))
+        self._t_first: float | None = None  # time (s) of the first frame
+        self._t_kept = -np.inf  # time (s) of the last warm-up frame kept in the buffer
+        self._ready = False  # the background model is initialised
         self._shape: tuple[int, int] | None = None
         self._memo: dict[tuple[float, ...], tuple[str, float, bool, float]] = {}
         self._m = 1.0
@@ -660,16 +674,22 @@ class BackgroundDetector:
         self._min_area = max(1.0, min_area / (self._sx * self._sy))
         self._shape = (h, w)
 
-    @property
-    def warming_up(self) -> bool:
-        """True while the model is still learning (the next frame will report nothing)."""
-        return self.frames_seen < max(self.warmup, 1)
+    def _in_warmup(self, time_s: float) -> bool:
+        """Is a frame at ``time_s`` (s) a warm-up frame (the first frame always is)?"""
+        if not np.isfinite(time_s):
+            raise InputError(f"BackgroundDetector: frame time {time_s!r} is not a number of seconds")
+        if self._ready:
+            return False
+        if self._t_first is None:
+            return True
+        return time_s - self._t_first < self.warmup_s - 1e-9
 
     # ---------------------------------------------------------------- per frame
-    def foreground(self, image: np.ndarray) -> np.ndarray:
-        """Update the model with ``image`` and return the cleaned foreground mask (uint8 0/255) at detection scale
-        (steps 1-3 of the class docstring)."""
+    def foreground(self, image: np.ndarray, time_s: float) -> np.ndarray:
+        """Update the model with ``image`` taken at ``time_s`` (s) and return the cleaned foreground mask (uint8
+        0/255) at detection scale (steps 1-3 of the class docstring); all zero for warm-up frames."""
         image = check_image(image)
+        time_s = float(time_s)
         if self._shape is None:
             self._setup(image.shape[:2])
         elif image.shape[:2] != self._shape:
@@ -678,13 +698,17 @@ class BackgroundDetector:
         small = image if self._small == (image.shape[1], image.shape[0]) else \
             cv2.resize(image, self._small, interpolation=cv2.INTER_AREA)
         self.frames_seen += 1
-        if self.frames_seen <= max(self.warmup, 1):
-            if (self.frames_seen - 1) % self._stride == 0 or self.frames_seen == max(self.warmup, 1):
+        if self._in_warmup(time_s):
+            if self._t_first is None:
+                self._t_first = time_s
+            # Up to WARMUP_FRAMES frames evenly spaced in time over the warm-up, whatever the frame rate.
+            if time_s - self._t_kept >= self.warmup_s / WARMUP_FRAMES - 1e-9 and len(self._buffer) < WARMUP_FRAMES:
                 self._buffer.append(small.copy() if small is image else small)
-            if self.frames_seen == max(self.warmup, 1):
-                self._initialise()
+                self._t_kept = time_s
             self.last_mask = np.zeros(small.shape[:2], dtype=np.uint8)
             return self.last_mask
+        if not self._ready:
+            self._initialise()
         if self.compensate_gain and self._ref is not None:
             small = self._compensate(small)
         fg = self._model.apply(small, learningRate=self.learning_rate)
@@ -702,6 +726,7 @@ class BackgroundDetector:
         """Initialise the model with the per-pixel temporal mode of the buffered warm-up frames."""
         background = temporal_mode(self._buffer)
         self._buffer = []
+        self._ready = True
         self._model.apply(background, learningRate=1.0)  # 1 = re-initialise the model from this image
         if self.method == "knn":  # KNN fills its sample memories only over several updates
             for _ in range(5):
@@ -722,10 +747,16 @@ class BackgroundDetector:
             return cv2.convertScaleAbs(small, alpha=1.0 / gain)
         return small
 
-    def detect(self, image: np.ndarray, time_s: float = 0.0) -> Detections:
-        """Vehicles moving in ``image`` ((H, W, 3) uint8 BGR); empty during the warm-up."""
-        learning = self.frames_seen < max(self.warmup, 1)
-        mask = self.foreground(image)
+    @property
+    def warming_up(self) -> bool:
+        """True until the background model is initialised (by the first frame after the warm-up)."""
+        return not self._ready
+
+    def detect(self, image: np.ndarray, time_s: float) -> Detections:
+        """Vehicles moving in ``image`` ((H, W, 3) uint8 BGR) taken at ``time_s`` (s); empty during the warm-up
+        (the first ``warmup_s`` seconds)."""
+        learning = self._in_warmup(float(time_s))
+        mask = self.foreground(image, time_s)
         if learning:
             return Detections.empty()
         self._memo.clear()
@@ -839,16 +870,23 @@ class BackgroundDetector:
     def _metric(self, blobs: _Blobs) -> tuple[_Blobs, np.ndarray]:
         """The size filter and the classes (step 6 of the class docstring)."""
         sw, sh = self._small
-        classes, length, plausible, width = self._measure(blobs.boxes)
+        classes, length, single, width = self._measure(blobs.boxes)
+        classes = classes.copy()
+        b = blobs.boxes
         # keep_merged: longer than the shortest class allows (a car), or too wide, yet not split: vehicles that hide
         # each other (seen along the road from a low camera). Dropped, all of them would be lost.
         shortest = min(spec[1] for spec in self.rules.classes.values())
         with np.errstate(invalid="ignore"):
-            plausible |= self.keep_merged & ((length > shortest) | (width > self.rules.max_width_m))
+            merged = self.keep_merged & ~single & ((length > shortest) | (width > self.rules.max_width_m))
         # Cut by the frame border, a blob's ground size is not measurable: it is kept without the size check.
-        b = blobs.boxes
-        plausible |= (b[:, 0] <= 0) | (b[:, 1] <= 0) | (b[:, 2] >= sw - 1) | (b[:, 3] >= sh - 1)
-        keep = np.flatnonzero(plausible)
+        cut = (b[:, 0] <= 0) | (b[:, 1] <= 0) | (b[:, 2] >= sw - 1) | (b[:, 3] >= sh - 1)
+        # A blob that no single vehicle explains (vehicles merged into one blob) has no class: "" (unknown). Nor
+        # has a truck-sized blob that fills little of its box: a truck's box-shaped body fills it, vehicles one
+        # behind the other or side by side leave empty corners.
+        box_area = (b[:, 2] - b[:, 0] + 1) * (b[:, 3] - b[:, 1] + 1)
+        sparse = (classes == "truck") & (blobs.areas < self.rules.truck_min_fill * box_area)
+        classes[~single | sparse] = ""
+        keep = np.flatnonzero(single | merged | cut)
         return _Blobs(blobs.boxes[keep], blobs.areas[keep], [blobs.labels[i] for i in keep]), classes[keep]
 
 
@@ -865,6 +903,35 @@ def letterbox(image: np.ndarray, size: int, pad_value: int = 114) -> tuple[np.nd
     out = cv2.copyMakeBorder(resized, top, size - nh - top, left, size - nw - left, cv2.BORDER_CONSTANT,
                              value=(pad_value, pad_value, pad_value))
     return out, r, (left, top)
+
+
+ONNX_SHAPES = ("supported: [1, 4 + classes, anchors] with 3 or 4 strides' anchors (a YOLOv8/YOLO11 detection "
+               "export without NMS, e.g. [1, 84, 8400] at 640 px); not exports with NMS ([1, 300, 6]), transposed "
+               "outputs ([1, 8400, 84]) or outputs with an objectness score ([1, 25200, 85])")
+
+
+def yolo_anchor_counts(input_size: int) -> tuple[int, int]:
+    """Anchors of a YOLOv8/YOLO11 head on a square input of ``input_size`` px: strides 8, 16, 32 (P5 models) and
+    8 to 64 (P6 models)."""
+    p5 = sum(math.ceil(input_size / st) ** 2 for st in (8, 16, 32))
+    return p5, p5 + math.ceil(input_size / 64) ** 2
+
+
+def check_output_shape(path: str | Path, shape: Sequence[object], input_size: int) -> None:
+    """InputError unless an ONNX output shape (dimensions: ints, or names/None where dynamic) is one
+    :class:`OnnxDetector` decodes: ``[1, 4 + classes, anchors]``, the anchors those of its head at
+    ``input_size`` px (:func:`yolo_anchor_counts`) and more than the values per anchor."""
+    dims = list(shape)
+    fixed = [d if isinstance(d, int) and not isinstance(d, bool) and d > 0 else None for d in dims]
+    ok = len(dims) == 3 and fixed[0] in (1, None)
+    if ok and fixed[1] is not None and fixed[1] < 5:
+        ok = False
+    if ok and fixed[2] is not None:
+        ok = fixed[2] in yolo_anchor_counts(input_size) and (fixed[1] is None or fixed[2] > fixed[1])
+    if not ok:
+        found = "[" + ", ".join(str(d) if f is not None else "?" for d, f in zip(dims, fixed, strict=True)) + "]"
+        raise InputError(f"{path}: the model's output has shape {found} (input {input_size} px), which trafficgeo "
+                         f"cannot decode; {ONNX_SHAPES}; {ONNX_HINT}")
 
 
 class OnnxDetector:
@@ -885,8 +952,8 @@ class OnnxDetector:
                  threads: int = 2) -> None:
         p = Path(model_path)
         if not p.is_file():
-            raise InputError(f"{p}: ONNX model not found; put the .onnx file there or pass its path with --model "
-                             f"PATH ({ONNX_HINT})")
+            raise InputError(f"{p}: ONNX model not found; put the .onnx file there or pass its path with "
+                             f"--detector PATH.onnx ({ONNX_HINT})")
         if int(input_size) != input_size or input_size < 32:
             raise InputError(f"OnnxDetector: input_size {input_size!r} must be a whole number of pixels >= 32")
         for name, value in (("conf", conf), ("iou", iou)):
@@ -909,9 +976,8 @@ class OnnxDetector:
             shapes = [i.shape for i in inputs]
             raise InputError(f"{p}: expected one input of shape [1, 3, S, S] (a YOLOv8/YOLO11 detection export), "
                              f"found {shapes}; {ONNX_HINT}")
-        if not outputs or len(outputs[0].shape) != 3:
-            raise InputError(f"{p}: expected an output of shape [1, 4 + classes, anchors] (a YOLOv8/YOLO11 detection "
-                             f"export without NMS), found {[o.shape for o in outputs]}; {ONNX_HINT}")
+        if not outputs:
+            raise InputError(f"{p}: the model has no output; {ONNX_SHAPES}; {ONNX_HINT}")
         if inputs[0].type != "tensor(float)":
             raise InputError(f"{p}: the model's input is {inputs[0].type}, not float32; export it without half "
                              f"precision; {ONNX_HINT}")
@@ -920,6 +986,7 @@ class OnnxDetector:
         if len(fixed) == 2 and fixed[0] != fixed[1]:
             raise InputError(f"{p}: input {shape} is not square; export with a square imgsz (e.g. imgsz=640)")
         self.input_size = int(fixed[0]) if fixed else int(input_size)
+        check_output_shape(p, outputs[0].shape, self.input_size)
         self._input_name = inputs[0].name
         self._output_name = outputs[0].name
         cmap = dict(COCO_VEHICLES if class_map is None else class_map)
@@ -946,9 +1013,10 @@ class OnnxDetector:
             msg = " ".join(str(exc).split())[:200]
             raise InputError(f"{self.path}: the model failed on a {w}x{h} frame letterboxed to {self.input_size} px "
                              f"({msg}); {ONNX_HINT}") from None
-        if out.ndim != 3 or out.shape[0] != 1 or out.shape[1] - 4 <= max(self.class_map):
-            raise InputError(f"{self.path}: output of shape {list(out.shape)} is not [1, 4 + classes, anchors] with "
-                             f"the class ids of class_map; {ONNX_HINT}")
+        check_output_shape(self.path, list(out.shape), self.input_size)
+        if out.shape[1] - 4 <= max(self.class_map):
+            raise InputError(f"{self.path}: output of shape {list(out.shape)} has {out.shape[1] - 4} classes but "
+                             f"class_map uses class id {max(self.class_map)}; give a class_map for this model")
         pred = out[0]
         ids = np.array(sorted(self.class_map), dtype=np.int64)
         cls_scores = pred[4 + ids, :]  # (K, A)
@@ -991,24 +1059,26 @@ def in_roi(roi: np.ndarray, points: np.ndarray, shape: tuple[int, int]) -> np.nd
 
 
 # ---------------------------------------------------------------------------------------------------- factory
+def check_detector(spec: str) -> str:
+    """:func:`detector_kind` of ``spec``, having opened an ONNX model to check that it can be used (an InputError
+    if not): a run checks its detector before it writes anything."""
+    kind = detector_kind(spec)
+    if kind == "onnx":
+        OnnxDetector(str(spec).strip(), threads=1)
+    return kind
+
+
 def make_detector(spec: str = "background", *, camera: Camera | None = None, surface: Surface | None = None,
-                  roi: np.ndarray | None = None, scale: float = 0.5, warmup: int = 50,
+                  roi: np.ndarray | None = None, scale: float = 0.5, warmup_s: float = WARMUP_S,
                   learning_rate: float | None = None, rules: SizeRules | None = None, conf: float = 0.3,
                   iou: float = 0.5, input_size: int = 640, class_map: Mapping[int, str] | None = None) -> Detector:
-    """A detector from a short spec: ``"background"`` or ``"mog2"`` (:class:`BackgroundDetector` with MOG2, the
-    default), ``"knn"`` (with KNN) or the path of a ``.onnx`` model (:class:`OnnxDetector`; ``camera`` and
-    ``surface`` are not used, ``roi`` keeps detections whose bottom centre lies inside it)."""
-    s = str(spec).strip()
-    key = s.lower()
-    if key in ("", "background", "bg", "mog2"):
-        return BackgroundDetector(method="mog2", scale=scale, warmup=warmup, learning_rate=learning_rate,
-                                  camera=camera, surface=surface, roi=roi, rules=rules)
-    if key == "knn":
-        return BackgroundDetector(method="knn", scale=scale, warmup=warmup, learning_rate=learning_rate,
-                                  camera=camera, surface=surface, roi=roi, rules=rules)
-    if key.endswith(".onnx") or Path(s).is_file():
-        if Path(s).is_file() and not key.endswith(".onnx"):
-            raise InputError(f"{s}: a detector model must be an .onnx file; {ONNX_HINT}")
-        return OnnxDetector(s, input_size=input_size, conf=conf, iou=iou, class_map=class_map, roi=roi)
-    raise InputError(f"detector {s!r} is not known; use 'background' (default), 'mog2', 'knn' or the path of a "
-                     "YOLO .onnx model")
+    """A detector from a short spec (:func:`detector_kind`): a background subtraction name
+    (:class:`BackgroundDetector` with MOG2 for "background", "bg" or "mog2", with KNN for "knn") or the path of a
+    ``.onnx`` model (:class:`OnnxDetector`; ``camera`` and ``surface`` are not used, ``roi`` keeps detections
+    whose bottom centre lies inside it). ``warmup_s``: the background detector's warm-up (s of video)."""
+    kind = detector_kind(spec)
+    if kind == "onnx":
+        return OnnxDetector(str(spec).strip(), input_size=input_size, conf=conf, iou=iou, class_map=class_map,
+                            roi=roi)
+    return BackgroundDetector(method=kind, scale=scale, warmup_s=warmup_s, learning_rate=learning_rate,
+                              camera=camera, surface=surface, roi=roi, rules=rules)

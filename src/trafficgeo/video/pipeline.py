@@ -55,7 +55,7 @@ from trafficgeo.video.checkpoint import (
     save_checkpoint,
     write_part,
 )
-from trafficgeo.video.detect import Detections
+from trafficgeo.video.detect import Detections, check_detector
 from trafficgeo.video.track import TrackerOptions, VehicleTracker
 
 __all__ = ["CHECKPOINT_DIR", "PRIME_S", "ProcessOptions", "detect_and_track", "finish_run", "hold_folder",
@@ -70,7 +70,7 @@ PRIME_S = 10.0  # s of video a background model learns on before a segment (see 
 class ProcessOptions:
     """What ``process`` does with a video (times in seconds of video)."""
 
-    detector: str = "background"  # "background" (MOG2), "knn", or a path to an ONNX model
+    detector: str = "background"  # a name of detector_names.DETECTOR_NAMES, or the path of an ONNX model
     start_s: float = 0.0
     end_s: float | None = None
     every: int = 1  # use every n-th frame
@@ -78,6 +78,7 @@ class ProcessOptions:
     tracker: TrackerOptions = field(default_factory=TrackerOptions)
 
     def __post_init__(self) -> None:
+        check_detector(self.detector)  # a bad name or model fails here, before anything is written
         if not (self.start_s >= 0 and (self.end_s is None or self.end_s > self.start_s)):
             raise InputError(f"--start {self.start_s} / --end {self.end_s}: need 0 <= start < end (seconds)")
         if not (isinstance(self.every, int) and self.every >= 1):
@@ -86,11 +87,11 @@ class ProcessOptions:
             raise InputError(f"--checkpoint {self.checkpoint_s}: must be a positive number of seconds")
 
 
-def _prime_seconds(detector: object, fps: float) -> float:
-    """How long (s of video) a fresh background model learns: ``PRIME_S``, or more if the detector's warm-up (in
-    frames) needs it at ``fps`` frames per second (sparse frames, ``--every``)."""
-    warmup = getattr(detector, "warmup", 0)
-    return max(PRIME_S, 1.5 * warmup / fps) if isinstance(warmup, int) and fps > 0 else PRIME_S
+def _prime_seconds(detector: object) -> float:
+    """How long (s of video) a fresh background model learns: ``PRIME_S``, or more if the detector's own warm-up
+    (``warmup_s``, s of video) is longer."""
+    warmup_s = getattr(detector, "warmup_s", 0.0)
+    return max(PRIME_S, 1.5 * float(warmup_s))
 
 
 def _prime_window(boundary_s: float, end_s: float, prime_s: float) -> tuple[float, float]:
@@ -204,7 +205,7 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
         elif state.parts:
             tell(f"resuming from {state.next_time_s:.1f} s")
         _run_segments(video, info, end_s, opts, ck, state, tracker, detector if not learns else None,
-                      new_detector, _prime_seconds(detector, fps), progress)
+                      new_detector, _prime_seconds(detector), progress)
         return _write_tables(ck, state, out)
 
 
@@ -283,11 +284,13 @@ def finish_run(out_dir: str | Path) -> None:
 
 
 def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: ProcessOptions, seconds: float,
-                   detections: int, track_rows: int) -> None:
+                   detections: int, track_rows: int, read: dict | None = None) -> None:
     """``process.json``: what was processed (``video``, ``camera``: paths as given, or relative to ``out_dir``), how
-    (the detector and time range of ``options``), and how fast (``seconds`` of wall clock)."""
+    (the detector and time range asked for in ``options``), what was read (``read``: ``start_s``/``end_s`` of the
+    frames decoded (s, the end of the last frame), ``frames``, and ``complete``: false when the video ended before
+    the asked end, e.g. a truncated file), and how fast (``seconds`` of wall clock)."""
     doc = {"video": video, "camera": camera,
            "options": {"detector": options.detector, "start_s": options.start_s, "end_s": options.end_s,
                        "every": options.every},
-           "seconds": seconds, "detections": detections, "track_rows": track_rows}
+           "read": read, "seconds": seconds, "detections": detections, "track_rows": track_rows}
     write_json_atomic(Path(out_dir) / "process.json", doc)

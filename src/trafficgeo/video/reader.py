@@ -12,11 +12,16 @@ Conventions:
   (which is counter-clockwise). Mirroring in a display matrix is ignored.
 * ``index`` is the 0-based position of a frame in the decoded stream (in presentation order).
 * Time ranges are half-open: ``iter_frames(start_s=a, end_s=b)`` gives the frames with ``a <= time_s < b``.
+
+A damaged or truncated file (a copy cut short, a recording that stopped) is read as far as it decodes: reading
+ends there with a :class:`VideoReadWarning` (one line: where it stopped and why) instead of an error, so that
+the frames before it are still used and the caller can say what was read.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from fractions import Fraction
@@ -35,6 +40,10 @@ _RATE_TOLERANCE = 0.01  # relative difference of the stream's average and base f
 _TICK_EPS = 1e-3  # fraction of a time-base tick forgiven when a time in seconds is turned into a timestamp
 _STILL_IMAGE_FORMATS = ("image2", "image2pipe")  # and every "*_pipe" format (png_pipe, jpeg_pipe, ...)
 _ROTATE = {90: cv2.ROTATE_90_CLOCKWISE, 180: cv2.ROTATE_180, 270: cv2.ROTATE_90_COUNTERCLOCKWISE}
+
+
+class VideoReadWarning(UserWarning):
+    """Decoding stopped before the end of the asked time range: damaged data, or a file cut short."""
 
 
 @dataclass(frozen=True)
@@ -378,8 +387,9 @@ def _set_threads(stream: Any, threads: bool) -> None:
         stream.thread_count = 1
 
 
-def _decode(container: Any, stream: Any, p: Path) -> Iterator[tuple[Any, int]]:
-    """Decoded frames with their timestamps (a frame without one gets the previous one plus a frame step)."""
+def _decode(container: Any, stream: Any, p: Path, damage: list[str] | None = None) -> Iterator[tuple[Any, int]]:
+    """Decoded frames with their timestamps (a frame without one gets the previous one plus a frame step).
+    Damaged data raises an InputError, or, given a ``damage`` list, ends the frames and appends what happened."""
     prev: int | None = None
     step = 1
     rate = stream.average_rate or stream.guessed_rate
@@ -391,8 +401,11 @@ def _decode(container: Any, stream: Any, p: Path) -> Iterator[tuple[Any, int]]:
             prev = pts
             yield frame, pts
     except av.FFmpegError as exc:
-        at = f" after {_seconds(prev, Fraction(stream.time_base)):.3f} s" if prev is not None else ""
-        raise InputError(f"video {p}: damaged data{at} ({_reason(exc)}); re-encode or re-copy the file") from None
+        origin = _origin(container, stream)
+        at = f" after {_seconds(prev - origin, Fraction(stream.time_base)):.3f} s" if prev is not None else ""
+        if damage is None:
+            raise InputError(f"video {p}: damaged data{at} ({_reason(exc)}); re-encode or re-copy the file") from None
+        damage.append(f"damaged data{at} ({_reason(exc)})")
 
 
 def _count_packets(container: Any, stream: Any, limit: int, *,
@@ -424,13 +437,13 @@ def _seek(container: Any, stream: Any, pts: int) -> None:
     container.seek(pts, stream=stream, backward=True, any_frame=False)
 
 
-def _decode_from(p: Path, container: Any, stream: Any, start_pts: int,
-                 seek: bool) -> Iterator[tuple[Any, int, int]]:
+def _decode_from(p: Path, container: Any, stream: Any, start_pts: int, seek: bool,
+                 damage: list[str] | None = None) -> Iterator[tuple[Any, int, int]]:
     """(frame, pts, k) of the decoded frames with pts >= start_pts, k counting every frame decoded in this pass;
-    with ``seek``, seek to the keyframe before start_pts first."""
+    with ``seek``, seek to the keyframe before start_pts first. Damage: see :func:`_decode`."""
     if seek:
         _seek(container, stream, start_pts)
-    for k, (frame, pts) in enumerate(_decode(container, stream, p)):
+    for k, (frame, pts) in enumerate(_decode(container, stream, p, damage)):
         if pts >= start_pts:
             yield frame, pts, k
 
@@ -445,8 +458,9 @@ def _generate(p: Path, container: Any, stream: Any, start_s: float, end_s: float
         n_before, _, following = _count_packets(container, stream, start_pts, inclusive=False) if start_s > 0 \
             else (0, None, None)
         first = None
+        damage: list[str] = []  # what ended the decoding early, if anything
         if n_before > 0:
-            decoded = _decode_from(p, container, stream, start_pts, seek=True)
+            decoded = _decode_from(p, container, stream, start_pts, seek=True, damage=damage)
             first = next(decoded, None)
             if first is not None and first[1] != following:  # the seek landed after start_s: frames were missed
                 n_before = 0
@@ -455,14 +469,19 @@ def _generate(p: Path, container: Any, stream: Any, start_s: float, end_s: float
                 container.close()
                 container, stream = _open(p)
                 _set_threads(stream, threads)
-            decoded = _decode_from(p, container, stream, start_pts, seek=False)
+            damage.clear()
+            decoded = _decode_from(p, container, stream, start_pts, seek=False, damage=damage)
             first = next(decoded, None)
+        stated = _nominal_duration(container, stream, tb, origin)
         if first is None:
+            if stated > start_s or damage:
+                _warn_short(p, start_s, None, stated, damage)
             return
         offset = n_before - first[2] if n_before else 0  # frame index = offset + k
         rotation = _rotation_deg(first[0], stream)
         item: tuple[Any, int, int] | None = first
         n = 0
+        last = None
         while item is not None:
             frame, pts, k = item
             if end_pts is not None and pts >= end_pts:
@@ -470,9 +489,27 @@ def _generate(p: Path, container: Any, stream: Any, start_s: float, end_s: float
             if n % every == 0:
                 yield VideoFrame(index=offset + k, time_s=_seconds(pts - origin, tb), image=_to_bgr(frame, rotation))
             n += 1
+            last = pts
             item = next(decoded, None)
+        if item is None and last is not None:  # the frames ran out: did the file end before its stated end?
+            rate = stream.average_rate or stream.guessed_rate
+            step = 1.0 / float(rate) if rate else 0.0
+            end = _seconds(last - origin, tb) + step
+            want = stated if end_s is None else min(end_s, stated)
+            if want - end > max(1.5 * step, 0.1) or damage:
+                _warn_short(p, start_s, end, want, damage)
     finally:
         container.close()
+
+
+def _warn_short(p: Path, start_s: float, read_end_s: float | None, want_s: float, damage: list[str]) -> None:
+    """A :class:`VideoReadWarning`: decoding from ``start_s`` ended at ``read_end_s`` (None: no frame), before
+    ``want_s`` (s; the end asked for, or the file's stated duration), or on ``damage``."""
+    got = f"no frame could be decoded from {start_s:g} s" if read_end_s is None else \
+        f"frames end at {read_end_s:.2f} s"
+    why = f": {damage[0]}" if damage else ""
+    warnings.warn(VideoReadWarning(f"video {p}: {got} where {want_s:.2f} s was expected{why}; the file may be "
+                                   "truncated or damaged"), stacklevel=3)
 
 
 def _frame_at_or_before(p: Path, container: Any, stream: Any, target: int, *,

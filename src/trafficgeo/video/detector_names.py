@@ -1,0 +1,41 @@
+"""The names of the vehicle detectors, in one table (light: the command line imports it for its help).
+
+:func:`detector_kind` tells what a ``--detector`` value names; :func:`trafficgeo.video.detect.make_detector` builds
+it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from trafficgeo.errors import InputError
+
+ONNX_HINT = ("trafficgeo never downloads weights: export a YOLOv8/YOLO11 detector with e.g. ultralytics "
+             "`yolo export model=yolov8n.pt format=onnx` on a machine of your choice and pass --detector PATH.onnx")
+# The detector names a user may give, and the kind each stands for ("mog2"/"knn": BackgroundDetector's method).
+DETECTOR_NAMES: dict[str, str] = {"background": "mog2", "bg": "mog2", "mog2": "mog2", "knn": "knn"}
+DETECTOR_HELP = ("'background' (MOG2 background subtraction, no weights; also 'bg' or 'mog2'), 'knn' (KNN "
+                 "background subtraction), or the path of a YOLO .onnx model")
+
+
+def detector_kind(spec: str) -> str:
+    """What a detector spec names: ``"mog2"`` or ``"knn"`` (:class:`BackgroundDetector` methods, from the names
+    of :data:`DETECTOR_NAMES`, case-insensitive) or ``"onnx"`` (the path of an existing ``.onnx`` file); an
+    InputError for anything else. Checks the name only: an ONNX file is opened by :func:`make_detector`."""
+    s = str(spec).strip()
+    key = s.lower()
+    if key in DETECTOR_NAMES:
+        return DETECTOR_NAMES[key]
+    path = Path(s)
+    if key.endswith(".onnx") or path.is_file():
+        if path.is_dir() or not path.is_file():
+            raise InputError(f"--detector {s}: ONNX model not found; put the .onnx file there ({ONNX_HINT})")
+        if not key.endswith(".onnx"):
+            raise InputError(f"--detector {s}: a detector model must be an .onnx file; {ONNX_HINT}")
+        return "onnx"
+    raise InputError(f"--detector {s!r} is not known; use {DETECTOR_HELP}")
+
+
+def is_background(spec: str) -> bool:
+    """Does ``spec`` name a background subtraction detector (which learns the background before detecting)?"""
+    return detector_kind(spec) in ("mog2", "knn")
