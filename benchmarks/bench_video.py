@@ -98,6 +98,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--world", type=Path, default=ROOT / "out" / "bench-video-world")
     ap.add_argument("--seconds", type=float, default=None, help="process only the first S seconds")
+    ap.add_argument("--checkpoint", type=float, default=30.0,
+                    help="s of video per checkpoint segment (each starts a fresh background model)")
     ap.add_argument("--camera-height", type=float, default=None,
                     help="build the world with the camera this high (m; default 8) - use with another --world")
     args = ap.parse_args()
@@ -120,7 +122,8 @@ def main() -> None:
     surface = load_surface(str(wdir / "cloud.laz"), camera)
     out = ROOT / "out" / "bench-video-run"
     t = time.perf_counter()
-    detections, tracks = detect_and_track(video, camera, surface, out, ProcessOptions(end_s=end), restart=True)
+    options = ProcessOptions(end_s=end, checkpoint_s=args.checkpoint)
+    detections, tracks = detect_and_track(video, camera, surface, out, options, restart=True)
     t_pipe = time.perf_counter() - t
     lanes = read_lanes(wdir / "lanes.gpkg", crs=surface.crs)
     lines = read_count_lines(wdir / "count_lines.gpkg", crs=surface.crs)
