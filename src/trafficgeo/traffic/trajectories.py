@@ -415,10 +415,10 @@ def _known_classes(tracks: ImageTracks) -> np.ndarray:
     vclass = np.asarray(tracks.vclass, dtype=object).copy()
     blank = vclass == ""
     if blank.any() and not blank.all():
-        ids = np.asarray(tracks.track_id)
-        for tid in np.unique(ids[blank]):
-            rows = ids == tid
-            vclass[rows & blank] = _majority(vclass[rows])
+        for _tid, rows in _track_slices(np.asarray(tracks.track_id)):
+            hole = rows[blank[rows]]
+            if hole.size:
+                vclass[hole] = _majority(vclass[rows])
     return vclass
 
 
