@@ -64,15 +64,6 @@ def frame_pixels(w: int, h: int) -> np.ndarray:
     return np.column_stack([u.ravel(), v.ravel()])
 
 
-def road_dem(road, centre: np.ndarray, half: float, res: float) -> DEMSurface:
-    n = round(2 * half / res)
-    left, top = centre[0] - half, centre[1] + half
-    x = left + (np.arange(n) + 0.5) * res
-    y = top - (np.arange(n) + 0.5) * res
-    X, Y = np.meshgrid(x, y)
-    return DEMSurface(road.z(X, Y), left, top, res, res)
-
-
 # --- part 1: throughput -----------------------------------------------------------------------------------------
 
 def throughput() -> list[tuple[str, int, float, str]]:
@@ -90,7 +81,7 @@ def throughput() -> list[tuple[str, int, float, str]]:
     surfaces = {
         "constant plane": ConstantSurface(Z0),
         "tilted plane": PlaneSurface(np.array([E0, N0, Z0]), 0.015, 0.026),
-        "DEM 1200x1200, 0.25 m": road_dem(road, np.array([E0, N0]), 150.0, 0.25),
+        "DEM 1200x1200, 0.25 m": road.sampled_dem(np.array([E0, N0]), 150.0, 0.25),
     }
     for name, surf in surfaces.items():
         surf.intersect(cam.position, rays[:1000])  # compile / warm up
@@ -183,7 +174,7 @@ def accuracy(n_scenes: int) -> list[dict[str, float | str]]:
             for seed in range(n_scenes):
                 sc = make_gcp_scene(seed, n_control=14, dist=[0, 0, 0, 0, 0], n_elevated=2,
                                     pixel_sigma=1.0 if noisy else 0.0, survey_sigma=0.025 if noisy else 0.0, **kw)
-                dem = road_dem(sc.road, sc.camera.position[:2], 160.0, 0.2)
+                dem = sc.road.sampled_dem(sc.camera.position[:2], 160.0, 0.2)
                 pts = check_points(sc, dem)
                 hom = homography_from_scene(sc, noisy)
                 if len(pts) == 0 or hom is None:
@@ -257,7 +248,7 @@ def cloud_surface_errors(n_scenes: int) -> list[dict[str, float | str]]:
             axis = cam.optical_axis[:2] / np.linalg.norm(cam.optical_axis[:2])
             centre = cam.position[:2] + axis * 30.0
             half = 38.0
-            truth_dem = road_dem(sc.road, centre, half + 2.0, 0.05)
+            truth_dem = sc.road.sampled_dem(centre, half + 2.0, 0.05)
             rng = np.random.default_rng(seed)
             w, h = cam.image_size
             uv = np.column_stack([rng.uniform(0, w - 1, 60_000), rng.uniform(0, h - 1, 60_000)])

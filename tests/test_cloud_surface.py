@@ -16,16 +16,6 @@ from trafficgeo.synth.gcp_scene import RoadSurface, make_gcp_scene
 from trafficgeo.synth.terrain import road_point_cloud
 
 
-def road_dem(road: RoadSurface, centre: np.ndarray, half: float, res: float) -> DEMSurface:
-    """The true road sampled on a fine grid (the reference the lidar was drawn from)."""
-    n = round(2 * half / res)
-    left, top = centre[0] - half, centre[1] + half
-    x = left + (np.arange(n) + 0.5) * res
-    y = top - (np.arange(n) + 0.5) * res
-    X, Y = np.meshgrid(x, y)
-    return DEMSurface(road.z(X, Y), left, top, res, res)
-
-
 def grazing_scene(seed: int, n_pixels: int = 3000, max_distance_m: float = 60.0):
     """A 4K camera with a wide lens (f = 0.5 W, 90 deg across) 3 m above the road edge, airborne-like lidar of the
     road (4 ground points per m^2, 2 cm vertical noise, trees and poles), and random frame pixels whose true ground
@@ -36,7 +26,7 @@ def grazing_scene(seed: int, n_pixels: int = 3000, max_distance_m: float = 60.0)
     axis = cam.optical_axis[:2] / np.linalg.norm(cam.optical_axis[:2])
     centre = cam.position[:2] + axis * max_distance_m / 2
     half = max_distance_m / 2 + 8.0
-    truth_dem = road_dem(sc.road, centre, half + 2.0, 0.05)
+    truth_dem = sc.road.sampled_dem(centre, half + 2.0, 0.05)
     rng = np.random.default_rng(seed)
     uv = np.column_stack([rng.uniform(0, 3839, 30 * n_pixels), rng.uniform(0, 2159, 30 * n_pixels)])
     g = pixels_to_world(cam, uv, truth_dem, min_incidence_deg=0.0, with_lonlat=False)

@@ -55,6 +55,7 @@ from trafficgeo.calibration.gcps import GCPTable
 from trafficgeo.camera.distortion import as_dist, max_monotonic_radius
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import is_geographic, metres_per_unit, parse_crs
+from trafficgeo.geo.surface import DEMSurface
 
 __all__ = ["GCPScene", "RoadSurface", "make_gcp_scene"]
 
@@ -147,6 +148,16 @@ class RoadSurface:
         """Road surface height at world ``(x, y)`` (arrays broadcast together)."""
         s, o = self.station_offset(x, y)
         return self._z_local(s, o)
+
+    def sampled_dem(self, centre_xy: object, half_width: float, cell: float) -> DEMSurface:
+        """The road surface sampled at the centres of a square grid of ``cell``-sized cells reaching
+        ``half_width`` (world units) either side of ``centre_xy``: a reference DEM with the exact heights."""
+        n = round(2 * half_width / cell)
+        left, top = float(centre_xy[0]) - half_width, float(centre_xy[1]) + half_width
+        x = left + (np.arange(n) + 0.5) * cell
+        y = top - (np.arange(n) + 0.5) * cell
+        X, Y = np.meshgrid(x, y)
+        return DEMSurface(self.z(X, Y), left, top, cell, cell)
 
     def points(self, s: object, offset: object) -> np.ndarray:
         """World points (N, 3) on the surface at stations ``s`` and lateral offsets ``offset`` (right positive)."""
