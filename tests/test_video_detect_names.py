@@ -4,10 +4,8 @@ anything is written."""
 
 from __future__ import annotations
 
-from fractions import Fraction
 from pathlib import Path
 
-import av
 import numpy as np
 import pytest
 
@@ -16,41 +14,22 @@ from trafficgeo.errors import InputError
 from trafficgeo.video.detect import BackgroundDetector, OnnxDetector, make_detector
 from trafficgeo.video.detector_names import DETECTOR_HELP, DETECTOR_NAMES, detector_kind, is_background
 from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
+from video_support import H, W, road, two_cars, write_two_car_video
 
-W, H = 320, 180
+ROWS = (60, 120)  # image rows of the two cars
 
 
 def _scene(rng: np.random.Generator) -> np.ndarray:
-    bg = np.full((H, W, 3), 110, np.float32) + rng.normal(0, 6, (H, W, 1))
-    bg[:, :, 1] += 10
-    return bg
+    return road(rng, green=10.0)
 
 
 def _frame(bg: np.ndarray, t: float, rng: np.random.Generator) -> np.ndarray:
     """Two cars (40 x 20 px) driving at 90 px/s across the frame, on screen from the first frame."""
-    img = bg.copy()
-    for x0, y0, colour in ((20.0, 60, (40, 40, 200)), (200.0, 120, (220, 200, 40))):
-        x = round((x0 + 90.0 * t) % (W + 60) - 60)
-        a, b = max(x, 0), min(x + 40, W)
-        if b > a:
-            img[y0:y0 + 20, a:b] = colour
-    img += rng.normal(0, 1.5, (H, W, 1))
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    return two_cars(bg, t, rng, ROWS)
 
 
 def _write_video(path: Path, fps: int, seconds: float) -> Path:
-    rng = np.random.default_rng(1)
-    bg = _scene(rng)
-    with av.open(str(path), "w") as c:
-        s = c.add_stream("libx264", rate=Fraction(fps))
-        s.width, s.height, s.pix_fmt = W, H, "yuv420p"
-        s.options = {"preset": "veryfast", "crf": "18"}
-        for k in range(round(fps * seconds)):
-            for p in s.encode(av.VideoFrame.from_ndarray(_frame(bg, k / fps, rng), format="bgr24")):
-                c.mux(p)
-        for p in s.encode():
-            c.mux(p)
-    return path
+    return write_two_car_video(path, fps, seconds, rows=ROWS, seed=1, green=10.0)
 
 
 # ---------------------------------------------------------------------------------------------------- names

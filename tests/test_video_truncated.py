@@ -5,29 +5,16 @@ from __future__ import annotations
 
 import json
 import warnings
-from fractions import Fraction
 from pathlib import Path
 
-import av
 import numpy as np
 import pytest
 
 from cli_support import invoke
 from trafficgeo.video.reader import VideoReadWarning, iter_frames, video_info
+from video_support import H, W, write_two_car_video
 
-W, H, FPS, SECONDS = 320, 180, 10, 8.0
-
-
-def _frame(bg: np.ndarray, t: float, rng: np.random.Generator) -> np.ndarray:
-    """Two cars (40 x 20 px) crossing the frame at 90 px/s."""
-    img = bg.copy()
-    for x0, y0, colour in ((20.0, 100, (40, 40, 200)), (200.0, 140, (220, 200, 40))):
-        x = round((x0 + 90.0 * t) % (W + 60) - 60)
-        a, b = max(x, 0), min(x + 40, W)
-        if b > a:
-            img[y0:y0 + 20, a:b] = colour
-    img += rng.normal(0, 1.5, (H, W, 1))
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+FPS, SECONDS = 10, 8.0
 
 
 @pytest.fixture(scope="module")
@@ -35,18 +22,7 @@ def videos(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """A whole MP4 (index first, as cameras and streaming copies write it), the same cut to half its bytes, and
     the same with garbage written over 20 kB in the middle."""
     d = tmp_path_factory.mktemp("truncated")
-    rng = np.random.default_rng(3)
-    bg = np.full((H, W, 3), 110, np.float32) + rng.normal(0, 6, (H, W, 1))
-    whole = d / "whole.mp4"
-    with av.open(str(whole), "w", format="mp4", options={"movflags": "faststart"}) as c:
-        s = c.add_stream("libx264", rate=Fraction(FPS))
-        s.width, s.height, s.pix_fmt = W, H, "yuv420p"
-        s.options = {"preset": "veryfast", "crf": "18"}
-        for k in range(round(FPS * SECONDS)):
-            for p in s.encode(av.VideoFrame.from_ndarray(_frame(bg, k / FPS, rng), format="bgr24")):
-                c.mux(p)
-        for p in s.encode():
-            c.mux(p)
+    whole = write_two_car_video(d / "whole.mp4", FPS, SECONDS, rows=(100, 140), seed=3, faststart=True)
     data = whole.read_bytes()
     cut = d / "cut.mp4"
     cut.write_bytes(data[: len(data) // 2])
