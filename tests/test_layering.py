@@ -1,0 +1,71 @@
+"""The import layering the README states: camera -> calibration -> geo -> traffic -> video -> synth/report/ui ->
+demo/cli, with errors, crs and io at the bottom; no module imports a layer above its own (imports inside functions
+and under TYPE_CHECKING count too), and synth, report and ui do not import each other."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "src" / "trafficgeo"
+# Each top-level part of the package and its layer; a part may import only parts of a lower layer.
+LAYER = {"errors": 0, "crs": 1, "io": 2, "camera": 3, "calibration": 4, "geo": 5, "traffic": 6, "video": 7,
+         "synth": 8, "report": 8, "ui": 8, "demo": 9, "cli": 10, "__init__": 11}
+
+
+def part_of(path: Path) -> str:
+    """The top-level part of the package a file belongs to (``geo`` for geo/surface.py, ``crs`` for crs.py)."""
+    rel = path.relative_to(PACKAGE).parts
+    return rel[0].removesuffix(".py")
+
+
+def imported_parts(path: Path) -> set[tuple[str, int]]:
+    """(part, line) of every trafficgeo part that ``path`` imports, absolute or relative."""
+    return parts_in(path.read_text(encoding="utf-8"), path.relative_to(PACKAGE).parts)
+
+
+def parts_in(text: str, rel: tuple[str, ...]) -> set[tuple[str, int]]:
+    """(part, line) of every trafficgeo part imported by source ``text`` of the file at ``rel`` in the package."""
+    found = set()
+    for node in ast.walk(ast.parse(text)):
+        names: list[str] = []
+        if isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: resolve against the file's package
+                base = ["trafficgeo", *rel[:-1]][: len(rel) + 1 - node.level]
+                names.append(".".join(base + ([node.module] if node.module else [])))
+                if not node.module:
+                    names += [".".join([*base, a.name]) for a in node.names]
+            elif node.module:
+                names.append(node.module)
+                if node.module == "trafficgeo":
+                    names += [f"trafficgeo.{a.name}" for a in node.names]
+        elif isinstance(node, ast.Import):
+            names += [a.name for a in node.names]
+        for name in names:
+            bits = name.split(".")
+            if bits[0] == "trafficgeo" and len(bits) > 1 and bits[1] in LAYER:
+                found.add((bits[1], node.lineno))
+    return found
+
+
+def test_every_part_has_a_layer() -> None:
+    parts = {part_of(p) for p in PACKAGE.rglob("*.py")}
+    assert parts <= set(LAYER), f"parts without a layer in this test: {sorted(parts - set(LAYER))}"
+
+
+@pytest.mark.parametrize("path", sorted(PACKAGE.rglob("*.py")), ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_no_import_goes_up_a_layer(path: Path) -> None:
+    src = part_of(path)
+    bad = [f"line {line}: {src} imports {dst}" for dst, line in sorted(imported_parts(path))
+           if dst != src and LAYER[dst] >= LAYER[src]]
+    assert not bad, f"{path.relative_to(PACKAGE)}: " + "; ".join(bad)
+
+
+def test_the_checker_sees_every_form_of_import() -> None:
+    """The checker itself: imports inside a function, relative ones and ``from trafficgeo import x`` are found."""
+    text = ("import numpy\nfrom trafficgeo.errors import InputError\ndef f():\n"
+            "    from trafficgeo.video import detect\n    from ..traffic import lanes\n"
+            "    from . import raster\n    from trafficgeo import synth\n")
+    assert {p for p, _ in parts_in(text, ("geo", "surface.py"))} == {"errors", "video", "traffic", "geo", "synth"}
