@@ -145,8 +145,12 @@ def _resize_bilinear(b: _Builder, node: TfNode, x: _Value, size: _Value) -> list
         mode = "half_pixel"
     else:
         mode = "asymmetric"
-    inputs = [b.layout(x, _NHWC_AS_NCHW, node.name), "", "", b.const(size.const.astype(np.int64), f"{node.name}/sizes")]
-    out = b.node("Resize", inputs, node.name, mode="linear", coordinate_transformation_mode=mode, axes=[2, 3])
+    x_nchw = b.layout(x, _NHWC_AS_NCHW, node.name)
+    # Full-rank sizes = (N, C of the input) + (H, W): onnxruntime's layout optimiser mishandles Resize's `axes`.
+    batch_channels = b.node("Shape", [x_nchw], f"{node.name}/nc", start=0, end=2)[0]
+    hw = b.const(np.asarray(size.const, dtype=np.int64), f"{node.name}/hw")
+    sizes = b.node("Concat", [batch_channels, hw], f"{node.name}/sizes", axis=0)[0]
+    out = b.node("Resize", [x_nchw, "", "", sizes], node.name, mode="linear", coordinate_transformation_mode=mode)
     return [_Value(out[0], _NHWC_AS_NCHW)]
 
 
