@@ -59,7 +59,7 @@ def test_registry_entry():
                                                                                         0.25, 11)
     assert m.vehicle_class_names == COCO_VEHICLES
     assert m.mean == (103.53, 116.28, 123.675) and m.std == (57.375, 57.12, 58.395)
-    with pytest.raises(InputError, match="unknown built-in model 'yolo'.*nanodet"):
+    with pytest.raises(InputError, match=r"unknown built-in model 'yolo'.*nanodet"):
         builtin_model("yolo")
 
 
