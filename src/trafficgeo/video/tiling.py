@@ -42,6 +42,7 @@ from trafficgeo.video.detections import Detections, check_image, check_roi, in_r
 REFERENCE_CAR_M = (4.4, 1.8, 1.5)  # length, width, height (m): the small vehicle that must be detectable
 LARGE_VEHICLE_M = VEHICLE_DIMENSIONS["truck"]  # the vehicle that must lie whole in a tile (its extent = overlap)
 UNKNOWN_HEADINGS_DEG = (0.0, 45.0, 90.0, 135.0)  # tried where the direction of travel is unknown (ROI)
+CUT_MARGIN_PX = 2.0  # a tile box this near (px) to a tile edge inside the frame is of a vehicle the tile cuts
 
 
 # ---------------------------------------------------------------------------------------------------- sizes
@@ -264,6 +265,7 @@ class TilePlan:
     vehicle_m: tuple[float, float, float] = REFERENCE_CAR_M
     camera_xy: np.ndarray = field(default_factory=lambda: np.zeros(2), repr=False)  # camera (x, y), CRS units
     unit_m: float = 1.0  # metres per CRS unit
+    cut_margin_px: float = CUT_MARGIN_PX  # see cut_by_tile
 
     def __post_init__(self) -> None:
         h, w = (int(v) for v in self.frame_shape)
@@ -305,7 +307,7 @@ class TilePlan:
         size = box_size_px(b)
         best = size * self.full_scale
         if len(self.tiles):
-            inside = _contains(self.tiles, b)  # (K, N)
+            inside = _contains(self.tiles, b, self.frame_shape, self.cut_margin_px)  # (K, N)
             scaled = np.where(inside, size[None, :] * self.tile_scales[:, None], -np.inf)
             best = np.maximum(best, scaled.max(axis=0))
         return best
@@ -387,13 +389,21 @@ def _clip_boxes(boxes: np.ndarray, frame_shape: tuple[int, int]) -> np.ndarray:
     return out
 
 
-def _contains(tiles: np.ndarray, boxes: np.ndarray, tol_px: float = 1e-6) -> np.ndarray:
-    """(K, N) whether tile k (x0, y0, x1, y1 pixel indices) holds box n (pixel-centre convention) whole."""
+def _contains(tiles: np.ndarray, boxes: np.ndarray, frame_shape: tuple[int, int], margin_px: float = CUT_MARGIN_PX
+              ) -> np.ndarray:
+    """(K, N) whether tile k (x0, y0, x1, y1 pixel indices) holds box n (pixel-centre convention, clipped to the
+    frame) whole: inside it, and more than ``margin_px`` from every tile edge that is not a frame edge (what
+    :func:`cut_by_tile` would take for a cut vehicle)."""
+    h, w = frame_shape
     t = tiles.astype(np.float64)[:, None, :]
     b = boxes[None, :, :]
+    edge = t - 0.5
+    inner = np.stack([t[..., 0] > 0, t[..., 1] > 0, t[..., 2] < w, t[..., 3] < h], axis=-1)
+    lo_pad = np.where(inner[..., :2], margin_px, -1e-6)
+    hi_pad = np.where(inner[..., 2:], margin_px, -1e-6)
     with np.errstate(invalid="ignore"):
-        return ((b[..., 0] >= t[..., 0] - 0.5 - tol_px) & (b[..., 1] >= t[..., 1] - 0.5 - tol_px)
-                & (b[..., 2] <= t[..., 2] - 0.5 + tol_px) & (b[..., 3] <= t[..., 3] - 0.5 + tol_px))
+        return (np.all(b[..., :2] > edge[..., :2] + lo_pad, axis=-1)
+                & np.all(b[..., 2:] < edge[..., 2:] - hi_pad, axis=-1))
 
 
 def _tile_origins(box: np.ndarray, others: np.ndarray, side: int, frame_shape: tuple[int, int], candidates: int
@@ -487,7 +497,7 @@ def plan_tiles(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame
             xs, ys = _tile_origins(hold[seed], hold[rest], side, (h, w), candidates)
             X0, Y0 = (a.reshape(-1) for a in np.meshgrid(xs, ys))
             cand = np.column_stack([X0, Y0, X0 + side, Y0 + side])
-            ok = _contains(cand, hold[rest]) & (side <= side_req[rest] + 1e-9)[None, :]
+            ok = _contains(cand, hold[rest], (h, w)) & (side <= side_req[rest] + 1e-9)[None, :]
             best = int(np.argmax(ok.astype(np.float64) @ weight[rest]))
             served = rest[ok[best]]
             open_[served] = False
@@ -559,8 +569,8 @@ def merge_boxes(boxes: np.ndarray, scores: np.ndarray, source: np.ndarray, *, io
     return order[np.asarray(keep, dtype=np.int64)]
 
 
-def cut_by_tile(boxes: np.ndarray, tile: Sequence[int], frame_shape: tuple[int, int], margin_px: float = 2.0
-                ) -> np.ndarray:
+def cut_by_tile(boxes: np.ndarray, tile: Sequence[int], frame_shape: tuple[int, int],
+                margin_px: float = CUT_MARGIN_PX) -> np.ndarray:
     """(N,) whether boxes (N, 4) (frame px) touch an edge of ``tile`` that is not an edge of the frame (within
     ``margin_px``): a vehicle cut by the tile, seen only in part."""
     h, w = frame_shape
@@ -589,12 +599,12 @@ class TiledDetector:
     """
 
     def __init__(self, base: object, plan: TilePlan, *, iou: float = 0.5, containment: float = 0.8,
-                 cut_margin_px: float = 2.0, roi: np.ndarray | None = None) -> None:
+                 roi: np.ndarray | None = None) -> None:
         if getattr(base, "roi", None) is not None and len(plan.tiles):
             raise ValueError("TiledDetector: the base detector has an ROI; it would see crops, not frames - build it "
                              "without one and give the ROI to TiledDetector")
         self.base, self.plan = base, plan
-        self.iou, self.containment, self.cut_margin_px = float(iou), float(containment), float(cut_margin_px)
+        self.iou, self.containment = float(iou), float(containment)
         self.roi = None if roi is None else check_roi(roi, plan.frame_shape, "TiledDetector roi")
 
     def detect(self, image: np.ndarray, time_s: float = 0.0) -> Detections:
@@ -618,7 +628,7 @@ class TiledDetector:
             if not len(det):
                 continue
             boxes = det.boxes + np.array([tile[0], tile[1], tile[0], tile[1]], dtype=np.float64)
-            whole = ~cut_by_tile(boxes, tile, shape, self.cut_margin_px)
+            whole = ~cut_by_tile(boxes, tile, shape, self.plan.cut_margin_px)
             kept.append(Detections(boxes[whole], det.scores[whole], det.classes[whole]))
             sources.append(np.full(int(whole.sum()), k, dtype=np.int64))
         merged = Detections.concatenate(kept)
