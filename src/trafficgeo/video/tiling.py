@@ -14,8 +14,9 @@ big a vehicle is at each point of the road, so the tiles can be planned once per
   detector input everywhere on the counted road, and so that a *large* vehicle (a truck) at any road point lies whole
   in the tile that serves that point (the tiles overlap by that vehicle's extent). No tiles when the full frame
   suffices. The plan reports, per lane (or for the ROI), the road that stays too small even at the maximum zoom.
-* :class:`TiledDetector` - a :class:`~trafficgeo.video.detections.Detector` running a base detector on the full
-  frame and on every tile crop, dropping tile boxes cut by a tile's inner edge and merging everything.
+* :class:`~trafficgeo.video.tiled_detector.TiledDetector` (re-exported here) - a
+  :class:`~trafficgeo.video.detections.Detector` running a base detector on the full frame and on every tile crop,
+  dropping tile boxes cut by a tile's inner edge and merging everything.
 
 World coordinates are in the camera's CRS and its units; vehicle dimensions and distances are metres; pixels
 follow :mod:`trafficgeo.video.detections` (pixel-centre convention). A tile ``(x0, y0, x1, y1)`` is the crop
@@ -37,12 +38,16 @@ from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface, camera_crs, pixels_to_world, world_to_pixels
 from trafficgeo.traffic.boxes import VEHICLE_DIMENSIONS, cuboid_boxes
 from trafficgeo.traffic.lanes import Lanes
-from trafficgeo.video.detections import Detections, check_image, check_roi, in_roi
+from trafficgeo.video.detections import check_roi
+from trafficgeo.video.tiled_detector import CUT_MARGIN_PX, TiledDetector, cut_by_tile, merge_boxes
+
+__all__ = ["LARGE_VEHICLE_M", "REFERENCE_CAR_M", "RegionReach", "RoadSamples", "TilePlan", "TiledDetector",
+           "box_size_px", "cut_by_tile", "lane_samples", "merge_boxes", "plan_tiles", "roi_samples",
+           "vehicle_boxes", "vehicle_size_px"]
 
 REFERENCE_CAR_M = (4.4, 1.8, 1.5)  # length, width, height (m): the small vehicle that must be detectable
 LARGE_VEHICLE_M = VEHICLE_DIMENSIONS["truck"]  # the vehicle that must lie whole in a tile (its extent = overlap)
 UNKNOWN_HEADINGS_DEG = (0.0, 45.0, 90.0, 135.0)  # tried where the direction of travel is unknown (ROI)
-CUT_MARGIN_PX = 2.0  # a tile box this near (px) to a tile edge inside the frame is of a vehicle the tile cuts
 
 
 # ---------------------------------------------------------------------------------------------------- sizes
@@ -57,22 +62,28 @@ def box_size_px(boxes: object) -> np.ndarray:
     return np.minimum(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])
 
 
+def _boxes_per_heading(camera: Camera, xyz: object, heading_deg: object, dims_m: Sequence[float]) -> np.ndarray:
+    """(N, K, 4) image boxes of the cuboids at K headings each: the given one, or :data:`UNKNOWN_HEADINGS_DEG`
+    where it is NaN (K = 1 when no heading is unknown)."""
+    pts = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    n = pts.shape[0]
+    heading = np.broadcast_to(np.asarray(heading_deg, dtype=np.float64), (n,))
+    grid = heading[:, None]
+    if np.isnan(heading).any():
+        grid = np.where(np.isnan(heading)[:, None], np.asarray(UNKNOWN_HEADINGS_DEG)[None, :], grid)
+    k = grid.shape[1]
+    length, width, height = (float(v) / _mpu(camera) for v in dims_m)
+    return cuboid_boxes(camera, np.repeat(pts, k, axis=0), grid.reshape(-1), length, width, height).reshape(n, k, 4)
+
+
 def vehicle_boxes(camera: Camera, xyz: object, heading_deg: object, dims_m: Sequence[float] = REFERENCE_CAR_M,
                   ) -> np.ndarray:
     """Image boxes (N, 4) (full-frame px, unclipped) of level cuboids ``dims_m`` = (length, width, height) in
     metres standing with their footprint centre at ground points ``xyz`` (N, 3; CRS units), heading
     ``heading_deg`` (N,) clockwise from grid north. Where the heading is NaN (unknown), the union of the boxes over
     :data:`UNKNOWN_HEADINGS_DEG`. NaN rows where a corner is behind the camera."""
-    pts = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-    n = pts.shape[0]
-    heading = np.broadcast_to(np.asarray(heading_deg, dtype=np.float64), (n,))
-    length, width, height = (float(v) / _mpu(camera) for v in dims_m)
-    unknown = np.isnan(heading)
-    grid = np.where(unknown[:, None], np.asarray(UNKNOWN_HEADINGS_DEG)[None, :], heading[:, None])  # (N, 4)
-    k = grid.shape[1]
-    boxes = cuboid_boxes(camera, np.repeat(pts, k, axis=0), grid.reshape(-1), length, width, height).reshape(n, k, 4)
-    return np.concatenate([boxes[:, :, :2].min(axis=1),
-                           boxes[:, :, 2:].max(axis=1)], axis=1)
+    boxes = _boxes_per_heading(camera, xyz, heading_deg, dims_m)
+    return np.concatenate([boxes[:, :, :2].min(axis=1), boxes[:, :, 2:].max(axis=1)], axis=1)
 
 
 def vehicle_size_px(camera: Camera, xyz: object, heading_deg: object,
@@ -80,14 +91,8 @@ def vehicle_size_px(camera: Camera, xyz: object, heading_deg: object,
     """Size (px, the shorter side of the projected box; see the module docstring) of a vehicle ``dims_m`` (m) at
     ground points ``xyz`` (N, 3; CRS units) heading ``heading_deg`` (N,) (deg clockwise from grid north). Where the
     heading is NaN, the smallest size over :data:`UNKNOWN_HEADINGS_DEG`. NaN behind the camera."""
-    pts = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-    n = pts.shape[0]
-    heading = np.broadcast_to(np.asarray(heading_deg, dtype=np.float64), (n,))
-    length, width, height = (float(v) / _mpu(camera) for v in dims_m)
-    grid = np.where(np.isnan(heading)[:, None], np.asarray(UNKNOWN_HEADINGS_DEG)[None, :], heading[:, None])
-    k = grid.shape[1]
-    boxes = cuboid_boxes(camera, np.repeat(pts, k, axis=0), grid.reshape(-1), length, width, height)
-    return box_size_px(boxes).reshape(n, k).min(axis=1)
+    boxes = _boxes_per_heading(camera, xyz, heading_deg, dims_m)
+    return box_size_px(boxes.reshape(-1, 4)).reshape(boxes.shape[:2]).min(axis=1)
 
 
 # ---------------------------------------------------------------------------------------------------- road samples
@@ -406,27 +411,34 @@ def _contains(tiles: np.ndarray, boxes: np.ndarray, frame_shape: tuple[int, int]
                 & np.all(b[..., 2:] < edge[..., 2:] - hi_pad, axis=-1))
 
 
-def _tile_origins(box: np.ndarray, others: np.ndarray, side: int, frame_shape: tuple[int, int], candidates: int
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Candidate origins (x0s, y0s) of a tile of ``side`` px inside the frame holding ``box`` whole: evenly spread
-    over the feasible range, plus the origins that put an edge of the tile on an edge of one of the ``others``
-    boxes (M, 4) (at most ``candidates`` of those, spread by quantile)."""
+def _tile_origins(box: np.ndarray, others: np.ndarray, side: int, frame_shape: tuple[int, int], candidates: int,
+                  margin_px: float = CUT_MARGIN_PX) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate origins (x0s, y0s) of a tile of ``side`` px inside the frame holding ``box`` whole (as
+    :func:`_contains` has it): evenly spread over the feasible range, the frame's edges, and those putting a tile
+    edge just beyond an edge of one of the ``others`` boxes (M, 4) (at most ``candidates`` of those, by quantile).
+    A box that fits nowhere gets the tile centred on it."""
     h, w = frame_shape
+    m = margin_px
     out = []
     for k, size in ((0, w), (1, h)):
         lo_edge, hi_edge = box[k], box[k + 2]
-        lo = max(0, int(np.ceil(hi_edge + 0.5 - side - 1e-9)))
-        hi = min(size - side, int(np.floor(lo_edge + 0.5 + 1e-9)))
-        if hi < lo:  # the box does not fit: centre the tile on it (inside the frame)
-            c = round(0.5 * (lo_edge + hi_edge) + 0.5 - 0.5 * side)
-            out.append(np.array([int(np.clip(c, 0, size - side))]))
-            continue
-        aligned = np.concatenate([np.floor(others[:, k] + 0.5 + 1e-9), np.ceil(others[:, k + 2] + 0.5 - side - 1e-9)])
+        lo = max(0, int(np.ceil(hi_edge + 0.5 + m - side + 1e-9)))
+        hi = min(size - side, int(np.floor(lo_edge + 0.5 - m - 1e-9)))
+        aligned = np.concatenate([np.floor(others[:, k] + 0.5 - m - 1e-9),
+                                  np.ceil(others[:, k + 2] + 0.5 + m - side + 1e-9)])
         aligned = np.unique(aligned[(aligned >= lo) & (aligned <= hi)])
         if aligned.size > candidates:
             aligned = np.unique(np.quantile(aligned, np.linspace(0.0, 1.0, candidates), method="nearest"))
-        even = np.round(np.linspace(lo, hi, candidates))
-        out.append(np.unique(np.concatenate([even, aligned]).astype(np.int64)))
+        c = np.concatenate([np.round(np.linspace(lo, hi, candidates)) if hi >= lo else [], aligned,
+                            [0, size - side]]).astype(np.int64)
+        # the exact test: more than m px inside every tile edge that is not a frame edge
+        holds = (((c == 0) | (lo_edge > c - 0.5 + m)) & ((c + side == size) | (hi_edge < c + side - 0.5 - m))
+                 & (c >= 0) & (c <= size - side))
+        if not holds.any():
+            mid = round(0.5 * (lo_edge + hi_edge) + 0.5 - 0.5 * side)
+            out.append(np.array([int(np.clip(mid, 0, size - side))]))
+        else:
+            out.append(np.unique(c[holds]))
     return out[0], out[1]
 
 
@@ -534,107 +546,3 @@ def _regions(samples: RoadSamples, seen: np.ndarray, full_ok: np.ndarray, reache
             beyond_distance_m=(float(dist_m[beyond].min()), float(dist_m[beyond].max())) if beyond.any() else None,
             in_view_distance_m=(float(dist_m[v].min()), float(dist_m[v].max())) if v.any() else None, unit=unit))
     return tuple(out)
-
-
-# ---------------------------------------------------------------------------------------------------- detector
-def merge_boxes(boxes: np.ndarray, scores: np.ndarray, source: np.ndarray, *, iou: float = 0.5,
-                containment: float = 0.8) -> np.ndarray:
-    """Indices of the boxes kept, best score first: class-agnostic non-maximum suppression at ``iou``, and a box
-    whose intersection with a kept box from *another* source (the full frame, a tile) covers ``containment`` of the
-    smaller one is dropped too (a vehicle's part seen in a tile). Within one source the base detector's own choice
-    stands: a car mostly hidden behind a truck is a vehicle of its own."""
-    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-    n = b.shape[0]
-    if n == 0:
-        return np.zeros(0, dtype=np.int64)
-    order = np.argsort(-np.asarray(scores, dtype=np.float64), kind="stable")
-    b = b[order]
-    src = np.asarray(source)[order]
-    iw = np.clip(np.minimum(b[:, None, 2], b[None, :, 2]) - np.maximum(b[:, None, 0], b[None, :, 0]), 0, None)
-    ih = np.clip(np.minimum(b[:, None, 3], b[None, :, 3]) - np.maximum(b[:, None, 1], b[None, :, 1]), 0, None)
-    inter = iw * ih
-    area = np.clip(b[:, 2] - b[:, 0], 0, None) * np.clip(b[:, 3] - b[:, 1], 0, None)
-    union = area[:, None] + area[None, :] - inter
-    smaller = np.minimum(area[:, None], area[None, :])
-    suppress = (inter >= iou * np.maximum(union, 1e-9)) | (
-        (inter >= containment * np.maximum(smaller, 1e-9)) & (src[:, None] != src[None, :]))
-    np.fill_diagonal(suppress, False)
-    dead = np.zeros(n, dtype=bool)
-    keep = []
-    for i in range(n):  # greedy over the score order; each step is one vectorised row
-        if dead[i]:
-            continue
-        keep.append(i)
-        dead |= suppress[i]
-    return order[np.asarray(keep, dtype=np.int64)]
-
-
-def cut_by_tile(boxes: np.ndarray, tile: Sequence[int], frame_shape: tuple[int, int],
-                margin_px: float = CUT_MARGIN_PX) -> np.ndarray:
-    """(N,) whether boxes (N, 4) (frame px) touch an edge of ``tile`` that is not an edge of the frame (within
-    ``margin_px``): a vehicle cut by the tile, seen only in part."""
-    h, w = frame_shape
-    x0, y0, x1, y1 = (float(v) for v in tile)
-    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-    cut = np.zeros(b.shape[0], dtype=bool)
-    if x0 > 0:
-        cut |= b[:, 0] <= x0 - 0.5 + margin_px
-    if y0 > 0:
-        cut |= b[:, 1] <= y0 - 0.5 + margin_px
-    if x1 < w:
-        cut |= b[:, 2] >= x1 - 0.5 - margin_px
-    if y1 < h:
-        cut |= b[:, 3] >= y1 - 0.5 - margin_px
-    return cut
-
-
-class TiledDetector:
-    """A :class:`~trafficgeo.video.detections.Detector` running ``base`` on the full frame and on each tile of
-    ``plan`` (the base letterboxes every crop to its own input size; ``base.detect_batch(crops)`` is used for the
-    tiles when it exists), then shifting the tile boxes to the frame, dropping those cut by a tile's inner edge
-    (:func:`cut_by_tile`) and merging all with :func:`merge_boxes`.
-
-    ``base`` must not filter by an ROI of its own (its frames are crops): give ``roi`` (bool (H, W)) here instead;
-    boxes whose bottom centre lies outside it are dropped after the merge.
-    """
-
-    def __init__(self, base: object, plan: TilePlan, *, iou: float = 0.5, containment: float = 0.8,
-                 roi: np.ndarray | None = None) -> None:
-        if getattr(base, "roi", None) is not None and len(plan.tiles):
-            raise ValueError("TiledDetector: the base detector has an ROI; it would see crops, not frames - build it "
-                             "without one and give the ROI to TiledDetector")
-        self.base, self.plan = base, plan
-        self.iou, self.containment = float(iou), float(containment)
-        self.roi = None if roi is None else check_roi(roi, plan.frame_shape, "TiledDetector roi")
-
-    def detect(self, image: np.ndarray, time_s: float = 0.0) -> Detections:
-        """Vehicles in ``image`` ((H, W, 3) uint8 BGR) at ``time_s`` s, boxes in full-frame px."""
-        image = check_image(image)
-        shape = image.shape[:2]
-        if shape != self.plan.frame_shape:
-            raise InputError(f"tiled detector: a {shape[1]}x{shape[0]} frame, but the tiles were planned for "
-                             f"{self.plan.frame_shape[1]}x{self.plan.frame_shape[0]} frames; plan them for this video")
-        full = self.base.detect(image, time_s)
-        crops = [image[y0:y1, x0:x1] for x0, y0, x1, y1 in self.plan.tiles]
-        if not crops:
-            parts = [full]
-        elif hasattr(self.base, "detect_batch"):
-            parts = [full, *self.base.detect_batch(crops)]
-        else:
-            parts = [full, *(self.base.detect(c, time_s) for c in crops)]
-        kept = [full]
-        sources = [np.zeros(len(full), dtype=np.int64)]
-        for k, (det, tile) in enumerate(zip(parts[1:], self.plan.tiles, strict=True), start=1):
-            if not len(det):
-                continue
-            boxes = det.boxes + np.array([tile[0], tile[1], tile[0], tile[1]], dtype=np.float64)
-            whole = ~cut_by_tile(boxes, tile, shape, self.plan.cut_margin_px)
-            kept.append(Detections(boxes[whole], det.scores[whole], det.classes[whole]))
-            sources.append(np.full(int(whole.sum()), k, dtype=np.int64))
-        merged = Detections.concatenate(kept)
-        pick = merge_boxes(merged.boxes, merged.scores, np.concatenate(sources), iou=self.iou,
-                           containment=self.containment)
-        out = merged.select(pick)
-        if self.roi is not None and len(out):
-            out = out.select(in_roi(self.roi, out.bottom_centres, shape))
-        return out
