@@ -307,9 +307,10 @@ class TilePlan:
 
     def input_size_px(self, boxes: object) -> np.ndarray:
         """The largest size (shorter side, px) boxes (N, 4) (full-frame px) have in the detector input over the full
-        frame and the tiles holding them whole (boxes are first clipped to the frame)."""
-        b = _clip_boxes(np.asarray(boxes, dtype=np.float64).reshape(-1, 4), self.frame_shape)
-        size = box_size_px(b)
+        frame and the tiles holding them whole (the part of a box inside the frame)."""
+        raw = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+        b = _clip_boxes(raw, self.frame_shape)
+        size = box_size_px(raw)
         best = size * self.full_scale
         if len(self.tiles):
             inside = _contains(self.tiles, b, self.frame_shape, self.cut_margin_px)  # (K, N)
@@ -323,11 +324,12 @@ class TilePlan:
         car = f"a car {self.vehicle_m[0]:g} m long"
         lines = []
         in_view = np.isfinite(self.size_px)
-        if not len(self.tiles):
-            if in_view.any():
-                i = int(np.nanargmin(self.best_input_px))
-                lines.append(f"tiling: not needed - {car} is at least {self.best_input_px[i]:.0f} px across in the "
-                             f"detector's {s} px input everywhere on the road in view")
+        if not in_view.any():
+            lines.append("tiling: no part of the counted road is in view; check the lanes or the ROI")
+        elif not len(self.tiles):
+            smallest = float(np.nanmin(self.best_input_px))
+            lines.append(f"tiling: not needed - {car} is at least {smallest:.0f} px across in the detector's {s} px "
+                         "input everywhere on the road in view")
         else:
             sides = np.maximum(self.tiles[:, 2] - self.tiles[:, 0], self.tiles[:, 3] - self.tiles[:, 1])
             tiled = self._tiled_distance_m()
@@ -486,8 +488,7 @@ def plan_tiles(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame
     seen &= np.isfinite(size)
     size[~seen] = np.nan
     car_box = np.full((len(dist_m), 4), np.nan)
-    car_box[seen] = _clip_boxes(vehicle_boxes(camera, samples.xyz[seen], samples.heading_deg[seen], vehicle_m),
-                                (h, w))
+    car_box[seen] = vehicle_boxes(camera, samples.xyz[seen], samples.heading_deg[seen], vehicle_m)
     full_scale = s_in / max(h, w)
     with np.errstate(invalid="ignore"):
         need = seen & (size * full_scale < min_size_px) & (size * s_in / t_min >= min_tiled_size_px)
@@ -496,8 +497,9 @@ def plan_tiles(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame
     if idx.size:
         side_req = np.clip(size[idx] * s_in / min_size_px, t_min, t_max)  # largest tile side serving each point
         big = _clip_boxes(vehicle_boxes(camera, samples.xyz[idx], samples.heading_deg[idx], large_vehicle_m), (h, w))
-        fits = (big[:, 2] - big[:, 0] <= np.floor(side_req) - 1) & (big[:, 3] - big[:, 1] <= np.floor(side_req) - 1)
-        hold = np.where(fits[:, None], big, car_box[idx])  # what a serving tile must hold whole
+        room = np.floor(side_req) - 2.0 * CUT_MARGIN_PX - 1.0
+        fits = (big[:, 2] - big[:, 0] <= room) & (big[:, 3] - big[:, 1] <= room)
+        hold = np.where(fits[:, None], big, _clip_boxes(car_box[idx], (h, w)))  # what a serving tile must hold whole
         # A point needing a tile of side T "costs" about area / T^2 tiles: serving the far, costly points first
         # keeps the small tiles few (plain area favours tiles that only graze the far road).
         weight = samples.area_m2[idx] / side_req ** 2
@@ -523,7 +525,6 @@ def plan_tiles(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame
     best = np.full(len(size), np.nan)
     if seen.any():
         best[seen] = plan.input_size_px(car_box[seen])
-        best[seen] = np.maximum(best[seen], size[seen] * full_scale)  # a car cut by the frame edge: its full size
     object.__setattr__(plan, "best_input_px", best)
     object.__setattr__(plan, "regions", _regions(samples, seen, size * full_scale >= min_size_px,
                                                  best >= min_size_px, dist_m, unit))
