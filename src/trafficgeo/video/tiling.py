@@ -1,0 +1,549 @@
+"""Camera-aware tiling for a learned detector: run it on the full frame plus zoomed tiles over the far road.
+
+A detector with a small square input (NanoDet at 416 px) sees a 1920 px frame shrunk 4.6 times: a car 150 m away,
+~15 px across in the frame, becomes ~3 px in its input, far below the ~16-24 px it needs. The calibration tells how
+big a vehicle is at each point of the road, so the tiles can be planned once per camera:
+
+* :func:`vehicle_size_px` - the **size** of a reference vehicle in the image: the *shorter side* of the axis-aligned
+  box of its projected cuboid (full-frame px). The shorter side, not ``sqrt(area)``: a detector's feature cells
+  must span the object both ways, and a car seen side-on far away (40 x 12 px) is as hard to find as its 12 px
+  suggest; for a car seen end-on (the usual view along a road) both measures nearly agree.
+* :func:`plan_tiles` -> :class:`TilePlan` - square tiles (full-frame px), each run at the detector's input size (a
+  tile of side ``T`` is scaled by ``input_size / T``, at most ``max_upscale``), chosen greedily from the farthest
+  road (smallest vehicles, smallest tiles) to the nearest so that the reference car reaches ``min_size_px`` in the
+  detector input everywhere on the counted road, and so that a *large* vehicle (a truck) at any road point lies whole
+  in the tile that serves that point (the tiles overlap by that vehicle's extent). No tiles when the full frame
+  suffices. The plan reports, per lane (or for the ROI), the road that stays too small even at the maximum zoom.
+* :class:`~trafficgeo.video.tiled_detector.TiledDetector` (re-exported here) - a
+  :class:`~trafficgeo.video.detections.Detector` running a base detector on the full frame and on every tile crop,
+  dropping tile boxes cut by a tile's inner edge and merging everything.
+
+World coordinates are in the camera's CRS and its units; vehicle dimensions and distances are metres; pixels
+follow :mod:`trafficgeo.video.detections` (pixel-centre convention). A tile ``(x0, y0, x1, y1)`` is the crop
+``image[y0:y1, x0:x1]`` (integer pixel indices, ends excluded): a box at ``x`` in the crop is at ``x + x0`` in the
+frame, and the tile spans ``x0 - 0.5 .. x1 - 0.5`` in box coordinates.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+
+from trafficgeo.camera.model import Camera
+from trafficgeo.crs import metres_per_unit
+from trafficgeo.errors import InputError
+from trafficgeo.geo.mapping import Surface, camera_crs, pixels_to_world, world_to_pixels
+from trafficgeo.traffic.boxes import VEHICLE_DIMENSIONS, cuboid_boxes
+from trafficgeo.traffic.lanes import Lanes
+from trafficgeo.video.detections import check_roi
+from trafficgeo.video.tiled_detector import CUT_MARGIN_PX, TiledDetector, cut_by_tile, merge_boxes
+
+__all__ = ["LARGE_VEHICLE_M", "REFERENCE_CAR_M", "RegionReach", "RoadSamples", "TilePlan", "TiledDetector",
+           "box_size_px", "cut_by_tile", "lane_samples", "merge_boxes", "plan_tiles", "roi_samples",
+           "vehicle_boxes", "vehicle_size_px"]
+
+REFERENCE_CAR_M = (4.4, 1.8, 1.5)  # length, width, height (m): the small vehicle that must be detectable
+LARGE_VEHICLE_M = VEHICLE_DIMENSIONS["truck"]  # the vehicle that must lie whole in a tile (its extent = overlap)
+UNKNOWN_HEADINGS_DEG = (0.0, 45.0, 90.0, 135.0)  # tried where the direction of travel is unknown (ROI)
+
+
+# ---------------------------------------------------------------------------------------------------- sizes
+def _mpu(camera: Camera) -> float:
+    crs = camera_crs(camera)
+    return metres_per_unit(crs) if crs is not None else 1.0
+
+
+def box_size_px(boxes: object) -> np.ndarray:
+    """The size (px) of boxes (N, 4) ``x1, y1, x2, y2``: their shorter side (see the module docstring)."""
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    return np.minimum(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])
+
+
+def _boxes_per_heading(camera: Camera, xyz: object, heading_deg: object, dims_m: Sequence[float]) -> np.ndarray:
+    """(N, K, 4) image boxes of the cuboids at K headings each: the given one, or :data:`UNKNOWN_HEADINGS_DEG`
+    where it is NaN (K = 1 when no heading is unknown)."""
+    pts = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    n = pts.shape[0]
+    heading = np.broadcast_to(np.asarray(heading_deg, dtype=np.float64), (n,))
+    grid = heading[:, None]
+    if np.isnan(heading).any():
+        grid = np.where(np.isnan(heading)[:, None], np.asarray(UNKNOWN_HEADINGS_DEG)[None, :], grid)
+    k = grid.shape[1]
+    length, width, height = (float(v) / _mpu(camera) for v in dims_m)
+    return cuboid_boxes(camera, np.repeat(pts, k, axis=0), grid.reshape(-1), length, width, height).reshape(n, k, 4)
+
+
+def vehicle_boxes(camera: Camera, xyz: object, heading_deg: object, dims_m: Sequence[float] = REFERENCE_CAR_M,
+                  ) -> np.ndarray:
+    """Image boxes (N, 4) (full-frame px, unclipped) of level cuboids ``dims_m`` = (length, width, height) in
+    metres standing with their footprint centre at ground points ``xyz`` (N, 3; CRS units), heading
+    ``heading_deg`` (N,) clockwise from grid north. Where the heading is NaN (unknown), the union of the boxes over
+    :data:`UNKNOWN_HEADINGS_DEG`. NaN rows where a corner is behind the camera."""
+    boxes = _boxes_per_heading(camera, xyz, heading_deg, dims_m)
+    return np.concatenate([boxes[:, :, :2].min(axis=1), boxes[:, :, 2:].max(axis=1)], axis=1)
+
+
+def vehicle_size_px(camera: Camera, xyz: object, heading_deg: object,
+                    dims_m: Sequence[float] = REFERENCE_CAR_M) -> np.ndarray:
+    """Size (px, the shorter side of the projected box; see the module docstring) of a vehicle ``dims_m`` (m) at
+    ground points ``xyz`` (N, 3; CRS units) heading ``heading_deg`` (N,) (deg clockwise from grid north). Where the
+    heading is NaN, the smallest size over :data:`UNKNOWN_HEADINGS_DEG`. NaN behind the camera."""
+    boxes = _boxes_per_heading(camera, xyz, heading_deg, dims_m)
+    return box_size_px(boxes.reshape(-1, 4)).reshape(boxes.shape[:2]).min(axis=1)
+
+
+# ---------------------------------------------------------------------------------------------------- road samples
+@dataclass(frozen=True, eq=False)
+class RoadSamples:
+    """Points of the counted road where vehicles may stand.
+
+    Attributes:
+        xyz: (N, 3) ground points (CRS units, on the surface).
+        heading_deg: (N,) direction of travel (deg clockwise from grid north, modulo 180; NaN = unknown).
+        region: (N,) object array, the lane name (or ``"ROI"``).
+        area_m2: (N,) road area each point stands for (m^2).
+        widths_m: lane width (m) per region name, to turn areas into lengths of lane (absent for the ROI).
+    """
+
+    xyz: np.ndarray
+    heading_deg: np.ndarray
+    region: np.ndarray
+    area_m2: np.ndarray
+    widths_m: dict[str, float] = field(default_factory=dict)
+
+
+def _local_heading_deg(poly: shapely.Geometry, x: np.ndarray, y: np.ndarray, radius: float) -> np.ndarray:
+    """Direction (deg clockwise from grid north, modulo 180) of a lane strip at points (x, y): the long axis of the
+    smallest rotated rectangle around the part of the lane within ``radius`` of each point (``radius`` about twice
+    the lane width, so the part is longer along the lane than across it, at its ends too)."""
+    pieces = shapely.intersection(poly, shapely.buffer(shapely.points(x, y), radius, quad_segs=4))
+    env = shapely.oriented_envelope(pieces)
+    out = np.full(x.shape[0], np.nan)
+    rect = shapely.get_type_id(env) == 3  # a polygon (degenerate pieces give points or lines)
+    if rect.any():
+        corners = np.stack([np.asarray(g.exterior.coords)[:3, :2] for g in env[rect]])  # (N, 3, 2)
+        a, b = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 1]
+        longer = np.where((np.hypot(*a.T) >= np.hypot(*b.T))[:, None], a, b)
+        out[rect] = np.degrees(np.arctan2(longer[:, 0], longer[:, 1])) % 180.0
+    return out
+
+
+def lane_samples(lanes: Lanes, surface: Surface, *, step_m: float = 1.0, metres_per_unit_: float = 1.0
+                 ) -> RoadSamples:
+    """Points on a square grid of ``step_m`` metres inside every lane polygon, at the surface's height, heading
+    along their lane (:func:`_local_heading_deg`; a lane is a long strip)."""
+    if not (np.isfinite(step_m) and step_m > 0):
+        raise InputError(f"tiling: the road sampling step {step_m!r} m must be a positive number of metres")
+    step = step_m / metres_per_unit_
+    out_xy, out_h, out_r, widths = [], [], [], {}
+    for name, poly in zip(lanes.names, lanes.polygons, strict=True):
+        x0, y0, x1, y1 = poly.bounds
+        gx = np.arange(x0 + 0.5 * step, x1, step)
+        gy = np.arange(y0 + 0.5 * step, y1, step)
+        X, Y = (a.reshape(-1) for a in np.meshgrid(gx, gy))
+        inside = shapely.contains_xy(poly, X, Y)
+        X, Y = X[inside], Y[inside]
+        widths[name] = 2.0 * poly.area / max(poly.length, 1e-12) * metres_per_unit_
+        if X.size == 0:
+            continue
+        heading = _local_heading_deg(poly, X, Y, 2.0 * widths[name] / metres_per_unit_)
+        out_xy.append(np.column_stack([X, Y]))
+        out_h.append(heading)
+        out_r.append(np.full(X.size, name, dtype=object))
+    if not out_xy:
+        raise InputError(f"tiling: the lanes ({', '.join(lanes.names)}) are narrower than the {step_m:g} m "
+                         "sampling step; give lane polygons of real lanes")
+    xy = np.concatenate(out_xy)
+    z = np.asarray(surface.elevation(xy[:, 0], xy[:, 1]), dtype=np.float64).reshape(-1)
+    return RoadSamples(np.column_stack([xy, z]), np.concatenate(out_h), np.concatenate(out_r),
+                       np.full(xy.shape[0], step_m * step_m), widths)
+
+
+def _roi_heading_deg(xy: np.ndarray, radius: float, min_ratio: float = 2.0) -> np.ndarray:
+    """Direction (deg clockwise from grid north, modulo 180) of the road at ground points (N, 2) spread evenly over
+    it: the major axis of the points within ``radius`` of each, where that neighbourhood is at least ``min_ratio``
+    times longer than wide (a road strip); NaN where it is not (a square or a junction: direction unknown)."""
+    from scipy.spatial import cKDTree
+
+    n = xy.shape[0]
+    out = np.full(n, np.nan)
+    if n < 3:
+        return out
+    tree = cKDTree(xy)
+    pairs = tree.query_pairs(radius, output_type="ndarray")  # (P, 2), i < j
+    rows = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(n)])
+    cols = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(n)])
+    d = xy[cols] - xy[rows]
+    count = np.bincount(rows, minlength=n).astype(np.float64)
+    mean = np.column_stack([np.bincount(rows, d[:, k], n) for k in (0, 1)]) / count[:, None]
+    sxx, syy, sxy = (np.bincount(rows, a * b, n) / count - ma * mb for a, b, ma, mb in
+                     ((d[:, 0], d[:, 0], mean[:, 0], mean[:, 0]), (d[:, 1], d[:, 1], mean[:, 1], mean[:, 1]),
+                      (d[:, 0], d[:, 1], mean[:, 0], mean[:, 1])))
+    half_gap = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
+    major, minor = 0.5 * (sxx + syy) + half_gap, 0.5 * (sxx + syy) - half_gap
+    angle = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)  # of the major axis, from +x (east) counter-clockwise
+    ok = (count >= 3) & (major >= min_ratio ** 2 * np.maximum(minor, 1e-12))
+    out[ok] = (90.0 - np.degrees(angle[ok])) % 180.0
+    return out
+
+
+def roi_samples(camera: Camera, surface: Surface, roi: np.ndarray, *, step_px: int = 8,
+                heading_radius_m: float = 30.0) -> RoadSamples:
+    """The ground points of the ROI mask's pixels on a ``step_px`` grid, each standing for the ground area of its
+    ``step_px`` x ``step_px`` cell, heading along the road where the ROI is a strip on the ground
+    (:func:`_roi_heading_deg` over ground points about 1 m apart), unknown (NaN) elsewhere."""
+    mask = check_roi(roi, (camera.height, camera.width), "tiling ROI")
+    s = int(step_px)
+    vv, uu = np.mgrid[s // 2:camera.height:s, s // 2:camera.width:s]
+    keep = mask[vv, uu]
+    uv = np.column_stack([uu[keep], vv[keep]]).astype(np.float64)
+    ground = pixels_to_world(camera, np.vstack([uv, uv + [s, 0.0], uv + [0.0, s]]), surface, with_lonlat=False)
+    n = uv.shape[0]
+    xyz = ground.xyz.reshape(3, n, 3)
+    du, dv = xyz[1] - xyz[0], xyz[2] - xyz[0]
+    mpu = _mpu(camera)
+    area = np.abs(du[:, 0] * dv[:, 1] - du[:, 1] * dv[:, 0]) * mpu ** 2
+    ok = np.all(np.isfinite(xyz[0]), axis=1) & np.isfinite(area)
+    pts, area = xyz[0][ok], area[ok]
+    # Image samples crowd far away on the ground: thin them to ~1 m for the direction, then spread it back.
+    cell = np.floor(pts[:, :2] * mpu)
+    _, first, back = np.unique(cell, axis=0, return_index=True, return_inverse=True)
+    heading = _roi_heading_deg(pts[first, :2] * mpu, heading_radius_m)[back.reshape(-1)]
+    return RoadSamples(pts, heading, np.full(pts.shape[0], "ROI", dtype=object), area)
+
+
+# ---------------------------------------------------------------------------------------------------- the plan
+@dataclass(frozen=True)
+class RegionReach:
+    """How well the detector sees one lane (or the ROI) with a plan.
+
+    Attributes:
+        name: lane name, or ``"ROI"``.
+        in_view_m: road in view (not hidden, inside the frame): metres of lane, or m^2 for the ROI.
+        full_frame_m: of it, where the reference car reaches the minimum size in the full frame.
+        tiles_m: where it reaches it only in a tile.
+        beyond_m: where it stays below the minimum size even at the maximum zoom.
+        beyond_distance_m: (nearest, farthest) horizontal distance (m) from the camera of that part; None if none.
+        in_view_distance_m: (nearest, farthest) distance (m) of the road in view; None if none.
+        unit: ``"m"`` (metres of lane) or ``"m2"`` (ROI area).
+    """
+
+    name: str
+    in_view_m: float
+    full_frame_m: float
+    tiles_m: float
+    beyond_m: float
+    beyond_distance_m: tuple[float, float] | None
+    in_view_distance_m: tuple[float, float] | None
+    unit: str = "m"
+
+
+@dataclass(frozen=True, eq=False)
+class TilePlan:
+    """Tiles for one camera (see the module docstring).
+
+    Attributes:
+        frame_shape: (H, W) of the frames.
+        input_size: the detector's square input (px).
+        min_size_px: the size (px, shorter side) the reference car must reach in the detector input.
+        max_upscale: the largest zoom of a tile (input_size / tile side).
+        tiles: (K, 4) int ``x0, y0, x1, y1`` (crop ``image[y0:y1, x0:x1]``), from the farthest road to the nearest.
+        regions: per lane (or the ROI), what the detector sees with the plan.
+        samples: the road points the plan was made for.
+        size_px: (N,) the reference car's size at each sample in full-frame px (NaN: not in view).
+        best_input_px: (N,) its largest size in the detector input over the full frame and the tiles that hold it
+            whole (NaN: not in view).
+    """
+
+    frame_shape: tuple[int, int]
+    input_size: int
+    min_size_px: float
+    max_upscale: float
+    tiles: np.ndarray
+    regions: tuple[RegionReach, ...] = ()
+    samples: RoadSamples | None = None
+    size_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    best_input_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    vehicle_m: tuple[float, float, float] = REFERENCE_CAR_M
+    camera_xy: np.ndarray = field(default_factory=lambda: np.zeros(2), repr=False)  # camera (x, y), CRS units
+    unit_m: float = 1.0  # metres per CRS unit
+    cut_margin_px: float = CUT_MARGIN_PX  # see cut_by_tile
+
+    def __post_init__(self) -> None:
+        h, w = (int(v) for v in self.frame_shape)
+        object.__setattr__(self, "frame_shape", (h, w))
+        tiles = np.asarray(self.tiles, dtype=np.int64).reshape(-1, 4)
+        bad = ((tiles[:, 0] < 0) | (tiles[:, 1] < 0) | (tiles[:, 2] > w) | (tiles[:, 3] > h)
+               | (tiles[:, 2] - tiles[:, 0] < 2) | (tiles[:, 3] - tiles[:, 1] < 2))
+        if bad.any():
+            raise InputError(f"tile plan: tile {tiles[np.argmax(bad)].tolist()} is not inside the {w}x{h} frame; give "
+                             "x0, y0, x1, y1 pixel indices with 0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height")
+        object.__setattr__(self, "tiles", tiles)
+
+    @property
+    def full_scale(self) -> float:
+        """Scale of the full frame into the detector input (letterbox: input_size / longer side)."""
+        return self.input_size / max(self.frame_shape)
+
+    @property
+    def tile_scales(self) -> np.ndarray:
+        """(K,) scale of each tile into the detector input."""
+        t = self.tiles.astype(np.float64)
+        return self.input_size / np.maximum(t[:, 2] - t[:, 0], t[:, 3] - t[:, 1])
+
+    @property
+    def added_input_pixels(self) -> int:
+        """Detector-input pixels the tiles add per frame (the full frame alone: ``input_size ** 2``)."""
+        return int(len(self.tiles) * self.input_size ** 2)
+
+    @property
+    def added_frame_pixels(self) -> int:
+        """Frame pixels the tiles crop per frame (overlaps counted once per tile)."""
+        t = self.tiles.astype(np.int64)
+        return int(np.sum((t[:, 2] - t[:, 0]) * (t[:, 3] - t[:, 1])))
+
+    def input_size_px(self, boxes: object) -> np.ndarray:
+        """The largest size (shorter side, px) boxes (N, 4) (full-frame px) have in the detector input over the full
+        frame and the tiles holding them whole (the part of a box inside the frame)."""
+        raw = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+        b = _clip_boxes(raw, self.frame_shape)
+        size = box_size_px(raw)
+        best = size * self.full_scale
+        if len(self.tiles):
+            inside = _contains(self.tiles, b, self.frame_shape, self.cut_margin_px)  # (K, N)
+            scaled = np.where(inside, size[None, :] * self.tile_scales[:, None], -np.inf)
+            best = np.maximum(best, scaled.max(axis=0))
+        return best
+
+    def summary_lines(self) -> list[str]:
+        """The plan in words, for the terminal: the tiles, then a warning per lane with road beyond reach."""
+        s = self.input_size
+        car = f"a car {self.vehicle_m[0]:g} m long"
+        lines = []
+        in_view = np.isfinite(self.size_px)
+        if not in_view.any():
+            lines.append("tiling: no part of the counted road is in view; check the lanes or the ROI")
+        elif not len(self.tiles):
+            smallest = float(np.nanmin(self.best_input_px))
+            lines.append(f"tiling: not needed - {car} is at least {smallest:.0f} px across in the detector's {s} px "
+                         "input everywhere on the road in view")
+        else:
+            sides = np.maximum(self.tiles[:, 2] - self.tiles[:, 0], self.tiles[:, 3] - self.tiles[:, 1])
+            tiled = self._tiled_distance_m()
+            where = f" over the road {tiled[0]:.0f}-{tiled[1]:.0f} m from the camera" if tiled else ""
+            lines.append(f"tiling: {len(self.tiles)} tile{'s' if len(self.tiles) > 1 else ''} of {sides.min()}-"
+                         f"{sides.max()} px (zoom up to {self.tile_scales.max():.1f}x){where} besides the full frame: "
+                         f"the detector runs {len(self.tiles) + 1} times per frame "
+                         f"({self.added_frame_pixels / 1e6:.2f} Mpx of crops)")
+        lines.extend(self.warnings())
+        return lines
+
+    def warnings(self) -> list[str]:
+        """One warning per lane (or the ROI) with road where the reference car stays below the minimum size."""
+        out = []
+        car = f"a car {self.vehicle_m[0]:g} m long"
+        for r in self.regions:
+            if r.beyond_m <= 0 or r.beyond_distance_m is None:
+                continue
+            what = f"lane {r.name}" if r.unit == "m" else "the ROI"
+            share = r.beyond_m / max(r.in_view_m, 1e-9)
+            amount = f"{r.beyond_m:.0f} m of it" if r.unit == "m" else f"{share:.0%} of it"
+            lo, hi = r.beyond_distance_m
+            out.append(f"{what}: {amount}, {lo:.0f}-{hi:.0f} m from the camera, is too far for the detector: {car} "
+                       f"stays below {self.min_size_px:g} px across in its {self.input_size} px input even at "
+                       f"{self.max_upscale:g}x zoom, so vehicles there may go undetected and uncounted; count nearer "
+                       "the camera, or film with a longer lens or a higher resolution")
+        return out
+
+    def _tiled_distance_m(self) -> tuple[float, float] | None:
+        full = self.size_px * self.full_scale >= self.min_size_px
+        tiled = np.isfinite(self.size_px) & ~full & (self.best_input_px > self.size_px * self.full_scale)
+        if self.samples is None or not tiled.any():
+            return None
+        d = _horizontal_distance_m(self.samples.xyz[tiled], self.camera_xy, self.unit_m)
+        return float(d.min()), float(d.max())
+
+    def to_dict(self) -> dict[str, object]:
+        """The plan for the report / JSON (plain Python types)."""
+        return {
+            "input_size": self.input_size, "min_size_px": self.min_size_px, "max_upscale": self.max_upscale,
+            "vehicle_m": list(self.vehicle_m), "frame_shape": list(self.frame_shape),
+            "tiles": self.tiles.astype(int).tolist(), "passes_per_frame": len(self.tiles) + 1,
+            "added_input_pixels": self.added_input_pixels, "added_frame_pixels": self.added_frame_pixels,
+            "regions": [{"name": r.name, "unit": r.unit, "in_view": round(r.in_view_m, 1),
+                         "full_frame": round(r.full_frame_m, 1), "tiles_only": round(r.tiles_m, 1),
+                         "beyond_reach": round(r.beyond_m, 1),
+                         "beyond_distance_m": None if r.beyond_distance_m is None else
+                         [round(v, 1) for v in r.beyond_distance_m],
+                         "in_view_distance_m": None if r.in_view_distance_m is None else
+                         [round(v, 1) for v in r.in_view_distance_m]} for r in self.regions],
+            "warnings": self.warnings(),
+        }
+
+
+def _horizontal_distance_m(xyz: np.ndarray, camera_xy: np.ndarray, mpu: float) -> np.ndarray:
+    return np.hypot(xyz[:, 0] - camera_xy[0], xyz[:, 1] - camera_xy[1]) * mpu
+
+
+def _clip_boxes(boxes: np.ndarray, frame_shape: tuple[int, int]) -> np.ndarray:
+    h, w = frame_shape
+    out = boxes.copy()
+    out[:, [0, 2]] = np.clip(out[:, [0, 2]], -0.5, w - 0.5)
+    out[:, [1, 3]] = np.clip(out[:, [1, 3]], -0.5, h - 0.5)
+    return out
+
+
+def _contains(tiles: np.ndarray, boxes: np.ndarray, frame_shape: tuple[int, int], margin_px: float = CUT_MARGIN_PX
+              ) -> np.ndarray:
+    """(K, N) whether tile k (x0, y0, x1, y1 pixel indices) holds box n (pixel-centre convention, clipped to the
+    frame) whole: inside it, and more than ``margin_px`` from every tile edge that is not a frame edge (what
+    :func:`cut_by_tile` would take for a cut vehicle)."""
+    h, w = frame_shape
+    t = tiles.astype(np.float64)[:, None, :]
+    b = boxes[None, :, :]
+    edge = t - 0.5
+    inner = np.stack([t[..., 0] > 0, t[..., 1] > 0, t[..., 2] < w, t[..., 3] < h], axis=-1)
+    lo_pad = np.where(inner[..., :2], margin_px, -1e-6)
+    hi_pad = np.where(inner[..., 2:], margin_px, -1e-6)
+    with np.errstate(invalid="ignore"):
+        return (np.all(b[..., :2] > edge[..., :2] + lo_pad, axis=-1)
+                & np.all(b[..., 2:] < edge[..., 2:] - hi_pad, axis=-1))
+
+
+def _tile_origins(box: np.ndarray, others: np.ndarray, side: int, frame_shape: tuple[int, int], candidates: int,
+                  margin_px: float = CUT_MARGIN_PX) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate origins (x0s, y0s) of a tile of ``side`` px inside the frame holding ``box`` whole (as
+    :func:`_contains` has it): evenly spread over the feasible range, the frame's edges, and those putting a tile
+    edge just beyond an edge of one of the ``others`` boxes (M, 4) (at most ``candidates`` of those, by quantile).
+    A box that fits nowhere gets the tile centred on it."""
+    h, w = frame_shape
+    m = margin_px
+    out = []
+    for k, size in ((0, w), (1, h)):
+        lo_edge, hi_edge = box[k], box[k + 2]
+        lo = max(0, int(np.ceil(hi_edge + 0.5 + m - side + 1e-9)))
+        hi = min(size - side, int(np.floor(lo_edge + 0.5 - m - 1e-9)))
+        aligned = np.concatenate([np.floor(others[:, k] + 0.5 - m - 1e-9),
+                                  np.ceil(others[:, k + 2] + 0.5 + m - side + 1e-9)])
+        aligned = np.unique(aligned[(aligned >= lo) & (aligned <= hi)])
+        if aligned.size > candidates:
+            aligned = np.unique(np.quantile(aligned, np.linspace(0.0, 1.0, candidates), method="nearest"))
+        c = np.concatenate([np.round(np.linspace(lo, hi, candidates)) if hi >= lo else [], aligned,
+                            [0, size - side]]).astype(np.int64)
+        # the exact test: more than m px inside every tile edge that is not a frame edge
+        holds = (((c == 0) | (lo_edge > c - 0.5 + m)) & ((c + side == size) | (hi_edge < c + side - 0.5 - m))
+                 & (c >= 0) & (c <= size - side))
+        if not holds.any():
+            mid = round(0.5 * (lo_edge + hi_edge) + 0.5 - 0.5 * side)
+            out.append(np.array([int(np.clip(mid, 0, size - side))]))
+        else:
+            out.append(np.unique(c[holds]))
+    return out[0], out[1]
+
+
+def plan_tiles(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame_shape: tuple[int, int] | None = None,
+               *, input_size: int = 416, min_size_px: float = 24.0, max_upscale: float = 2.0,
+               min_tiled_size_px: float = 16.0, vehicle_m: Sequence[float] = REFERENCE_CAR_M,
+               large_vehicle_m: Sequence[float] = LARGE_VEHICLE_M, max_distance_m: float | None = None,
+               step_m: float = 1.0, roi_step_px: int = 8, candidates: int = 17) -> TilePlan:
+    """Tiles so that the reference car ``vehicle_m`` (length, width, height; m) reaches ``min_size_px`` (shorter
+    side) in the detector's ``input_size`` px input at every point of the counted road ``road`` (lanes, or a bool
+    ROI mask (H, W)) within ``max_distance_m`` (m; None = all) of the camera.
+
+    A tile of side ``T`` px is scaled by ``input_size / T``; the smallest tile is ``input_size / max_upscale`` px and
+    the largest the frame's shorter side. Greedy, from the farthest road to the nearest: the point with the smallest
+    vehicles not yet served sets the tile side (the largest side that brings its car to ``min_size_px``); among up
+    to ``2 candidates`` squared positions (:func:`_tile_origins`) holding that point's large vehicle
+    ``large_vehicle_m`` whole (its car where the large vehicle does not fit), the tile serves the most road (each
+    point weighted by its area over its own tile side squared, so the far road comes first). A point is served by a
+    tile that holds its large vehicle (else car) whole at a zoom bringing its car to the minimum size. Points that
+    even the maximum zoom cannot bring to ``min_tiled_size_px`` get no tile. Returns the plan with, per lane, the
+    road beyond reach.
+    """
+    h, w = camera.height, camera.width
+    if frame_shape is not None and tuple(int(v) for v in frame_shape[:2]) != (h, w):
+        raise InputError(f"tiling: frames of {frame_shape[1]}x{frame_shape[0]} px do not match the camera's "
+                         f"{w}x{h} px calibration; calibrate at the video's resolution")
+    for name, value in (("input_size", input_size), ("min_size_px", min_size_px), ("max_upscale", max_upscale),
+                        ("min_tiled_size_px", min_tiled_size_px)):
+        if not (np.isfinite(value) and value > 0):
+            raise InputError(f"tiling: {name} {value!r} must be a positive number")
+    s_in = int(input_size)
+    t_max = min(h, w)
+    t_min = min(t_max, int(np.ceil(s_in / max_upscale)))
+    mpu = _mpu(camera)
+    if isinstance(road, Lanes):
+        samples, unit = lane_samples(road, surface, step_m=step_m, metres_per_unit_=mpu), "m"
+    else:
+        samples, unit = roi_samples(camera, surface, np.asarray(road), step_px=roi_step_px), "m2"
+    dist_m = _horizontal_distance_m(samples.xyz, camera.position[:2], mpu)
+    seen = world_to_pixels(camera, samples.xyz, surface).ok
+    if max_distance_m is not None:
+        seen &= dist_m <= float(max_distance_m)
+    size = np.full(len(dist_m), np.nan)
+    size[seen] = vehicle_size_px(camera, samples.xyz[seen], samples.heading_deg[seen], vehicle_m)
+    seen &= np.isfinite(size)
+    size[~seen] = np.nan
+    car_box = np.full((len(dist_m), 4), np.nan)
+    car_box[seen] = vehicle_boxes(camera, samples.xyz[seen], samples.heading_deg[seen], vehicle_m)
+    full_scale = s_in / max(h, w)
+    with np.errstate(invalid="ignore"):
+        need = seen & (size * full_scale < min_size_px) & (size * s_in / t_min >= min_tiled_size_px)
+    idx = np.flatnonzero(need)
+    tiles: list[tuple[int, int, int, int]] = []
+    if idx.size:
+        side_req = np.clip(size[idx] * s_in / min_size_px, t_min, t_max)  # largest tile side serving each point
+        big = _clip_boxes(vehicle_boxes(camera, samples.xyz[idx], samples.heading_deg[idx], large_vehicle_m), (h, w))
+        room = np.floor(side_req) - 2.0 * CUT_MARGIN_PX - 1.0
+        fits = (big[:, 2] - big[:, 0] <= room) & (big[:, 3] - big[:, 1] <= room)
+        hold = np.where(fits[:, None], big, _clip_boxes(car_box[idx], (h, w)))  # what a serving tile must hold whole
+        # A point needing a tile of side T "costs" about area / T^2 tiles: serving the far, costly points first
+        # keeps the small tiles few (plain area favours tiles that only graze the far road).
+        weight = samples.area_m2[idx] / side_req ** 2
+        open_ = np.ones(idx.size, dtype=bool)
+        while open_.any():
+            rest = np.flatnonzero(open_)
+            seed = rest[np.lexsort((hold[rest, 1], side_req[rest]))[0]]  # smallest tile side, then topmost
+            side = int(np.floor(side_req[seed] + 1e-9))
+            xs, ys = _tile_origins(hold[seed], hold[rest], side, (h, w), candidates)
+            X0, Y0 = (a.reshape(-1) for a in np.meshgrid(xs, ys))
+            cand = np.column_stack([X0, Y0, X0 + side, Y0 + side])
+            ok = _contains(cand, hold[rest], (h, w)) & (side <= side_req[rest] + 1e-9)[None, :]
+            best = int(np.argmax(ok.astype(np.float64) @ weight[rest]))
+            served = rest[ok[best]]
+            open_[served] = False
+            open_[seed] = False  # always: even a tile that could not hold it whole is its best effort
+            tiles.append(tuple(int(v) for v in cand[best]))
+    tile_arr = np.asarray(tiles, dtype=np.int64).reshape(-1, 4)
+    plan = TilePlan(frame_shape=(h, w), input_size=s_in, min_size_px=float(min_size_px),
+                    max_upscale=float(max_upscale), tiles=tile_arr, regions=(), samples=samples, size_px=size,
+                    best_input_px=np.full(len(size), np.nan), vehicle_m=tuple(float(v) for v in vehicle_m),
+                    camera_xy=camera.position[:2].copy(), unit_m=mpu)
+    best = np.full(len(size), np.nan)
+    if seen.any():
+        best[seen] = plan.input_size_px(car_box[seen])
+    object.__setattr__(plan, "best_input_px", best)
+    object.__setattr__(plan, "regions", _regions(samples, seen, size * full_scale >= min_size_px,
+                                                 best >= min_size_px, dist_m, unit))
+    return plan
+
+
+def _regions(samples: RoadSamples, seen: np.ndarray, full_ok: np.ndarray, reached: np.ndarray, dist_m: np.ndarray,
+             unit: str) -> tuple[RegionReach, ...]:
+    out = []
+    for name in dict.fromkeys(samples.region.tolist()):
+        mine = samples.region == name
+        per = samples.area_m2 / (samples.widths_m.get(name, 1.0) if unit == "m" else 1.0)
+        v = mine & seen
+        full = v & full_ok
+        tiles = v & ~full_ok & reached
+        beyond = v & ~reached
+        out.append(RegionReach(
+            name=str(name), in_view_m=float(per[v].sum()), full_frame_m=float(per[full].sum()),
+            tiles_m=float(per[tiles].sum()), beyond_m=float(per[beyond].sum()),
+            beyond_distance_m=(float(dist_m[beyond].min()), float(dist_m[beyond].max())) if beyond.any() else None,
+            in_view_distance_m=(float(dist_m[v].min()), float(dist_m[v].max())) if v.any() else None, unit=unit))
+    return tuple(out)
