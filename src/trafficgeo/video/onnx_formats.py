@@ -396,7 +396,7 @@ def _decode_yolox(out: Mapping[str, np.ndarray], d: Decoding) -> Raw:
             raise InputError(f"a YOLOX output of {p.shape[0]} anchors does not fit the stride 8/16/32 grid of a "
                              f"{d.input_hw[1]}x{d.input_hw[0]} input ({grid.shape[0]} anchors)")
         g = grid[rows]
-        box = np.column_stack([(box[:, :2] + g[:, :2]) * g[:, 2:3], np.exp(box[:, 2:4]) * g[:, 2:3]])
+        box = np.column_stack([box[:, :2] * g[:, 2:3] + g[:, :2], np.exp(box[:, 2:4]) * g[:, 2:3]])  # (raw + cell) s
     return _xyxy(box), score, cls
 
 
