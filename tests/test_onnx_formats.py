@@ -414,3 +414,62 @@ def test_suppression_across_classes_and_inside() -> None:
     assert list(suppress(boxes, scores, 0.5, 0.8)) == [0, 3]  # 1: IoU 0.82; 2: inside 0; 4: holds 0 (and 3)
     assert list(suppress(boxes, scores, 0.5, None)) == [0, 2, 3, 4]
     assert len(suppress(np.zeros((0, 4)), np.zeros(0))) == 0
+
+
+def test_detector_format_reaches_the_run(tmp_path: Path) -> None:
+    """--detector-format goes from the command line through ProcessOptions (checked before anything is written,
+    part of the run key) to the detector: a decoded YOLOX model that auto refuses runs as named."""
+    from dataclasses import asdict
+
+    from cli_support import invoke
+    from trafficgeo.camera.io import write_camera_json
+    from trafficgeo.camera.model import Camera
+    from trafficgeo.video.checkpoint import run_key
+    from trafficgeo.video.detect import make_detector
+    from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
+    from video_support import H as VH
+    from video_support import W as VW
+    from video_support import write_two_car_video
+
+    path = model(tmp_path / "xd.onnx", {"output": enc_yolox_decoded()})
+    with pytest.raises(InputError, match="--detector-format yolox"):
+        ProcessOptions(detector=str(path))
+    with pytest.raises(InputError, match="applies to an ONNX model"):
+        ProcessOptions(detector="bg", detector_format="yolox")
+    assert make_detector(str(path), detector_format="yolox").format == "yolox"
+    opts = ProcessOptions(detector=str(path), detector_format="yolox", checkpoint_s=1.0)
+    video = write_two_car_video(tmp_path / "cars.mp4", 3, 2.0, rows=(60, 120), seed=1)
+
+    def key(o: ProcessOptions) -> str:
+        return run_key(video, camera=None, surface=None, roi=None, options=asdict(o), detector_file=path)
+
+    assert key(opts) != key(ProcessOptions(detector=str(path), detector_format="yolov5", checkpoint_s=1.0))
+    dets, _tracks = detect_and_track(video, None, None, tmp_path / "out", opts)
+    # a 320x180 frame fills the top-left of the 320 px input at scale 1: input px - 0.5
+    car, truck = np.array(CAR) + 0.5, np.array(TRUCK) + 0.5
+    want = np.array([car / 3 - 0.5, truck / 3 - 0.5])
+    assert dets["frame"].nunique() == 6 and len(dets) == 12
+    for _f, g in dets.groupby("frame"):
+        np.testing.assert_allclose(g[["x1", "y1", "x2", "y2"]].to_numpy(), want, atol=2e-3)
+    cam = Camera.from_orientation((VW, VH), 300.0, [0.0, -20.0, 8.0], 0.0, 20.0, crs="EPSG:32633")
+    write_camera_json(tmp_path / "camera.json", cam)
+    for fmt, said in (("yolox", "applies to an ONNX model"), ("nonsense", "not known")):
+        out = tmp_path / f"cli_{fmt}"
+        code, _stdout, stderr = invoke("process", video, "--camera", tmp_path / "camera.json", "--surface", "0",
+                                       "--out", out, "--detector", "bg", "--detector-format", fmt)
+        assert code == 2 and len(stderr.strip().splitlines()) == 1 and said in stderr, stderr
+        assert not out.exists()
+
+
+def test_the_packaged_nanodet_is_recognised() -> None:
+    """The built-in NanoDet (shipped in the package once converted) is read as NanoDet without being told."""
+    import trafficgeo
+
+    path = Path(trafficgeo.__file__).parent / "data" / "models" / "nanodet-g-416.onnx"
+    if not path.is_file():
+        pytest.skip("the NanoDet model is not in this checkout")
+    det = OnnxDetector(path, threads=1)
+    assert det.format == "nanodet" and det.input_hw == (416, 416) and det.conf == 0.25
+    assert det.fit.options == {"strides": (8, 16, 32), "bins": 11} and det.fit.classes == 80
+    assert det.class_map == {1: "bicycle", 2: "car", 3: "motorcycle", 5: "bus", 7: "truck"}
+    assert len(det.detect(frame(114))) == 0
