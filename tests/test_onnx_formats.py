@@ -58,16 +58,20 @@ def frame(value: int = 90) -> np.ndarray:
 
 def model(path: Path, outputs: dict[str, np.ndarray], *, image: str = "images", batch: object = 1,
           metadata: dict[str, str] | None = None, sizes_input: bool = False, dynamic: bool = False,
-          per_image_score: str | None = None) -> Path:
+          per_image_score: str | None = None, half: bool = False) -> Path:
     """An ONNX model with a [batch, 3, S, S] input whose outputs are the constants ``outputs`` (float, or int64
     passed through). ``sizes_input``: a second input orig_target_sizes [1, 2] (int64) multiplies output "boxes"
     (x1, y1, x2, y2 normalised) by (w, h, w, h). ``dynamic``: outputs declared with dynamic dimensions.
-    ``per_image_score``: that output's rows 4.. are multiplied by each image's mean input value."""
+    ``per_image_score``: that output's rows 4.. are multiplied by each image's mean input value. ``half``: a
+    float16 input."""
     zero = numpy_helper.from_array(np.zeros((), dtype=np.float32), name="zero")
     inits = [zero]
-    nodes = [helper.make_node("ReduceMean", [image], ["mean"], keepdims=0),
-             helper.make_node("Mul", ["mean", "zero"], ["nothing"])]
-    inputs = [helper.make_tensor_value_info(image, TensorProto.FLOAT, [batch, 3, S, S])]
+    nodes = [helper.make_node("Cast", [image], ["image32"], to=TensorProto.FLOAT)] if half else []
+    source = "image32" if half else image
+    nodes += [helper.make_node("ReduceMean", [source], ["mean"], keepdims=0),
+              helper.make_node("Mul", ["mean", "zero"], ["nothing"])]
+    inputs = [helper.make_tensor_value_info(image, TensorProto.FLOAT16 if half else TensorProto.FLOAT,
+                                            [batch, 3, S, S])]
     outs = []
     for name, value in outputs.items():
         inits.append(numpy_helper.from_array(value, name=f"{name}_const"))
@@ -79,7 +83,7 @@ def model(path: Path, outputs: dict[str, np.ndarray], *, image: str = "images", 
             inits += [numpy_helper.from_array((value * split).astype(np.float32), name="score_part"),
                       numpy_helper.from_array((value * (1 - split)).astype(np.float32), name="box_part"),
                       numpy_helper.from_array(np.array([-1, 1, 1], dtype=np.int64), name="b11")]
-            nodes += [helper.make_node("ReduceMean", [image], ["img_mean"], axes=[1, 2, 3], keepdims=1),
+            nodes += [helper.make_node("ReduceMean", [source], ["img_mean"], axes=[1, 2, 3], keepdims=1),
                       helper.make_node("Reshape", ["img_mean", "b11"], ["img_mean3"]),
                       helper.make_node("Mul", ["score_part", "img_mean3"], ["scaled"]),
                       helper.make_node("Add", ["scaled", "box_part"], [name])]
@@ -332,6 +336,12 @@ def test_shapes_that_used_to_decode_into_garbage(tmp_path: Path) -> None:
     assert OnnxDetector(model(tmp_path / "r.onnx", {"output0": r}), format="rtdetr-ultra").format == "rtdetr-ultra"
 
 
+def test_a_half_precision_input(tmp_path: Path) -> None:
+    det = OnnxDetector(model(tmp_path / "half.onnx", {"output0": enc_yolov8()}, half=True))
+    assert det.format == "yolov8"
+    assert_truth(det)
+
+
 def test_yolox_raw_or_decoded(tmp_path: Path) -> None:
     """Decoded YOLOX outputs look like a YOLOv5/v6 export with another colour order and padding: auto refuses
     them in one line, and the named format decides (and decodes with its own padding)."""
@@ -358,6 +368,8 @@ def test_recognition_from_metadata(tmp_path: Path) -> None:
     assert det.class_map == {1: "van", 2: "bus"}
     d = det.detect(frame())
     assert list(d.classes) == ["van"] and np.allclose(d.boxes, [CAR], atol=2e-3)
+    with pytest.raises(InputError, match="class_map is empty"):
+        OnnxDetector(tmp_path / "van.onnx", class_map={})
     with pytest.raises(InputError, match="'pose' model"):
         OnnxDetector(model(tmp_path / "pose.onnx", {"output0": a}, metadata={**meta, "task": "pose"}))
     with pytest.raises(InputError, match="road vehicle"):

@@ -168,11 +168,16 @@ class OnnxDetector:
                 raise InputError(f"{p}: {exc}") from None
         self.fit = fit
         names = io.names if layout.names_index else None
-        cmap = dict(class_map if class_map is not None else
-                    vehicle_classes(names) if names else layout.default_classes)
-        if not cmap:
-            raise InputError(f"{p}: none of the model's classes ({', '.join(names.values())[:120]}) is a road "
-                             "vehicle; give a class_map (model class id -> vehicle name)")
+        if class_map is not None:
+            cmap = dict(class_map)
+            if not cmap:
+                raise InputError("OnnxDetector: class_map is empty; map at least one model class id to a vehicle "
+                                 "name")
+        else:
+            cmap = vehicle_classes(names) if names else layout.default_classes
+            if not cmap:
+                raise InputError(f"{p}: none of the model's classes ({', '.join(names.values())[:120]}) is a road "
+                                 "vehicle; give a class_map (model class id -> vehicle name)")
         self.class_map = {int(k): str(v) for k, v in cmap.items()}
         if fit.classes is not None and max(self.class_map) >= fit.classes:
             raise InputError(f"{p}: the model has {fit.classes} classes but class_map uses class id "

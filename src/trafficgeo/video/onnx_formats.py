@@ -23,12 +23,15 @@ rtdetr-ultra    ``[1, Q, 4 + nc]``: cx, cy, w, h normalised,   RGB 0-1, plain re
 rfdetr          ``dets`` [1, Q, 4] cxcywh normalised,          RGB, ImageNet mean/std,      COCO-91 category ids
                 ``labels`` [1, Q, C] logits (sigmoid)          plain resize                 (index = id)
 nanodet         per stride 8/16/32: class scores [1, N, nc]    BGR, NanoDet mean/std,       COCO-80
-                (sigmoid) and side distributions [1, N, 44]    plain resize
+                (sigmoid) and side distributions [1, N, 44]    centred letterbox grey 114
 ============== ============================================= ============================ ======================
 
-A = anchors of a stride-8/16/32 (or -64) head at the input size (8400 at 640 px). RF-DETR: the logit at index
+A = anchors of a stride-8/16/32 (or -64) head at the input size (8400 at 640 px). Default score thresholds: 0.3
+(YOLO layouts), 0.4 (DETR layouts), 0.25 (NanoDet, whose scores are IoU-quality scores). NanoDet is letterboxed:
+on the 91 real NGSIM US-101 frames of the project's data it finds 16.0 and 26.2 vehicles a frame (two views)
+against 10.8 and 22.8 with a plain resize, the boxes fitting the vehicles. RF-DETR: the logit at index
 ``i`` is COCO category id ``i`` (1 person, 2 bicycle, 3 car, 4 motorcycle, 6 bus, 8 truck; index 0 and the ids
-COCO skips are never trained), so no offset is applied.
+COCO skips name no class), so no offset is applied.
 """
 
 from __future__ import annotations
