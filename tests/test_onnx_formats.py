@@ -379,6 +379,9 @@ def test_recognition_from_metadata(tmp_path: Path) -> None:
             OnnxDetector(model(tmp_path / "bad.onnx", {"output0": np.zeros(shape, np.float32)}))
         msg = str(err.value)
         assert "\n" not in msg and str(list(shape)) in msg and "--detector-format" in msg, msg
+    with pytest.raises(InputError, match=r"fit several layouts \(end2end, yolox\)") as err:  # 1 class, or 2100 boxes?
+        OnnxDetector(model(tmp_path / "six.onnx", {"output0": np.zeros((1, 2100, 6), np.float32)}))
+    assert "output0 [1, 2100, 6]" in str(err.value) and "\n" not in str(err.value)
     with pytest.raises(InputError, match="do not fit --detector-format nanodet") as err:
         OnnxDetector(case("yolov8", tmp_path / "v8.onnx"), format="nanodet")
     assert "output0 [1, 84, 2100]" in str(err.value)
