@@ -15,6 +15,7 @@ from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt, _camera
 from trafficgeo.cli.traffic import IntervalOpt, LanesOpt, LinesOpt, ReportHtmlOpt, _check_out_dir, _layout
 from trafficgeo.errors import InputError
 from trafficgeo.video.detector_names import DETECTOR_HELP
+from trafficgeo.video.onnx_formats import FORMAT_HELP
 
 
 def _analyze_and_write(cam, surf, image_tracks, lane_set, count_lines, interval: float, out: Path):
@@ -65,6 +66,7 @@ def process(
     lines: LinesOpt = None,
     interval: IntervalOpt = 60.0,
     detector: Annotated[str, typer.Option(help=DETECTOR_HELP)] = "background",
+    detector_format: Annotated[str, typer.Option(help=FORMAT_HELP)] = "auto",
     start: Annotated[float, typer.Option(help="start time (s)")] = 0.0,
     end: Annotated[float | None, typer.Option(help="end time (s); default: the end of the video")] = None,
     every: Annotated[int, typer.Option(help="use every n-th frame")] = 1,
@@ -103,7 +105,8 @@ def process(
     check_interval(interval)
     if annotate is not None and annotate.suffix.lower() != ".mp4":
         raise InputError(f"--annotate {annotate}: write the annotated video as .mp4")
-    opts = ProcessOptions(detector=detector, start_s=start, end_s=end, every=every, checkpoint_s=checkpoint)
+    opts = ProcessOptions(detector=detector, detector_format=detector_format, start_s=start, end_s=end, every=every,
+                          checkpoint_s=checkpoint)
     cam, doc = _camera(camera)
     surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
     lane_set, count_lines = _layout(cam, surf, lanes, lines)

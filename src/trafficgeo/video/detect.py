@@ -12,8 +12,9 @@ OpenCV pixel-centre convention (pixel (0, 0) is the *centre* of the top-left pix
   optional region of interest, the merging of a vehicle's parts and the splitting of blobs of touching vehicles,
   and, given a calibrated camera and a road surface, a size filter and a size-based class in metres on the ground
   (rules in the class docstring). It finds what moves: vehicles that touch in the image often stay one blob.
-* :class:`OnnxDetector` runs a YOLOv8/YOLO11-style ONNX export with onnxruntime on the CPU. trafficgeo never
-  downloads weights: bring your own ``.onnx`` file.
+* :class:`OnnxDetector` runs an ONNX export with onnxruntime, in any layout of :mod:`.onnx_formats` (YOLOv5/v7,
+  YOLOv8/11, end-to-end YOLOv10/YOLO26, YOLOX, RT-DETR/D-FINE/DEIM, RF-DETR, NanoDet), recognised from the model or
+  named with ``detector_format``. trafficgeo never downloads weights: bring your own ``.onnx`` file.
 * :func:`make_detector` builds either from a short spec (a name of
   :data:`trafficgeo.video.detector_names.DETECTOR_NAMES` or the path of an ``.onnx`` file).
 """
@@ -25,6 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from trafficgeo.errors import InputError
 from trafficgeo.video.background import (  # noqa: F401 (re-exported)
     GAIN_STEP,
     WARMUP_FRAMES,
@@ -55,10 +57,10 @@ from trafficgeo.video.detector_names import DETECTOR_NAMES, ONNX_HINT, detector_
 from trafficgeo.video.onnx_detect import (  # noqa: F401 (re-exported)
     ONNX_SHAPES,
     OnnxDetector,
-    check_output_shape,
     letterbox,
     yolo_anchor_counts,
 )
+from trafficgeo.video.onnx_formats import format_name
 
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera
@@ -66,26 +68,40 @@ if TYPE_CHECKING:
 
 
 # ---------------------------------------------------------------------------------------------------- factory
-def check_detector(spec: str) -> str:
-    """:func:`detector_kind` of ``spec``, having opened an ONNX model to check that it can be used (an InputError
-    if not): a run checks its detector before it writes anything."""
+def _check_format(kind: str, spec: str, detector_format: str | None) -> str | None:
+    """The ONNX layout name of ``detector_format`` (None for auto); an InputError when one is given for a
+    background subtraction detector."""
+    fmt = format_name(detector_format)
+    if fmt is not None and kind != "onnx":
+        raise InputError(f"--detector-format {detector_format} applies to an ONNX model (--detector PATH.onnx), "
+                         f"not to --detector {spec}")
+    return fmt
+
+
+def check_detector(spec: str, detector_format: str | None = None) -> str:
+    """:func:`detector_kind` of ``spec``, having opened an ONNX model (read as ``detector_format``, default auto)
+    to check that it can be used (an InputError if not): a run checks its detector before it writes anything."""
     kind = detector_kind(spec)
+    fmt = _check_format(kind, spec, detector_format)
     if kind == "onnx":
-        OnnxDetector(str(spec).strip(), threads=1)
+        OnnxDetector(str(spec).strip(), format=fmt, threads=1)
     return kind
 
 
 def make_detector(spec: str = "background", *, camera: Camera | None = None, surface: Surface | None = None,
                   roi: np.ndarray | None = None, scale: float = 0.5, warmup_s: float = WARMUP_S,
-                  learning_rate: float | None = None, rules: SizeRules | None = None, conf: float = 0.3,
-                  iou: float = 0.5, input_size: int = 640, class_map: Mapping[int, str] | None = None) -> Detector:
+                  learning_rate: float | None = None, rules: SizeRules | None = None, conf: float | None = None,
+                  iou: float = 0.5, input_size: int | None = None, class_map: Mapping[int, str] | None = None,
+                  detector_format: str | None = None) -> Detector:
     """A detector from a short spec (:func:`detector_kind`): a background subtraction name
     (:class:`BackgroundDetector` with MOG2 for "background", "bg" or "mog2", with KNN for "knn") or the path of a
-    ``.onnx`` model (:class:`OnnxDetector`; ``camera`` and ``surface`` are not used, ``roi`` keeps detections
-    whose bottom centre lies inside it). ``warmup_s``: the background detector's warm-up (s of video)."""
+    ``.onnx`` model (:class:`OnnxDetector` of layout ``detector_format``, default recognised from the model;
+    ``conf`` default the layout's; ``camera`` and ``surface`` are not used, ``roi`` keeps detections whose bottom
+    centre lies inside it). ``warmup_s``: the background detector's warm-up (s of video)."""
     kind = detector_kind(spec)
+    fmt = _check_format(kind, spec, detector_format)
     if kind == "onnx":
-        return OnnxDetector(str(spec).strip(), input_size=input_size, conf=conf, iou=iou, class_map=class_map,
-                            roi=roi)
+        return OnnxDetector(str(spec).strip(), format=fmt, input_size=input_size, conf=conf, iou=iou,
+                            class_map=class_map, roi=roi)
     return BackgroundDetector(method=kind, scale=scale, warmup_s=warmup_s, learning_rate=learning_rate,
                               camera=camera, surface=surface, roi=roi, rules=rules)

@@ -10,8 +10,10 @@ from pathlib import Path
 
 from trafficgeo.errors import InputError
 
-ONNX_HINT = ("trafficgeo never downloads weights: export a YOLOv8/YOLO11 detector with e.g. ultralytics "
-             "`yolo export model=yolov8n.pt format=onnx` on a machine of your choice and pass --detector PATH.onnx")
+ONNX_HINT = ("trafficgeo never downloads weights: export a detector to ONNX on a machine of your choice (YOLOv5/v7, "
+             "YOLOv8/11, YOLOv10/YOLO26, YOLOX, RT-DETR, D-FINE, DEIM, RF-DETR or NanoDet; e.g. ultralytics "
+             "`yolo export model=yolo11n.pt format=onnx`), pass --detector PATH.onnx, and --detector-format NAME "
+             "if its layout is not recognised")
 # The detector names a user may give, and the kind each stands for ("mog2"/"knn": BackgroundDetector's method).
 DETECTOR_NAMES: dict[str, str] = {"background": "mog2", "bg": "mog2", "mog2": "mog2", "knn": "knn"}
 DETECTOR_HELP = ("'background' (MOG2 background subtraction, no weights; also 'bg' or 'mog2'), 'knn' (KNN "

@@ -1,88 +1,134 @@
-"""Bring-your-own ONNX detectors run with onnxruntime on the CPU (:class:`OnnxDetector`). trafficgeo never
-downloads weights. Pixels follow :mod:`trafficgeo.video.detections`."""
+"""Bring-your-own ONNX detectors run with onnxruntime (:class:`OnnxDetector`), in every common export layout
+(:mod:`trafficgeo.video.onnx_formats`: YOLOv5/v7, YOLOv8/11, end-to-end YOLOv10/YOLO26, YOLOX, RT-DETR/D-FINE/DEIM,
+ultralytics RT-DETR, RF-DETR, NanoDet). trafficgeo never downloads weights. Pixels follow
+:mod:`trafficgeo.video.detections`."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.detections import COCO_VEHICLES, Detections, check_image, in_roi
+from trafficgeo.video.detections import Detections, check_image, in_roi
 from trafficgeo.video.detector_names import ONNX_HINT
+from trafficgeo.video.onnx_formats import (
+    IDENTITY,
+    P5,
+    P6,
+    SUPPORTED,
+    Decoding,
+    Fit,
+    Layout,
+    ModelIO,
+    Port,
+    Preprocess,
+    anchor_count,
+    format_name,
+    parse_literal,
+    recognise,
+    vehicle_classes,
+)
+
+ONNX_SHAPES = SUPPORTED  # the layouts decoded, for messages
+PREFERRED_PROVIDERS = ("CUDAExecutionProvider", "OpenVINOExecutionProvider")
+CPU = "CPUExecutionProvider"
+MAX_BATCH = 16  # images per run of a model with a dynamic batch dimension
+MAX_CANDIDATES = 1000  # boxes per image going into the non-maximum suppression (the best scores)
 
 
-# ---------------------------------------------------------------------------------------------------- ONNX
 def letterbox(image: np.ndarray, size: int, pad_value: int = 114) -> tuple[np.ndarray, float, tuple[int, int]]:
     """Resize ``image`` to fit a ``size`` x ``size`` square keeping its aspect, centred on a ``pad_value`` border
     (the ultralytics letterbox). Returns the square image, the scale and the (left, top) padding in pixels."""
-    h, w = image.shape[:2]
-    r = min(size / h, size / w)
-    nw, nh = round(w * r), round(h * r)
-    left = round((size - nw) / 2 - 0.1)
-    top = round((size - nh) / 2 - 0.1)
-    resized = cv2.resize(image, (nw, nh), interpolation=cv2.INTER_LINEAR) if (nw, nh) != (w, h) else image
-    out = cv2.copyMakeBorder(resized, top, size - nh - top, left, size - nw - left, cv2.BORDER_CONSTANT,
-                             value=(pad_value, pad_value, pad_value))
-    return out, r, (left, top)
-
-
-ONNX_SHAPES = ("supported: [1, 4 + classes, anchors] with 3 or 4 strides' anchors (a YOLOv8/YOLO11 detection "
-               "export without NMS, e.g. [1, 84, 8400] at 640 px); not exports with NMS ([1, 300, 6]), transposed "
-               "outputs ([1, 8400, 84]) or outputs with an objectness score ([1, 25200, 85])")
+    out, g = Preprocess(True, (0, 0, 0), (1, 1, 1), "letterbox", pad_value).canvas(image, (size, size))
+    return out, g.scale[0], g.offset
 
 
 def yolo_anchor_counts(input_size: int) -> tuple[int, int]:
     """Anchors of a YOLOv8/YOLO11 head on a square input of ``input_size`` px: strides 8, 16, 32 (P5 models) and
     8 to 64 (P6 models)."""
-    p5 = sum(math.ceil(input_size / st) ** 2 for st in (8, 16, 32))
-    return p5, p5 + math.ceil(input_size / 64) ** 2
+    return anchor_count((input_size, input_size), P5), anchor_count((input_size, input_size), P6)
 
 
-def check_output_shape(path: str | Path, shape: Sequence[object], input_size: int) -> None:
-    """InputError unless an ONNX output shape (dimensions: ints, or names/None where dynamic) is one
-    :class:`OnnxDetector` decodes: ``[1, 4 + classes, anchors]``, the anchors those of its head at
-    ``input_size`` px (:func:`yolo_anchor_counts`) and more than the values per anchor."""
-    dims = list(shape)
-    fixed = [d if isinstance(d, int) and not isinstance(d, bool) and d > 0 else None for d in dims]
-    ok = len(dims) == 3 and fixed[0] in (1, None)
-    if ok and fixed[1] is not None and fixed[1] < 5:
-        ok = False
-    if ok and fixed[2] is not None:
-        ok = fixed[2] in yolo_anchor_counts(input_size) and (fixed[1] is None or fixed[2] > fixed[1])
-    if not ok:
-        found = "[" + ", ".join(str(d) if f is not None else "?" for d, f in zip(dims, fixed, strict=True)) + "]"
-        raise InputError(f"{path}: the model's output has shape {found} (input {input_size} px), which trafficgeo "
-                         f"cannot decode; {ONNX_SHAPES}; {ONNX_HINT}")
+def pick_providers(asked: str | Sequence[str] | None, available: Sequence[str]) -> list[str]:
+    """onnxruntime execution providers to use, CPU last: those ``asked`` ("cuda", "openvino", "cpu" or full
+    provider names; an InputError naming the installed ones when one is not installed), or with ``None`` CUDA and
+    OpenVINO when installed."""
+    avail = list(available)
+    if asked is None:
+        chosen = [p for p in PREFERRED_PROVIDERS if p in avail]
+    else:
+        short = {"cuda": "CUDAExecutionProvider", "openvino": "OpenVINOExecutionProvider", "cpu": CPU}
+        chosen = [short.get(a.strip().lower(), a.strip()) for a in ([asked] if isinstance(asked, str) else asked)]
+        missing = [a for a in chosen if a not in avail]
+        if missing:
+            raise InputError(f"execution provider {', '.join(missing)} is not installed (installed: "
+                             f"{', '.join(avail)}); install onnxruntime-gpu or onnxruntime-openvino, or leave "
+                             f"providers unset")
+    return [*dict.fromkeys(p for p in chosen if p != CPU), CPU]
+
+
+def suppress(boxes: np.ndarray, scores: np.ndarray, iou: float = 0.5, inside: float | None = 0.8) -> np.ndarray:
+    """Greedy non-maximum suppression across classes: indices of the kept boxes (best score first). A box goes
+    when its IoU with a kept one exceeds ``iou`` or their intersection covers at least ``inside`` of the smaller
+    of the two (a box inside another)."""
+    order = np.argsort(-np.asarray(scores), kind="stable")[:MAX_CANDIDATES]
+    b = np.asarray(boxes, dtype=np.float64)[order]
+    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    iw = np.clip(np.minimum(b[:, None, 2], b[None, :, 2]) - np.maximum(b[:, None, 0], b[None, :, 0]), 0, None)
+    ih = np.clip(np.minimum(b[:, None, 3], b[None, :, 3]) - np.maximum(b[:, None, 1], b[None, :, 1]), 0, None)
+    inter = iw * ih
+    over = inter > iou * (area[:, None] + area[None, :] - inter)
+    if inside is not None:
+        over |= inter >= inside * np.minimum(area[:, None], area[None, :])
+    dead = np.zeros(len(order), dtype=bool)
+    keep = []
+    for i in range(len(order)):
+        if not dead[i]:
+            keep.append(i)
+            dead |= over[i]
+    return order[np.asarray(keep, dtype=np.int64)]
+
+
+def _port(arg: object) -> Port:
+    dims = tuple(d if isinstance(d, int) and not isinstance(d, bool) and d > 0 else None for d in arg.shape)
+    return Port(arg.name, dims, arg.type)
+
+
+def _one_line(exc: Exception) -> str:
+    return " ".join(str(exc).split())[:200]
 
 
 class OnnxDetector:
-    """A YOLOv8/YOLO11-style ONNX detector run with onnxruntime on the CPU (2 intra-op threads).
+    """An ONNX detector of any layout of :mod:`trafficgeo.video.onnx_formats`, run with onnxruntime.
 
-    The model takes a ``[1, 3, S, S]`` float32 RGB image scaled to 0..1 and letterboxed (aspect kept, grey 114
-    border) and returns ``[1, 4 + nc, A]``: per anchor the box centre and size ``cx, cy, w, h`` in letterboxed
-    input pixels, then one score per class (no objectness; the ultralytics export without NMS). Only classes in
-    ``class_map`` (model class id -> trafficgeo name; default the COCO vehicles) are kept; boxes scoring at least
-    ``conf`` go through non-maximum suppression at IoU ``iou`` (across classes with ``agnostic=True``, so that one
-    vehicle is not reported as both a car and a truck), then back to full-frame pixels. The model's pixel
-    coordinates have their origin at the top-left *corner* of the image; 0.5 px is subtracted for the pixel-centre
-    convention. A model with a fixed input size uses it (``input_size`` is for dynamic inputs).
+    ``format``: the layout (a name or alias of :data:`~trafficgeo.video.onnx_formats.LAYOUTS`), or ``None``/
+    ``"auto"`` to recognise it from the outputs' names and shapes and the model's metadata (an InputError naming
+    the outputs found when no layout or several fit). Frames are pre-processed as the layout wants (colour order,
+    scale, mean/std, letterbox or plain resize), decoded, kept when of a class in ``class_map`` (model class id ->
+    trafficgeo name; default the vehicles of the metadata ``names``, else of COCO in the layout's numbering) and
+    scoring at least ``conf`` (default: the layout's), then suppressed across classes (IoU above ``iou``, or
+    intersection >= ``inside`` of the smaller box), mapped back to full-frame pixels (model corner-origin
+    coordinates - 0.5 for the pixel-centre convention), clipped, and kept when their bottom centre is in ``roi``.
+    A model with a dynamic input size gets its metadata ``imgsz``, else ``input_size`` (px, square).
+    ``providers``: onnxruntime execution providers (:func:`pick_providers`; default CUDA or OpenVINO when
+    installed, else the CPU); ``threads``: intra-op threads.
     """
 
-    def __init__(self, model_path: str | Path, *, input_size: int = 640, conf: float = 0.3, iou: float = 0.5,
-                 class_map: Mapping[int, str] | None = None, agnostic: bool = True, roi: np.ndarray | None = None,
-                 threads: int = 2) -> None:
+    def __init__(self, model_path: str | Path, *, format: str | None = None, input_size: int | None = None,
+                 conf: float | None = None, iou: float = 0.5, inside: float | None = 0.8,
+                 class_map: Mapping[int, str] | None = None, roi: np.ndarray | None = None, threads: int = 2,
+                 providers: str | Sequence[str] | None = None) -> None:
         p = Path(model_path)
         if not p.is_file():
             raise InputError(f"{p}: ONNX model not found; put the .onnx file there or pass its path with "
                              f"--detector PATH.onnx ({ONNX_HINT})")
-        if int(input_size) != input_size or input_size < 32:
+        fmt = format_name(format)
+        if input_size is not None and (int(input_size) != input_size or input_size < 32):
             raise InputError(f"OnnxDetector: input_size {input_size!r} must be a whole number of pixels >= 32")
-        for name, value in (("conf", conf), ("iou", iou)):
-            if not (np.isfinite(value) and 0 <= value <= 1):
+        for name, value in (("conf", conf), ("iou", iou), ("inside", inside)):
+            if value is not None and not (np.isfinite(value) and 0 <= value <= 1):
                 raise InputError(f"OnnxDetector: {name} {value!r} must be in [0, 1]")
         import onnxruntime as ort
 
@@ -90,86 +136,175 @@ class OnnxDetector:
         opts.intra_op_num_threads = int(threads)
         opts.inter_op_num_threads = 1
         opts.log_severity_level = 3
+        chosen = pick_providers(providers, ort.get_available_providers())
         try:
-            self._session = ort.InferenceSession(str(p), sess_options=opts, providers=["CPUExecutionProvider"])
+            self._session = ort.InferenceSession(str(p), sess_options=opts, providers=chosen)
         except Exception as exc:  # onnxruntime raises its own exception types for bad files
-            msg = " ".join(str(exc).split())[:200]
-            raise InputError(f"{p}: not a usable ONNX model ({msg}); {ONNX_HINT}") from None
-        inputs, outputs = self._session.get_inputs(), self._session.get_outputs()
-        in_shape = inputs[0].shape if len(inputs) == 1 else []
-        if len(in_shape) != 4 or (isinstance(in_shape[1], int) and in_shape[1] != 3):
-            shapes = [i.shape for i in inputs]
-            raise InputError(f"{p}: expected one input of shape [1, 3, S, S] (a YOLOv8/YOLO11 detection export), "
-                             f"found {shapes}; {ONNX_HINT}")
-        if not outputs:
-            raise InputError(f"{p}: the model has no output; {ONNX_SHAPES}; {ONNX_HINT}")
-        if inputs[0].type != "tensor(float)":
-            raise InputError(f"{p}: the model's input is {inputs[0].type}, not float32; export it without half "
-                             f"precision; {ONNX_HINT}")
-        shape = inputs[0].shape
-        fixed = [d for d in shape[2:] if isinstance(d, int) and d > 0]
-        if len(fixed) == 2 and fixed[0] != fixed[1]:
-            raise InputError(f"{p}: input {shape} is not square; export with a square imgsz (e.g. imgsz=640)")
-        self.input_size = int(fixed[0]) if fixed else int(input_size)
-        check_output_shape(p, outputs[0].shape, self.input_size)
-        self._input_name = inputs[0].name
-        self._output_name = outputs[0].name
-        cmap = dict(COCO_VEHICLES if class_map is None else class_map)
-        if not cmap:
-            raise InputError("OnnxDetector: class_map is empty; map at least one model class id to a vehicle name")
-        self.class_map = {int(k): str(v) for k, v in cmap.items()}
-        nc_out = outputs[0].shape[1]
-        if isinstance(nc_out, int) and nc_out - 4 <= max(self.class_map):
-            raise InputError(f"{p}: the model has {nc_out - 4} classes but class_map uses class id "
-                             f"{max(self.class_map)}; give a class_map for this model")
-        self.conf, self.iou, self.agnostic = float(conf), float(iou), bool(agnostic)
-        self.roi = None if roi is None else np.asarray(roi)
+            raise InputError(f"{p}: not a usable ONNX model ({_one_line(exc)}); {ONNX_HINT}") from None
         self.path = p
+        self.providers = list(self._session.get_providers())
+        io = self._describe(input_size)
+        try:
+            layout, fit = recognise(io, fmt)
+        except InputError as exc:
+            raise InputError(f"{p}: {exc}; {ONNX_HINT}") from None
+        self.layout, self.input_hw = layout, io.input_hw
+        roles = list(fit.roles.items())
+        self._roles = [r for r, _ in roles]
+        self._out_names = [n for _, n in roles]
+        self._sizes = io.extra[0] if layout.sizes_input else None
+        for name in self._out_names:
+            b = io.output(name).shape[0]
+            if b is not None and b != (self._batch or 1):
+                raise InputError(f"{p}: output {name} {list(io.output(name).shape)} has a batch of {b} for an "
+                                 f"input batch of {self._batch or 1}; trafficgeo cannot decode it; {SUPPORTED}")
+        if layout.settle is not None:
+            grey = np.full((self.input_hw[0], self.input_hw[1], 3), 114, dtype=np.uint8)
+            blob, _g = layout.pre.blob([grey], self.input_hw)
+            try:
+                fit = layout.settle(io, fit, self._infer(blob, (self.input_hw[1], self.input_hw[0]))[0],
+                                    fmt is not None)
+            except InputError as exc:
+                raise InputError(f"{p}: {exc}") from None
+        self.fit = fit
+        names = io.names if layout.names_index else None
+        if class_map is not None:
+            cmap = dict(class_map)
+            if not cmap:
+                raise InputError("OnnxDetector: class_map is empty; map at least one model class id to a vehicle "
+                                 "name")
+        else:
+            cmap = vehicle_classes(names) if names else layout.default_classes
+            if not cmap:
+                raise InputError(f"{p}: none of the model's classes ({', '.join(names.values())[:120]}) is a road "
+                                 "vehicle; give a class_map (model class id -> vehicle name)")
+        self.class_map = {int(k): str(v) for k, v in cmap.items()}
+        if fit.classes is not None and max(self.class_map) >= fit.classes:
+            raise InputError(f"{p}: the model has {fit.classes} classes but class_map uses class id "
+                             f"{max(self.class_map)}; give a class_map for this model")
+        self.conf = float(layout.conf if conf is None else conf)
+        self.iou, self.inside = float(iou), inside
+        self.roi = None if roi is None else np.asarray(roi)
+        self._decoding = Decoding(np.array(sorted(self.class_map), dtype=np.int64), self.conf, self.input_hw,
+                                  fit.options)
 
+    @property
+    def format(self) -> str:
+        """The name of the layout decoded."""
+        return self.layout.name
+
+    # ------------------------------------------------------------------------------------------------ model
+    def _describe(self, input_size: int | None) -> ModelIO:
+        """The model's inputs, outputs (concrete shapes, from one run on a blank input if they are dynamic) and
+        metadata; an InputError unless it has one float image input [B, 3, H, W]."""
+        p = self.path
+        inputs = [_port(a) for a in self._session.get_inputs()]
+        images = [a for a in inputs if len(a.shape) == 4 and a.shape[1] in (3, None)]
+        if len(images) != 1:
+            raise InputError(f"{p}: expected one image input of shape [1, 3, H, W], found "
+                             f"{[(a.name, list(a.shape)) for a in inputs]}; {ONNX_HINT}")
+        image = images[0]
+        if image.type not in ("tensor(float)", "tensor(float16)"):
+            raise InputError(f"{p}: the model's input is {image.type}, not float32 or float16; {ONNX_HINT}")
+        self._image, self._extra = image, [a for a in inputs if a is not image]
+        self._in_dtype = np.float16 if image.type == "tensor(float16)" else np.float32
+        self._batch = image.shape[0]
+        meta = dict(self._session.get_modelmeta().custom_metadata_map or {})
+        h, w = image.shape[2:]
+        imgsz = parse_literal(meta.get("imgsz"))
+        imgsz = [imgsz, imgsz] if isinstance(imgsz, int) else imgsz
+        if h is None or w is None:
+            if input_size is None and isinstance(imgsz, list | tuple) and len(imgsz) == 2:
+                h, w = h or int(imgsz[0]), w or int(imgsz[1])
+            else:
+                h, w = h or int(input_size or 640), w or int(input_size or 640)
+        outputs = [_port(a) for a in self._session.get_outputs()]
+        if not outputs:
+            raise InputError(f"{p}: the model has no output; {SUPPORTED}; {ONNX_HINT}")
+        if any(None in o.shape for o in outputs):
+            self._out_names = [o.name for o in outputs]
+            self._roles = self._out_names
+            self._sizes = next((a for a in self._extra if a.shape[-1:] in ((2,), (None,))), None)
+            blob = np.zeros((self._batch or 1, 3, h, w), dtype=np.float32)
+            found = self._run(blob, (w, h))
+            outputs = [Port(o.name, tuple(int(d) for d in a.shape), o.type) for o, a in zip(outputs, found,
+                                                                                            strict=True)]
+        return ModelIO(image, tuple(self._extra), tuple(outputs), meta, (int(h), int(w)))
+
+    def _run(self, blob: np.ndarray, frame_wh: tuple[int, int]) -> list[np.ndarray]:
+        """One run on a batch that fits the model; the outputs of ``self._out_names``."""
+        feeds = {self._image.name: blob.astype(self._in_dtype, copy=False)}
+        for extra in self._extra:
+            if extra is self._sizes:
+                dtype = np.int64 if "int64" in extra.type else np.int32 if "int32" in extra.type else np.float32
+                feeds[extra.name] = np.tile(np.asarray([frame_wh], dtype=dtype), (blob.shape[0], 1))
+            else:
+                raise InputError(f"{self.path}: the model has an input {extra.name} {list(extra.shape)} that "
+                                 f"trafficgeo does not know how to fill; {SUPPORTED}")
+        try:
+            return self._session.run(self._out_names, feeds)
+        except Exception as exc:  # onnxruntime's own exception types (shape mismatch inside the graph, ...)
+            raise InputError(f"{self.path}: the model failed on a {frame_wh[0]}x{frame_wh[1]} frame fed as "
+                             f"{blob.shape[3]}x{blob.shape[2]} ({_one_line(exc)}); {ONNX_HINT}") from None
+
+    def _infer(self, blob: np.ndarray, frame_wh: tuple[int, int]) -> list[dict[str, np.ndarray]]:
+        """Per image of ``blob`` [B, 3, h, w], its outputs by role (batch dimension removed, float32): runs of the
+        model's fixed batch (the last one padded) or of up to :data:`MAX_BATCH` images."""
+        step = self._batch or MAX_BATCH
+        per_image = []
+        for start in range(0, blob.shape[0], step):
+            chunk = blob[start:start + step]
+            n = chunk.shape[0]
+            if self._batch is not None and n < self._batch:
+                chunk = np.concatenate([chunk, np.zeros((self._batch - n, *chunk.shape[1:]), dtype=chunk.dtype)])
+            outs = [np.asarray(o) for o in self._run(chunk, frame_wh)]
+            outs = [o.astype(np.float32) if o.dtype == np.float16 else o for o in outs]
+            per_image.extend({r: o[j] for r, o in zip(self._roles, outs, strict=True)} for j in range(n))
+        return per_image
+
+    # ------------------------------------------------------------------------------------------------ detect
     def detect(self, image: np.ndarray, time_s: float = 0.0) -> Detections:
         """Vehicles in ``image`` ((H, W, 3) uint8 BGR); ``time_s`` is not used."""
-        image = check_image(image)
-        h, w = image.shape[:2]
-        lb, r, (left, top) = letterbox(image, self.input_size)
-        blob = cv2.dnn.blobFromImage(lb, scalefactor=1.0 / 255.0, swapRB=True)  # (1, 3, S, S) float32 RGB
-        try:
-            out = np.asarray(self._session.run([self._output_name], {self._input_name: blob})[0])
-        except Exception as exc:  # onnxruntime's own exception types (shape mismatch inside the graph, ...)
-            msg = " ".join(str(exc).split())[:200]
-            raise InputError(f"{self.path}: the model failed on a {w}x{h} frame letterboxed to {self.input_size} px "
-                             f"({msg}); {ONNX_HINT}") from None
-        check_output_shape(self.path, list(out.shape), self.input_size)
-        if out.shape[1] - 4 <= max(self.class_map):
-            raise InputError(f"{self.path}: output of shape {list(out.shape)} has {out.shape[1] - 4} classes but "
-                             f"class_map uses class id {max(self.class_map)}; give a class_map for this model")
-        pred = out[0]
-        ids = np.array(sorted(self.class_map), dtype=np.int64)
-        cls_scores = pred[4 + ids, :]  # (K, A)
-        best = np.argmax(cls_scores, axis=0)
-        score = cls_scores[best, np.arange(pred.shape[1])]
-        keep = np.flatnonzero(score >= self.conf)
-        if keep.size == 0:
+        return self.detect_batch([image])[0]
+
+    def detect_batch(self, images: Sequence[np.ndarray]) -> list[Detections]:
+        """Vehicles in each of several equally sized images (e.g. the tiles of a frame), in as few model runs as
+        the model's batch dimension allows."""
+        images = [check_image(im, f"image {k}") for k, im in enumerate(images)]
+        if not images:
+            return []
+        h, w = images[0].shape[:2]
+        if any(im.shape[:2] != (h, w) for im in images):
+            raise InputError(f"detect_batch: images of sizes {sorted({im.shape[:2] for im in images})}; give "
+                             "equally sized images")
+        blob, geom = self.layout.pre.blob(images, self.input_hw)
+        outs = self._infer(blob, (w, h))
+        geom = IDENTITY if self.layout.sizes_input else geom
+        found = []
+        for out in outs:
+            try:
+                raw = self.layout.decode(out, self._decoding)
+            except (IndexError, ValueError) as exc:
+                raise InputError(f"{self.path}: outputs of shapes {[list(o.shape) for o in out.values()]} do not "
+                                 f"decode as {self.layout.title} ({_one_line(exc)}); {SUPPORTED}") from None
+            found.append(self._finish(*raw, geom, h, w))
+        return found
+
+    def _finish(self, boxes: np.ndarray, scores: np.ndarray, cls: np.ndarray, geom, h: int, w: int) -> Detections:
+        """Boxes in input px -> full-frame px, clipped, suppressed, named, inside the ROI."""
+        if len(scores) == 0:
             return Detections.empty()
-        cx, cy, bw, bh = pred[0, keep], pred[1, keep], pred[2, keep], pred[3, keep]
-        x1 = (cx - 0.5 * bw - left) / r - 0.5
-        y1 = (cy - 0.5 * bh - top) / r - 0.5
-        x2 = (cx + 0.5 * bw - left) / r - 0.5
-        y2 = (cy + 0.5 * bh - top) / r - 0.5
-        boxes = np.column_stack([x1, y1, x2, y2]).astype(np.float64)
-        boxes[:, [0, 2]] = np.clip(boxes[:, [0, 2]], -0.5, w - 0.5)
-        boxes[:, [1, 3]] = np.clip(boxes[:, [1, 3]], -0.5, h - 0.5)
-        score = score[keep].astype(np.float64)
-        cls_id = ids[best[keep]]
-        xywh = np.column_stack([boxes[:, :2], boxes[:, 2:] - boxes[:, :2]])
-        if self.agnostic:
-            picked = cv2.dnn.NMSBoxes(xywh.tolist(), score.tolist(), self.conf, self.iou)
-        else:
-            picked = cv2.dnn.NMSBoxesBatched(xywh.tolist(), score.tolist(), cls_id.tolist(), self.conf, self.iou)
-        picked = np.asarray(picked, dtype=np.int64).reshape(-1)
-        picked = picked[np.argsort(-score[picked], kind="stable")]
-        names = np.array([self.class_map[int(c)] for c in cls_id[picked]], dtype=object)
-        det = Detections(boxes[picked], np.clip(score[picked], 0.0, 1.0), names)
+        b = geom.to_frame(boxes)
+        b[:, [0, 2]] = np.clip(b[:, [0, 2]], -0.5, w - 0.5)
+        b[:, [1, 3]] = np.clip(b[:, [1, 3]], -0.5, h - 0.5)
+        ok = np.flatnonzero((b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1]) & np.isfinite(b).all(axis=1))
+        keep = ok[suppress(b[ok], scores[ok], self.iou, self.inside)]
+        names = np.array([self.class_map[int(c)] for c in cls[keep]], dtype=object)
+        det = Detections(b[keep], np.clip(scores[keep], 0.0, 1.0), names)
         if self.roi is not None and len(det):
             det = det.select(in_roi(self.roi, det.bottom_centres, (h, w)))
         return det
 
+
+__all__ = ["MAX_BATCH", "ONNX_SHAPES", "Fit", "Layout", "OnnxDetector", "letterbox", "pick_providers", "suppress",
+           "yolo_anchor_counts"]

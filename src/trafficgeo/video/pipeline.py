@@ -71,6 +71,7 @@ class ProcessOptions:
     """What ``process`` does with a video (times in seconds of video)."""
 
     detector: str = "background"  # a name of detector_names.DETECTOR_NAMES, or the path of an ONNX model
+    detector_format: str = "auto"  # an ONNX model's layout (onnx_formats.LAYOUTS), or "auto": from the model
     start_s: float = 0.0
     end_s: float | None = None
     every: int = 1  # use every n-th frame
@@ -78,7 +79,7 @@ class ProcessOptions:
     tracker: TrackerOptions = field(default_factory=TrackerOptions)
 
     def __post_init__(self) -> None:
-        check_detector(self.detector)  # a bad name or model fails here, before anything is written
+        check_detector(self.detector, self.detector_format)  # a bad name or model fails here, before writing
         if not (self.start_s >= 0 and (self.end_s is None or self.end_s > self.start_s)):
             raise InputError(f"--start {self.start_s} / --end {self.end_s}: need 0 <= start < end (seconds)")
         if not (isinstance(self.every, int) and self.every >= 1):
@@ -171,7 +172,8 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     cam = camera if surface is not None else None
 
     def new_detector():
-        return make_detector(opts.detector, camera=cam, surface=surface, roi=roi)
+        return make_detector(opts.detector, camera=cam, surface=surface, roi=roi,
+                             detector_format=opts.detector_format)
 
     detector = new_detector()  # before anything is written: a bad --detector leaves nothing behind
     learns = isinstance(detector, BackgroundDetector)
@@ -290,7 +292,7 @@ def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: Pro
     frames decoded (s, the end of the last frame), ``frames``, and ``complete``: false when the video ended before
     the asked end, e.g. a truncated file), and how fast (``seconds`` of wall clock)."""
     doc = {"video": video, "camera": camera,
-           "options": {"detector": options.detector, "start_s": options.start_s, "end_s": options.end_s,
-                       "every": options.every},
+           "options": {"detector": options.detector, "detector_format": options.detector_format,
+                       "start_s": options.start_s, "end_s": options.end_s, "every": options.every},
            "read": read, "seconds": seconds, "detections": detections, "track_rows": track_rows}
     write_json_atomic(Path(out_dir) / "process.json", doc)
