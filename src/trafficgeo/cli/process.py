@@ -70,6 +70,9 @@ def process(
     start: Annotated[float, typer.Option(help="start time (s)")] = 0.0,
     end: Annotated[float | None, typer.Option(help="end time (s); default: the end of the video")] = None,
     every: Annotated[int, typer.Option(help="use every n-th frame")] = 1,
+    tiles: Annotated[bool, typer.Option(help="with the built-in learned detector: also run it on tiles over the far "
+                                        "road (planned from the camera and --lanes or --roi) so that far vehicles "
+                                        "are large enough for it")] = True,
     roi: Annotated[Path | None, typer.Option(help="region of interest: mask image or CSV polygon u,v")] = None,
     checkpoint: Annotated[float, typer.Option(help="seconds of video between checkpoints")] = 30.0,
     restart: Annotated[bool, typer.Option(help="ignore a checkpoint and start again")] = False,
@@ -106,7 +109,7 @@ def process(
     if annotate is not None and annotate.suffix.lower() != ".mp4":
         raise InputError(f"--annotate {annotate}: write the annotated video as .mp4")
     opts = ProcessOptions(detector=detector, detector_format=detector_format, start_s=start, end_s=end, every=every,
-                          checkpoint_s=checkpoint)
+                          checkpoint_s=checkpoint, tiles=tiles)
     cam, doc = _camera(camera)
     surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
     lane_set, count_lines = _layout(cam, surf, lanes, lines)
@@ -121,6 +124,7 @@ def process(
     begin_outputs(out)  # from here until the end, readers refuse the folder
     t0 = time.perf_counter()
     read: dict = {"first": None, "last": None, "frames": 0}  # frame times (s) and frames seen
+    detector_doc: dict = {}  # the detector's tile plan, for process.json
     columns = (TextColumn("[progress.description]{task.description}"), BarColumn(),
                TextColumn("{task.completed}/{task.total} frames, {task.fields[rate]:.1f} fps, video {task.fields[t]}"),
                TimeRemainingColumn())
@@ -137,8 +141,9 @@ def process(
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", VideoReadWarning)
                 detections, tracks = detect_and_track(video, cam, surf, out, opts, roi=mask, restart=restart,
-                                                      progress=tick,
-                                                      notice=lambda text: console.print(text, markup=False))
+                                                      lanes=lane_set, progress=tick,
+                                                      notice=lambda text: console.print(text, markup=False),
+                                                      detector_info=detector_doc.update)
     except KeyboardInterrupt:
         console.print(f"interrupted; run the same command again to resume from the last checkpoint in {out}")
         sys.exit(130)
@@ -162,7 +167,7 @@ def process(
                            progress=lambda d, n: bar.update(task, completed=d, total=n))
         console.print(f"wrote {annotate}")
     write_run_info(out, video=str(video), camera=str(camera), options=opts, seconds=elapsed,
-                   detections=len(detections), track_rows=len(tracks), read=read_doc)
+                   detections=len(detections), track_rows=len(tracks), read=read_doc, detector=detector_doc or None)
     finish_run(out)
     publish_outputs(out, ["detections.csv", "tracks.csv", *written, "process.json"], command="process")
     console.print(f"wrote detections.csv, tracks.csv, {', '.join(p.name for p in written)}, process.json in {out}")

@@ -1125,7 +1125,15 @@ def _process_table(p: dict[str, Any]) -> str:
             ["start / end", f"{opts.get('start_s', '-')} / {opts.get('end_s') or 'end'}", "s"],
             ["every n-th frame", opts.get("every", "-"), ""], ["detections", p.get("detections", "-"), ""],
             ["track boxes", p.get("track_rows", "-"), ""], ["processing time", (p.get("seconds"), 1), "s"]]
-    return _table(["quantity", "value", "unit"], rows)
+    tiling = (p.get("detector") or {}).get("tiling") if isinstance(p.get("detector"), dict) else None
+    warns: list[str] = []
+    if isinstance(tiling, dict):
+        tiles = tiling.get("tiles") or []
+        rows.append(["detector passes per frame (full frame + tiles over the far road)",
+                     tiling.get("passes_per_frame", len(tiles) + 1), ""])
+        rows.append(["size a car must reach in the detector's input", tiling.get("min_size_px", "-"), "px"])
+        warns = [str(w) for w in tiling.get("warnings") or []]
+    return _table(["quantity", "value", "unit"], rows) + (_list(warns, "warn") if warns else "")
 
 
 # ------------------------------------------------------------------------------------------------ page

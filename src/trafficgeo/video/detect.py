@@ -65,6 +65,7 @@ from trafficgeo.video.onnx_formats import format_name
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera
     from trafficgeo.geo.mapping import Surface
+    from trafficgeo.traffic.lanes import Lanes
 
 
 # ---------------------------------------------------------------------------------------------------- factory
@@ -85,6 +86,10 @@ def check_detector(spec: str, detector_format: str | None = None) -> str:
     fmt = _check_format(kind, spec, detector_format)
     if kind == "onnx":
         OnnxDetector(str(spec).strip(), format=fmt, threads=1)
+    elif kind == "nanodet":
+        from trafficgeo.video.learned import BUILTIN, builtin_model_path
+
+        builtin_model_path(BUILTIN)
     return kind
 
 
@@ -92,14 +97,22 @@ def make_detector(spec: str = "background", *, camera: Camera | None = None, sur
                   roi: np.ndarray | None = None, scale: float = 0.5, warmup_s: float = WARMUP_S,
                   learning_rate: float | None = None, rules: SizeRules | None = None, conf: float | None = None,
                   iou: float = 0.5, input_size: int | None = None, class_map: Mapping[int, str] | None = None,
-                  detector_format: str | None = None) -> Detector:
+                  detector_format: str | None = None, road: Lanes | None = None, tiles: bool = True) -> Detector:
     """A detector from a short spec (:func:`detector_kind`): a background subtraction name
     (:class:`BackgroundDetector` with MOG2 for "background", "bg" or "mog2", with KNN for "knn") or the path of a
     ``.onnx`` model (:class:`OnnxDetector` of layout ``detector_format``, default recognised from the model;
     ``conf`` default the layout's; ``camera`` and ``surface`` are not used, ``roi`` keeps detections whose bottom
-    centre lies inside it). ``warmup_s``: the background detector's warm-up (s of video)."""
+    centre lies inside it), or "nanodet", the built-in learned detector
+    (:func:`trafficgeo.video.learned.make_learned_detector`: tiled over the counted ``road`` (lanes, else ``roi``)
+    when ``tiles`` and a calibrated ``camera`` and ``surface`` are given). ``warmup_s``: the background detector's
+    warm-up (s of video)."""
     kind = detector_kind(spec)
     fmt = _check_format(kind, spec, detector_format)
+    if kind == "nanodet":
+        from trafficgeo.video.learned import make_learned_detector
+
+        return make_learned_detector(camera=camera, surface=surface, road=road, roi=roi, tiles=tiles, conf=conf,
+                                     iou=iou)
     if kind == "onnx":
         return OnnxDetector(str(spec).strip(), format=fmt, input_size=input_size, conf=conf, iou=iou,
                             class_map=class_map, roi=roi)

@@ -15,15 +15,18 @@ ONNX_HINT = ("trafficgeo never downloads weights: export a detector to ONNX on a
              "`yolo export model=yolo11n.pt format=onnx`), pass --detector PATH.onnx, and --detector-format NAME "
              "if its layout is not recognised")
 # The detector names a user may give, and the kind each stands for ("mog2"/"knn": BackgroundDetector's method).
-DETECTOR_NAMES: dict[str, str] = {"background": "mog2", "bg": "mog2", "mog2": "mog2", "knn": "knn"}
-DETECTOR_HELP = ("'background' (MOG2 background subtraction, no weights; also 'bg' or 'mog2'), 'knn' (KNN "
-                 "background subtraction), or the path of a YOLO .onnx model")
+DETECTOR_NAMES: dict[str, str] = {"nanodet": "nanodet", "learned": "nanodet", "background": "mog2", "bg": "mog2",
+                                  "mog2": "mog2", "knn": "knn"}
+DETECTOR_HELP = ("'nanodet' (the built-in learned detector, NanoDet-g, shipped with trafficgeo; tiled over the far "
+                 "road given --lanes or --roi; also 'learned'), 'background' (MOG2 background subtraction for a fixed "
+                 "camera; also 'bg' or 'mog2'), 'knn' (KNN background subtraction), or the path of an .onnx model")
 
 
 def detector_kind(spec: str) -> str:
-    """What a detector spec names: ``"mog2"`` or ``"knn"`` (:class:`BackgroundDetector` methods, from the names
-    of :data:`DETECTOR_NAMES`, case-insensitive) or ``"onnx"`` (the path of an existing ``.onnx`` file); an
-    InputError for anything else. Checks the name only: an ONNX file is opened by :func:`make_detector`."""
+    """What a detector spec names: ``"nanodet"`` (the built-in learned detector), ``"mog2"`` or ``"knn"``
+    (:class:`BackgroundDetector` methods; all from the names of :data:`DETECTOR_NAMES`, case-insensitive) or
+    ``"onnx"`` (the path of an existing ``.onnx`` file); an InputError for anything else. Checks the name only: an
+    ONNX file is opened by :func:`make_detector`."""
     s = str(spec).strip()
     key = s.lower()
     if key in DETECTOR_NAMES:

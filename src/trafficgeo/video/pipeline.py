@@ -43,6 +43,7 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.io.atomic import remove_stale_temporaries, write_csv_atomic, write_json_atomic
+from trafficgeo.traffic.lanes import Lanes
 from trafficgeo.video.checkpoint import (
     CHECKPOINT_DIR,
     Checkpoint,
@@ -75,6 +76,7 @@ class ProcessOptions:
     start_s: float = 0.0
     end_s: float | None = None
     every: int = 1  # use every n-th frame
+    tiles: bool = True  # the built-in learned detector: camera-aware tiles over the far road (video.tiling)
     checkpoint_s: float = 30.0
     tracker: TrackerOptions = field(default_factory=TrackerOptions)
 
@@ -147,15 +149,20 @@ def _write_tables(folder: Path, state: Checkpoint, out: Path) -> tuple[pd.DataFr
 
 def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface | None, out_dir: str | Path,
                      options: ProcessOptions | None = None, *, roi: np.ndarray | None = None,
-                     restart: bool = False,
+                     restart: bool = False, lanes: Lanes | None = None,
                      progress: Callable[[int, int, float], None] | None = None,
-                     notice: Callable[[str], None] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+                     notice: Callable[[str], None] | None = None,
+                     detector_info: Callable[[dict], None] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Decode, detect and track (with checkpoints); returns the detections and track tables (also written as
     ``detections.csv`` and ``tracks.csv`` in ``out_dir``). ``progress(frames_done, frames_total, video_time_s)``
     is called per frame; ``notice(text)`` with one line when a checkpoint is resumed ("resuming from 8.0 s") or
-    ignored (and why). Without a ``camera`` (and ``surface``) the detector has no size filter in metres. Holds the
-    lock on ``out_dir`` while it runs (:class:`InputError` if another process holds it)."""
+    ignored (and why), and with the built-in learned detector's tile plan (:mod:`trafficgeo.video.tiling`: the
+    tiles over the counted road, ``lanes`` else ``roi``, and the road too far for it); ``detector_info(doc)`` once
+    with that plan as plain data (for ``process.json``). Without a ``camera`` (and ``surface``) the detector has no
+    size filter or class in metres and no tiles. Holds the lock on ``out_dir`` while it runs (:class:`InputError` if
+    another process holds it)."""
     from trafficgeo.video.detect import BackgroundDetector, make_detector
+    from trafficgeo.video.learned import detector_plan
     from trafficgeo.video.reader import video_info
 
     opts = options or ProcessOptions()
@@ -173,13 +180,20 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
 
     def new_detector():
         return make_detector(opts.detector, camera=cam, surface=surface, roi=roi,
-                             detector_format=opts.detector_format)
+                             detector_format=opts.detector_format, road=lanes, tiles=opts.tiles)
 
     detector = new_detector()  # before anything is written: a bad --detector leaves nothing behind
     learns = isinstance(detector, BackgroundDetector)
+    plan = detector_plan(detector)
+    if plan is not None:
+        for line in plan.summary_lines():
+            tell(line)
+    if detector_info is not None:
+        detector_info({"tiling": plan.to_dict() if plan is not None else None})
     model = Path(opts.detector) if not learns and Path(opts.detector).is_file() else None
-    key = run_key(video, camera=camera, surface=surface, roi=roi, options={**asdict(opts), "prime_s": PRIME_S},
-                  detector_file=model)
+    tiles = plan.tiles.tolist() if plan is not None else None  # the lanes enter the detections through the tiles
+    key = run_key(video, camera=camera, surface=surface, roi=roi,
+                  options={**asdict(opts), "prime_s": PRIME_S, "tile_boxes": tiles}, detector_file=model)
     out = Path(out_dir)
     ck = out / CHECKPOINT_DIR
     fps = info.fps / opts.every
@@ -286,13 +300,14 @@ def finish_run(out_dir: str | Path) -> None:
 
 
 def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: ProcessOptions, seconds: float,
-                   detections: int, track_rows: int, read: dict | None = None) -> None:
+                   detections: int, track_rows: int, read: dict | None = None, detector: dict | None = None) -> None:
     """``process.json``: what was processed (``video``, ``camera``: paths as given, or relative to ``out_dir``), how
     (the detector and time range asked for in ``options``), what was read (``read``: ``start_s``/``end_s`` of the
     frames decoded (s, the end of the last frame), ``frames``, and ``complete``: false when the video ended before
     the asked end, e.g. a truncated file), and how fast (``seconds`` of wall clock)."""
     doc = {"video": video, "camera": camera,
            "options": {"detector": options.detector, "detector_format": options.detector_format,
-                       "start_s": options.start_s, "end_s": options.end_s, "every": options.every},
-           "read": read, "seconds": seconds, "detections": detections, "track_rows": track_rows}
+                       "start_s": options.start_s, "end_s": options.end_s, "every": options.every,
+                       "tiles": options.tiles},
+           "detector": detector, "read": read, "seconds": seconds, "detections": detections, "track_rows": track_rows}
     write_json_atomic(Path(out_dir) / "process.json", doc)

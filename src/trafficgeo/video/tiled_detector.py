@@ -73,8 +73,8 @@ def cut_by_tile(boxes: np.ndarray, tile: Sequence[int], frame_shape: tuple[int, 
 class TiledDetector:
     """A :class:`~trafficgeo.video.detections.Detector` running ``base`` on the full frame and on each tile of
     ``plan`` (the base letterboxes every crop to its own input size; ``base.detect_batch(crops)`` is used for the
-    tiles when it exists), then shifting the tile boxes to the frame, dropping those cut by a tile's inner edge
-    (:func:`cut_by_tile`) and merging all with :func:`merge_boxes`.
+    tiles of each size when it exists), then shifting the tile boxes to the frame, dropping those cut by a tile's
+    inner edge (:func:`cut_by_tile`) and merging all with :func:`merge_boxes`.
 
     ``base`` must not filter by an ROI of its own (its frames are crops): give ``roi`` (bool (H, W)) here instead;
     boxes whose bottom centre lies outside it are dropped after the merge.
@@ -100,8 +100,13 @@ class TiledDetector:
         crops = [image[y0:y1, x0:x1] for x0, y0, x1, y1 in self.plan.tiles]
         if not crops:
             parts = [full]
-        elif hasattr(self.base, "detect_batch"):
-            parts = [full, *self.base.detect_batch(crops)]
+        elif hasattr(self.base, "detect_batch"):  # one call per crop size (a batch holds images of one size)
+            found: list[Detections | None] = [None] * len(crops)
+            for size in dict.fromkeys(c.shape for c in crops):
+                idx = [k for k, c in enumerate(crops) if c.shape == size]
+                for k, det in zip(idx, self.base.detect_batch([crops[k] for k in idx]), strict=True):
+                    found[k] = det
+            parts = [full, *found]
         else:
             parts = [full, *(self.base.detect(c, time_s) for c in crops)]
         kept = [full]

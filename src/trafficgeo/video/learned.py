@@ -1,0 +1,76 @@
+"""The built-in learned detector as ``process`` runs it: NanoDet-g (shipped in the package, never downloaded) on the
+full frame plus camera-aware tiles over the counted road (:mod:`trafficgeo.video.tiling`), with each vehicle's class
+taken from its size on the ground.
+
+A COCO detector's class labels are unreliable on traffic cameras (cars seen from above are often called trucks),
+while a calibrated camera measures a vehicle's length on the road: :class:`SizeClasses` gives every box the class
+its ground size fits (:func:`trafficgeo.video.blobs.classify_sizes`), ``""`` (unknown) where no class fits, and
+keeps the box either way (whether a box is a vehicle is the detector's call, not the size rule's).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from trafficgeo.video.blobs import SizeRules, blob_ground_size, classify_sizes
+from trafficgeo.video.builtin_models import builtin_model, builtin_model_path
+from trafficgeo.video.detections import Detections, Detector
+from trafficgeo.video.onnx_detect import OnnxDetector
+from trafficgeo.video.tiling import TiledDetector, TilePlan, plan_tiles
+
+if TYPE_CHECKING:
+    from trafficgeo.camera.model import Camera
+    from trafficgeo.geo.mapping import Surface
+    from trafficgeo.traffic.lanes import Lanes
+
+BUILTIN = "nanodet"
+
+
+class SizeClasses:
+    """A :class:`~trafficgeo.video.detections.Detector` whose boxes get the class their size on the ground fits
+    (``camera`` and ``surface``: the calibrated camera and the road), ``""`` where none fits."""
+
+    def __init__(self, base: Detector, camera: Camera, surface: Surface, rules: SizeRules | None = None) -> None:
+        self.base, self.camera, self.surface = base, camera, surface
+        self.rules = rules or SizeRules()
+        self.plan: TilePlan | None = getattr(base, "plan", None)
+
+    def detect(self, image: np.ndarray, time_s: float = 0.0) -> Detections:
+        """The base detector's boxes in ``image`` ((H, W, 3) uint8 BGR), classes from their ground size."""
+        det = self.base.detect(image, time_s)
+        if not len(det):
+            return det
+        classes, _length_m, plausible = classify_sizes(blob_ground_size(self.camera, self.surface, det.boxes),
+                                                       self.rules)
+        named = np.where(plausible, classes, "").astype(object)
+        return Detections(det.boxes, det.scores, named)
+
+
+def make_learned_detector(*, camera: Camera | None = None, surface: Surface | None = None,
+                          road: Lanes | np.ndarray | None = None, roi: np.ndarray | None = None, tiles: bool = True,
+                          conf: float | None = None, iou: float = 0.5, threads: int = 2) -> Detector:
+    """The built-in learned detector. With a calibrated ``camera`` and its ``surface`` and a counted ``road`` (lanes,
+    else the ``roi`` mask), tiles are planned so that vehicles on that road are large enough for it (``tiles``) and
+    classes come from the ground size; the plan is the detector's ``plan`` (None without tiling). ``roi`` (bool
+    (H, W)) keeps boxes whose bottom centre lies inside it. ``conf``: the score threshold (default the model's)."""
+    model = builtin_model(BUILTIN)
+    path = builtin_model_path(BUILTIN)
+    area = road if road is not None else roi
+    plan = None
+    if tiles and camera is not None and surface is not None and area is not None:
+        plan = plan_tiles(camera, surface, area, input_size=model.input_size_px)
+    tiled = plan is not None and len(plan.tiles) > 0
+    base: Detector = OnnxDetector(path, format=model.layout, conf=conf, iou=iou, roi=None if tiled else roi,
+                                  threads=threads)
+    if plan is not None:
+        base = TiledDetector(base, plan, iou=iou, roi=roi if tiled else None)  # its plan, even with no tile
+    if camera is not None and surface is not None:
+        base = SizeClasses(base, camera, surface)
+    return base
+
+
+def detector_plan(detector: object) -> TilePlan | None:
+    """The tile plan a detector runs with (:func:`make_learned_detector`), or None."""
+    return getattr(detector, "plan", None)

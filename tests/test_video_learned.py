@@ -1,0 +1,95 @@
+"""The built-in learned detector as `process` runs it (trafficgeo.video.learned): the shipped NanoDet model, tiled
+over the counted road when the camera is calibrated, classes from the ground size, and its tile plan carried into
+the run key and process.json."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import shapely
+
+from trafficgeo.camera.model import Camera
+from trafficgeo.geo.surface import ConstantSurface
+from trafficgeo.traffic.boxes import cuboid_boxes
+from trafficgeo.traffic.lanes import Lanes
+from trafficgeo.video.detect import make_detector
+from trafficgeo.video.detections import Detections
+from trafficgeo.video.learned import SizeClasses, detector_plan
+from trafficgeo.video.onnx_detect import OnnxDetector
+from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
+from trafficgeo.video.tiling import TiledDetector
+
+FLAT = ConstantSurface(0.0)
+
+
+def lanes_along_y(n: int = 3, width_m: float = 3.5, y0: float = 3.0, y1: float = 300.0) -> Lanes:
+    polys = tuple(shapely.box(k * width_m, y0, (k + 1) * width_m, y1) for k in range(n))
+    return Lanes(tuple(f"L{k + 1}" for k in range(n)), polys)
+
+
+def camera_over_road(size: tuple[int, int] = (1920, 1080), focal_px: float = 1700.0) -> Camera:
+    """8 m up beside three lanes along +y, looking along them."""
+    return Camera.from_orientation(size, focal_px, [13.0, 0.0, 8.0], 355.0, 4.0)
+
+
+class Boxes:
+    """A fake base detector returning fixed boxes (model classes all "truck", as COCO models often say)."""
+
+    def __init__(self, boxes: np.ndarray) -> None:
+        self.boxes = boxes
+
+    def detect(self, image: np.ndarray, time_s: float = 0.0) -> Detections:
+        n = len(self.boxes)
+        return Detections(self.boxes, np.full(n, 0.9), np.full(n, "truck", dtype=object))
+
+
+def test_the_builtin_detector_is_tiled_over_the_counted_road_and_classes_by_size() -> None:
+    cam = camera_over_road()
+    det = make_detector("nanodet", camera=cam, surface=FLAT, road=lanes_along_y())
+    assert isinstance(det, SizeClasses) and isinstance(det.base, TiledDetector)
+    plan = detector_plan(det)
+    assert plan is not None and len(plan.tiles) >= 1 and plan.input_size == 416
+    # every tile is inside the frame and lies over the far road (its top above the image's middle)
+    assert np.all(plan.tiles[:, 1] < cam.height / 2)
+    untiled = make_detector("nanodet", camera=cam, surface=FLAT, road=lanes_along_y(), tiles=False)
+    assert isinstance(untiled, SizeClasses) and detector_plan(untiled) is None
+    assert isinstance(make_detector("nanodet"), OnnxDetector)  # no camera: the model alone, on the full frame
+
+
+def test_classes_come_from_the_size_on_the_ground_not_the_model() -> None:
+    cam = camera_over_road()
+    at = np.array([[5.25, 40.0, 0.0], [8.75, 60.0, 0.0]])
+    car = cuboid_boxes(cam, at[:1], np.zeros(1), 4.5, 1.8, 1.5)
+    truck = cuboid_boxes(cam, at[1:], np.zeros(1), 12.0, 2.55, 3.8)
+    sliver = np.array([[900.0, 600.0, 903.0, 602.0]])  # 3 x 2 px: no vehicle class fits it
+    det = SizeClasses(Boxes(np.vstack([car, truck, sliver])), cam, FLAT).detect(np.zeros((1080, 1920, 3), np.uint8))
+    assert det.classes.tolist() == ["car", "truck", ""]
+    assert len(det) == 3  # kept: whether a box is a vehicle is the detector's call
+
+
+def test_process_records_the_tile_plan_and_keys_the_run_on_it(tmp_path: Path) -> None:
+    from video_support import write_two_car_video
+
+    video = write_two_car_video(tmp_path / "v.mp4", 10, 1.0, rows=(60, 120), seed=2)
+    cam = Camera.from_orientation((320, 180), 300.0, [13.0, 0.0, 8.0], 355.0, 4.0)
+    opts = ProcessOptions(detector="nanodet", checkpoint_s=0.5)
+    seen: dict = {}
+    told: list[str] = []
+    detect_and_track(video, cam, FLAT, tmp_path / "a", opts, lanes=lanes_along_y(), notice=told.append,
+                     detector_info=seen.update)
+    tiling = seen["tiling"]
+    assert tiling["passes_per_frame"] == len(tiling["tiles"]) + 1 >= 2
+    assert {r["name"] for r in tiling["regions"]} == {"L1", "L2", "L3"}
+    assert any(line.startswith("tiling:") for line in told)
+    json.dumps(seen)  # plain data, for process.json
+    # The lanes enter the detections through the tiles: a run with other lanes does not reuse the checkpoint.
+    from trafficgeo.video.checkpoint import CHECKPOINT_DIR
+
+    out = tmp_path / "b"
+    detect_and_track(video, cam, FLAT, out, opts, lanes=lanes_along_y())
+    assert (out / CHECKPOINT_DIR).is_dir()  # the caller removes it after analyze
+    told = []
+    detect_and_track(video, cam, FLAT, out, opts, lanes=lanes_along_y(n=2), notice=told.append)
+    assert any("ignoring the checkpoint" in line for line in told), told
