@@ -105,19 +105,23 @@ def test_intel_frames_are_the_decoded_video_frames() -> None:
     assert sorted(frames["image"]) == sorted(p.name for p in INTEL_LABELS.glob("*.png"))
     assert np.allclose(frames["time_s"], frames["frame_index"] * 0.08)
     want = dict(zip(frames["frame_index"], frames["image"], strict=True))
+    decoded: dict[int, np.ndarray] = {}
     cap = cv2.VideoCapture(str(INTEL_VIDEO))
     try:
-        index, seen = 0, 0
-        while seen < len(want):
+        for index in range(max(want) + 2):
             ok, frame = cap.read()
             assert ok, f"video ended before frame {index}"
-            if index in want:
-                png = cv2.imread(str(INTEL_LABELS / want[index]), cv2.IMREAD_COLOR)
-                assert np.array_equal(png, frame), want[index]
-                seen += 1
-            index += 1
+            if index in want or index - 1 in want or index + 1 in want:
+                decoded[index] = frame.astype(np.int16)
     finally:
         cap.release()
+    for index, name in want.items():
+        png = cv2.imread(str(INTEL_LABELS / name), cv2.IMREAD_COLOR).astype(np.int16)
+        # Equal up to the decoder's colour conversion (identical with OpenCV's FFmpeg here); the neighbouring
+        # frames differ by 2.6 grey levels or more on average, so the index is pinned down.
+        own = float(np.abs(png - decoded[index]).mean())
+        assert own < 1.0, (name, own)
+        assert own < min(float(np.abs(png - decoded[i]).mean()) for i in (index - 1, index + 1)), name
 
 
 def test_load_labels_returns_images_boxes_classes_flags() -> None:
