@@ -26,6 +26,7 @@ frame, and the tile spans ``x0 - 0.5 .. x1 - 0.5`` in box coordinates.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -442,6 +443,20 @@ def _tile_origins(box: np.ndarray, others: np.ndarray, side: int, frame_shape: t
         else:
             out.append(np.unique(c[holds]))
     return out[0], out[1]
+
+
+def grid_plan(frame_shape: tuple[int, int], n: int = 2, *, overlap: float = 0.2, input_size: int = 416) -> TilePlan:
+    """A plan without a calibrated camera: the full frame plus an ``n`` x ``n`` grid of equal tiles that overlap by
+    ``overlap`` of a tile's side (so a vehicle cut by one tile's edge is whole in its neighbour if it is smaller than
+    the overlap)."""
+    if not (isinstance(n, int) and n >= 1) or not 0.0 <= overlap < 1.0:
+        raise InputError(f"grid tiles: n {n!r} must be a whole number >= 1 and overlap {overlap!r} in [0, 1)")
+    h, w = (int(v) for v in frame_shape[:2])
+    tw, th = (min(size, math.ceil(size / (n - (n - 1) * overlap))) for size in (w, h))
+    xs = np.linspace(0, w - tw, n).round().astype(np.int64)
+    ys = np.linspace(0, h - th, n).round().astype(np.int64)
+    tiles = np.array([[x, y, x + tw, y + th] for y in ys for x in xs], dtype=np.int64) if n > 1 else np.zeros((0, 4))
+    return TilePlan((h, w), int(input_size), 0.0, max(input_size / min(tw, th), 1.0), tiles)
 
 
 def plan_tiles(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame_shape: tuple[int, int] | None = None,
