@@ -166,6 +166,7 @@ def main() -> None:
     ap.add_argument("--cuboids", action="store_true", help="render without vehicle classes (as before: boxes)")
     ap.add_argument("--no-detect", action="store_true", help="only time the renderer")
     ap.add_argument("--save", type=Path, default=None, help="write the first frames as PNG here")
+    ap.add_argument("--n-save", type=int, default=6, help="how many frames --save writes")
     args = ap.parse_args()
     camera, background, opts = world_background(args.world)
     tracks = pd.read_csv(args.world / "truth_tracks.csv")
@@ -186,7 +187,7 @@ def main() -> None:
         img, truth = render_frame(camera, background, boxes, shadows=opts["shadows"])
         t_render += time.perf_counter() - t
         bgr = np.ascontiguousarray(img[..., ::-1])
-        if args.save is not None and k < 4:
+        if args.save is not None and k < args.n_save:
             args.save.mkdir(parents=True, exist_ok=True)
             cv2.imwrite(str(args.save / f"frame{f:05d}.png"), bgr)
         if det is None:
@@ -200,15 +201,16 @@ def main() -> None:
         if len(dboxes) and len(tb):
             best = box_iou(dboxes[:, None], tb[None, :]).max(axis=1)
             unmatched_iou.extend(best[np.setdiff1d(np.arange(len(dboxes)), m[m >= 0])].tolist())
-        if args.save is not None and k < 6:
+        if args.save is not None and k < args.n_save:
             vis = bgr.copy()
             for b, hit in zip(tb, m >= 0, strict=True):
                 cv2.rectangle(vis, (int(b[0]), int(b[1])), (int(b[2]), int(b[3])), (0, 255, 0) if hit else (0, 0, 255))
             for b in dboxes:
                 cv2.rectangle(vis, (int(b[0]), int(b[1])), (int(b[2]), int(b[3])), (255, 0, 255))
             cv2.imwrite(str(args.save / f"det{f:05d}.png"), vis)
-        for b, v, hit in zip(tb, truth.visible_fraction[drawn], m >= 0, strict=True):
-            rows.append({"frame": f, "height_px": b[3] - b[1], "visible": v, "hit": hit})
+        for b, v, hit, cls in zip(tb, truth.visible_fraction[drawn], m >= 0, sub["class"].to_numpy()[drawn],
+                                  strict=True):
+            rows.append({"frame": f, "height_px": b[3] - b[1], "visible": v, "hit": hit, "class": cls})
     print(f"render_frame: {1000 * t_render / len(picked):.1f} ms per {camera.image_size[0]}x{camera.image_size[1]} "
           f"frame ({len(picked)} frames, {'vehicle meshes' if with_kind else 'default kind'})")
     if det is None:
@@ -219,6 +221,8 @@ def main() -> None:
     print(f"recall (>= 50 % visible): all {half['hit'].mean():.3f} ({len(half)}), >= 24 px tall "
           f"{big['hit'].mean():.3f} ({len(big)}), >= 50 px {half[half['height_px'] >= 50]['hit'].mean():.3f} "
           f"({int((half['height_px'] >= 50).sum())}); precision {n_det_ok / max(n_det, 1):.3f} ({n_det} detections)")
+    print("recall by class (>= 50 % visible, >= 24 px tall):",
+          big.groupby("class")["hit"].agg(["mean", "size"]).round(3).to_dict("index"))
     u = np.array(unmatched_iou)
     if u.size:
         print(f"unmatched detections: best IoU with a drawn vehicle {np.round(np.quantile(u, [0.1, 0.5, 0.9]), 2)}")

@@ -94,7 +94,10 @@ class _Builder:
         for g in range(self.n_groups):
             sel = (group == g) & base
             centre[g] = centroids[sel if sel.any() else group == g].mean(axis=0)
-        return Mesh(vertices, faces, sizes, np.array(self.normals), np.array(self.material), group, layer, centre)
+        arrays = [vertices, faces, sizes, np.array(self.normals), np.array(self.material), group, layer, centre]
+        for a in arrays:
+            a.flags.writeable = False  # meshes are cached and shared
+        return Mesh(*arrays)
 
     # ------------------------------------------------------------------ parts
     def loft(self, x: object, section: object, materials: object, *, caps: tuple[bool, bool] = (True, True),
