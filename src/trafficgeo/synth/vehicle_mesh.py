@@ -101,19 +101,20 @@ class _Builder:
 
     # ------------------------------------------------------------------ parts
     def loft(self, x: object, section: object, materials: object, *, caps: tuple[bool, bool] = (True, True),
-             skip_top: object = (), side_groups: tuple[int, int] | None = None) -> dict[str, object]:
+             skip_top: object = ()) -> dict[str, object]:
         """A solid lofted along ``x`` (S,) through cross-sections ``section`` (S, P, 2) of (y, z) points, each an
         open polyline from the left bottom over the top to the right bottom (convex with the bottom chord).
-        ``materials`` (S-1, P-1): material of each side/top face per segment (-1 = none). The faces of the first
-        and last edges of a section (the lower sides) of every segment share one draw group per side
-        (``side_groups`` if given). Returns the face indices of the caps and lower sides."""
+        ``materials`` (S-1, P-1): material of each side/top face per segment (-1 = none); ``skip_top``: (segment,
+        edge) pairs left out (faces hidden under another part). The faces of the first and last edges (the lower
+        sides) of all segments share one draw group per side. Returns the face indices: ``rear``/``front`` caps,
+        ``left``/``right`` lower sides (with their ``left_group``/``right_group``), ``faces`` by (segment, edge)."""
         x = np.asarray(x, dtype=np.float64)
         sec = np.asarray(section, dtype=np.float64)
         mats = np.asarray(materials)
         n_seg, n_edge = len(x) - 1, sec.shape[1] - 1
         mid = np.array([0.5 * (x[0] + x[-1]), 0.0, 0.5 * (sec[:, :, 1].min() + sec[:, :, 1].max())])
         pts = np.concatenate([np.broadcast_to(x[:, None, None], sec.shape[:2] + (1,)), sec], axis=2)
-        left, right = side_groups if side_groups is not None else (self.new_group(), self.new_group())
+        left, right = self.new_group(), self.new_group()
         out: dict[str, object] = {"left": [], "right": [], "left_group": left, "right_group": right, "faces": {}}
         for s in range(n_seg):
             for e in range(n_edge):
@@ -133,8 +134,7 @@ class _Builder:
         for on, sign in zip(caps, (-1.0, 1.0), strict=True):
             if on:
                 k = 0 if sign < 0 else -1
-                out["rear" if sign < 0 else "front"] = self.add(pts[k], int(mats[k, 0]) if mats.ndim else BODY,
-                                                                normal=[sign, 0.0, 0.0])
+                out["rear" if sign < 0 else "front"] = self.add(pts[k], int(mats[k, 0]), normal=[sign, 0.0, 0.0])
         return out
 
     def decal(self, parent: int, poly2d: object, material: int, layer: int = 1) -> int:
