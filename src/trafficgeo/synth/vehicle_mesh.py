@@ -338,7 +338,17 @@ def _truck(L: float, W: float, H: float) -> Mesh:
     cab_len = min(2.3, 0.3 * L)
     box_x = np.array([-0.5 * L, 0.5 * L - cab_len - 0.3])
     box = b.loft(box_x, [_trapezoid(hb, hb, zc, H)] * 2, np.full((1, 3), CARGO))
-    b.decal(box["rear"], _rect(-0.01 * W, 0.01 * W, zc + 0.05, H - 0.05), TRIM)
+    # Rear doors: a frame, the seam between the doors and their lock bars; a rail along the bottom of each side.
+    f = 0.07
+    for rect in (_rect(-hb, hb, zc, zc + f), _rect(-hb, hb, H - f, H), _rect(-hb, -hb + f, zc, H),
+                 _rect(hb - f, hb, zc, H)):
+        b.decal(box["rear"], rect, HUB)
+    b.decal(box["rear"], _rect(-0.01 * W, 0.01 * W, zc + f, H - f), TRIM)
+    for y in (-0.3 * W, -0.1 * W, 0.1 * W, 0.3 * W):
+        b.decal(box["rear"], _rect(y - 0.02, y + 0.02, zc + f, H - f), HUB, layer=2)
+    for f_side in box["left"] + box["right"]:
+        b.decal(f_side, np.array([[box_x[0], zc], [box_x[1], zc], [box_x[1], zc + 0.16], [box_x[0], zc + 0.16]]),
+                TRIM)
     cab_h = zc + 0.7 * (H - zc)
     cx = np.array([0.5 * L - cab_len, 0.5 * L - 0.35, 0.5 * L])
     cab = b.loft(cx, [_section(hb, 0.46 * W, zc - 0.3, zc + 0.45, t) for t in (cab_h, cab_h, zc + 0.55)],
