@@ -9,6 +9,13 @@ together) and scores them against the renderer's own truth boxes at IoU >= 0.5:
 * precision: a detection is right when it matches (IoU >= 0.5, one to one) any drawn vehicle.
 
 Also times ``render_frame`` per frame. Dev-time only: the model file is not part of the package.
+
+Measured on ``bench_video.py``'s world (30 frames spread over its 60 s, 2 shared cores): vehicles drawn as shaded
+boxes (before :mod:`trafficgeo.synth.vehicle_mesh`): no vehicle found (0 detections); as vehicle meshes: recall
+0.64 of all 265 vehicles at least half visible, 0.87 of the 164 at least 24 px tall (cars 0.94, buses 0.86,
+trucks 0.73, vans 0.70), 0.94 of the 78 at least 50 px tall; precision 0.84 (201 detections). Most misses are
+vehicles 24-35 px tall near the horizon; most false detections are parts of a vehicle or one box over two.
+render_frame 11-16 ms per 1080p frame with boxes, 16 ms with meshes (13.6 vehicles per frame).
 Run ``python benchmarks/bench_render_detect.py [--world DIR] [--model FILE] [--frames N]``.
 """
 
