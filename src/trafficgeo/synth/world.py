@@ -4,11 +4,11 @@
 
 * ``sumo/`` - the georeferenced SUMO network, demand and FCD of the traffic (:mod:`trafficgeo.synth.sumo_world`);
 * ``ortho.tif`` - an orthophoto of the road (:mod:`trafficgeo.synth.orthophoto`), ``cloud.laz`` - lidar of it;
-* ``video.mp4`` - H.264 frames through the true camera (:mod:`trafficgeo.synth.render`) with sensor noise, a slow
-  illumination drift and a small camera shake;
+* ``video.mp4`` - H.264 frames through the true camera (:mod:`trafficgeo.synth.render`: vehicles as low-poly
+  meshes of their class) with sensor noise, a slow illumination drift and a small camera shake;
 * ``gcps.csv`` - lane-marking corners and pole bases/tops with pixel and survey noise; ``camera_truth.json``;
 * ``truth_tracks.csv`` (and ``.gpkg``) - per vehicle and frame: world position, speed, lane, class, the image
-  ground point and box;
+  ground point and box (the silhouette box: the bounding box of the drawn vehicle) and the visible fraction;
   ``truth_counts.csv`` - per counting line, direction and lane, the vehicles crossing it (time, speed), with the
   lines in ``count_lines.gpkg``; ``lanes.gpkg`` - the lane polygons (named ``d<direction>_<lane>``).
 
@@ -380,7 +380,7 @@ def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z:
                 sl = slice(starts[f], starts[f + 1])
                 boxes = Boxes(centre=np.column_stack([traj.x[sl], traj.y[sl], z[sl]]),
                               heading_deg=traj.heading_deg[sl], length=traj.length[sl], width=traj.width[sl],
-                              height=traj.height[sl], colour=colours[sl])
+                              height=traj.height[sl], colour=colours[sl], kind=traj.vclass[sl])
                 img, truth = render_frame(camera, background, boxes, shadows=opts.shadows)
                 gain = 1.0 + opts.illumination_drift * np.sin(2 * np.pi * f / max(frames, 1) + phase)
                 img = cv2.convertScaleAbs(img, alpha=gain)
