@@ -200,7 +200,9 @@ def main() -> None:
         detections, tracks = detect_and_track(video, camera, surface, out, options, restart=True, lanes=lanes)
         t_pipe = time.perf_counter() - t
         result = analyze(camera, surface, tracks_from_table(tracks), lanes=lanes, lines=lines)
-        precision, recall, n_true = detection_scores(detections, truth[truth["time"] < end])
+        step = int(every or 1)  # detection ran on frames 0, step, 2 step, ...: scored there
+        precision, recall, n_true = detection_scores(detections, truth[(truth["time"] < end)
+                                                                       & (truth["frame"] % step == 0)])
         score = count_scores(result.crossings, truth_counts, end_s=end)
         errs = score.speed_errors[np.isfinite(score.speed_errors)]  # tracks seen under 1 s carry no speed
         frames = n / max(int(every or 1), 1)

@@ -95,7 +95,8 @@ def test_killed_anywhere_and_resumed_gives_the_uninterrupted_result(world: Path,
     then (resumed) in the analysis: each rerun goes on where the last checkpoint was, and the outputs equal
     an uninterrupted run's, row for row."""
     common = [world / "video.mp4", "--camera", world / "camera_truth.json", "--surface", "90", "--lanes",
-              world / "lanes.gpkg", "--lines", world / "count_lines.gpkg", "--checkpoint", CHECKPOINT_S]
+              world / "lanes.gpkg", "--lines", world / "count_lines.gpkg", "--checkpoint", CHECKPOINT_S,
+              "--detector", "background"]  # the one whose state is rebuilt at each checkpoint
     full = tmp_path / "full"
     code, _, stderr = invoke("process", *common, "--out", full)
     assert code == 0, stderr
@@ -121,7 +122,7 @@ def test_a_changed_roi_or_surface_is_another_run(world: Path, tmp_path: Path) ->
 
     cam = read_camera_json(world / "camera_truth.json")
     surface = ConstantSurface(90.0)
-    opts = ProcessOptions(checkpoint_s=CHECKPOINT_S, end_s=3.5)
+    opts = ProcessOptions(detector="background", checkpoint_s=CHECKPOINT_S, end_s=3.5)
 
     class Stop(Exception):
         pass
@@ -173,7 +174,7 @@ def test_checkpoints_are_data_checked_and_never_unpickled(world: Path, tmp_path:
     from trafficgeo.camera.io import read_camera_json
 
     cam = read_camera_json(world / "camera_truth.json")
-    opts = ProcessOptions(checkpoint_s=1.0, end_s=2.5)
+    opts = ProcessOptions(detector="background", checkpoint_s=1.0, end_s=2.5)
     good = tmp_path / "good"
     ref = detect_and_track(world / "video.mp4", cam, None, good, opts)[1]
     flag = tmp_path / "executed"
@@ -322,7 +323,7 @@ def test_stale_temporaries_of_a_killed_run_are_removed(world: Path, tmp_path: Pa
         p.write_text("mine")
     assert not any(is_temporary_name(p.name) for p in keep)
     detect_and_track(world / "video.mp4", read_camera_json(world / "camera_truth.json"), None, out,
-                     ProcessOptions(end_s=0.5))
+                     ProcessOptions(detector="background", end_s=0.5))
     assert not any(p.exists() for p in stale)
     assert all(p.exists() for p in keep)
     assert remove_stale_temporaries(tmp_path / "missing") == []

@@ -65,11 +65,12 @@ def process(
     lanes: LanesOpt = None,
     lines: LinesOpt = None,
     interval: IntervalOpt = 60.0,
-    detector: Annotated[str, typer.Option(help=DETECTOR_HELP)] = "background",
+    detector: Annotated[str, typer.Option(help=DETECTOR_HELP)] = "nanodet",
     detector_format: Annotated[str, typer.Option(help=FORMAT_HELP)] = "auto",
     start: Annotated[float, typer.Option(help="start time (s)")] = 0.0,
     end: Annotated[float | None, typer.Option(help="end time (s); default: the end of the video")] = None,
-    every: Annotated[int, typer.Option(help="use every n-th frame")] = 1,
+    every: Annotated[int | None, typer.Option(help="detect on every n-th frame (default: every frame for background "
+                                              "subtraction, about 10 a second for a learned detector)")] = None,
     tiles: Annotated[bool, typer.Option(help="with the built-in learned detector: also run it on tiles over the far "
                                         "road (planned from the camera and --lanes or --roi) so that far vehicles "
                                         "are large enough for it")] = True,
@@ -97,11 +98,12 @@ def process(
     from trafficgeo.video.pipeline import (
         ProcessOptions,
         detect_and_track,
+        detection_every,
         finish_run,
         hold_folder,
         write_run_info,
     )
-    from trafficgeo.video.reader import VideoReadWarning
+    from trafficgeo.video.reader import VideoReadWarning, video_info
 
     _check_out_dir(out)
     check_html_path(report_html)
@@ -113,6 +115,7 @@ def process(
     cam, doc = _camera(camera)
     surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
     lane_set, count_lines = _layout(cam, surf, lanes, lines)
+    opts = detection_every(opts, video_info(video).fps)  # settled here too, for process.json
     mask = None
     if roi is not None:
         from trafficgeo.video.roi import read_roi

@@ -33,7 +33,7 @@ from __future__ import annotations
 import itertools
 import shutil
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -65,17 +65,18 @@ __all__ = ["CHECKPOINT_DIR", "PRIME_S", "ProcessOptions", "detect_and_track", "f
 DETECTION_COLUMNS = ["frame", "time", "x1", "y1", "x2", "y2", "score", "class"]
 TRACK_COLUMNS = ["frame", "time", "track_id", "x1", "y1", "x2", "y2", "score", "class"]
 PRIME_S = 10.0  # s of video a background model learns on before a segment (see the module docstring)
+LEARNED_DETECT_HZ = 10.0  # detections a second of a learned detector when --every is auto (see bench_video)
 
 
 @dataclass(frozen=True)
 class ProcessOptions:
     """What ``process`` does with a video (times in seconds of video)."""
 
-    detector: str = "background"  # a name of detector_names.DETECTOR_NAMES, or the path of an ONNX model
+    detector: str = "nanodet"  # a name of detector_names.DETECTOR_NAMES, or the path of an ONNX model
     detector_format: str = "auto"  # an ONNX model's layout (onnx_formats.LAYOUTS), or "auto": from the model
     start_s: float = 0.0
     end_s: float | None = None
-    every: int = 1  # use every n-th frame
+    every: int | None = None  # detect on every n-th frame; None: auto (detection_every)
     tiles: bool = True  # the built-in learned detector: camera-aware tiles over the far road (video.tiling)
     checkpoint_s: float = 30.0
     tracker: TrackerOptions = field(default_factory=TrackerOptions)
@@ -84,10 +85,22 @@ class ProcessOptions:
         check_detector(self.detector, self.detector_format)  # a bad name or model fails here, before writing
         if not (self.start_s >= 0 and (self.end_s is None or self.end_s > self.start_s)):
             raise InputError(f"--start {self.start_s} / --end {self.end_s}: need 0 <= start < end (seconds)")
-        if not (isinstance(self.every, int) and self.every >= 1):
+        if not (self.every is None or (isinstance(self.every, int) and self.every >= 1)):
             raise InputError(f"--every {self.every}: must be a whole number >= 1")
         if not self.checkpoint_s > 0:
             raise InputError(f"--checkpoint {self.checkpoint_s}: must be a positive number of seconds")
+
+
+def detection_every(options: ProcessOptions, fps: float) -> ProcessOptions:
+    """``options`` with ``every`` settled for a video of ``fps`` frames/s when it is None (auto): every frame for a
+    background subtraction detector (it learns from every frame), else the frame step that detects about
+    :data:`LEARNED_DETECT_HZ` times a second; the tracker predicts the frames between."""
+    if options.every is not None:
+        return options
+    from trafficgeo.video.detector_names import is_background
+
+    every = 1 if is_background(options.detector) else max(1, round(fps / LEARNED_DETECT_HZ)) if fps > 0 else 1
+    return replace(options, every=every)
 
 
 def _prime_seconds(detector: object) -> float:
@@ -165,10 +178,10 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     from trafficgeo.video.learned import detector_plan
     from trafficgeo.video.reader import video_info
 
-    opts = options or ProcessOptions()
     tell = notice or (lambda text: None)
     video = Path(video)
     info = video_info(video)
+    opts = detection_every(options or ProcessOptions(), info.fps)
     if camera is not None and (info.width, info.height) != tuple(camera.image_size):
         raise InputError(f"{video}: frames are {info.width}x{info.height} but the camera was calibrated for "
                          f"{camera.image_size[0]}x{camera.image_size[1]}; calibrate on a frame of this video "
