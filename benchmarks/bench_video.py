@@ -51,7 +51,7 @@ from trafficgeo.traffic.lanes import read_lanes
 from trafficgeo.traffic.lines import read_count_lines
 from trafficgeo.traffic.tracks import tracks_from_table
 from trafficgeo.video.detect import box_iou
-from trafficgeo.video.pipeline import TRACK_COLUMNS, ProcessOptions, detect_and_track
+from trafficgeo.video.pipeline import TRACK_COLUMNS, ProcessOptions, detect_and_track, settled_options
 from trafficgeo.video.reader import iter_frames, video_info
 from trafficgeo.video.track import VehicleTracker
 
@@ -240,7 +240,7 @@ def main() -> None:
     print("\nthe same tracker and analyze fed by an ideal detector (true boxes of the vehicles at least this visible):")
     print("| seen from | per-lane counts | missed | speed at the lines |\n|---|---|---|---|")
     for min_visible in (0.3, 0.5, 0.7):
-        tracker = VehicleTracker(info.fps, ProcessOptions().tracker)
+        tracker = VehicleTracker(info.fps, settled_options(ProcessOptions(), info.fps).tracker)
         rows = []
         for frame, time_s, dets in ideal_detections(truth[truth["time"] < end], camera.image_size,
                                                     min_visible=min_visible):

@@ -215,8 +215,8 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     from trafficgeo.video.pipeline import (
         ProcessOptions,
         detect_and_track,
-        detection_every,
         finish_run,
+        settled_options,
         write_run_info,
     )
     from trafficgeo.video.reader import video_info
@@ -227,7 +227,7 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     info = video_info(wdir / "video.mp4")
     lanes = read_lanes(wdir / "lanes.gpkg", crs=surf.crs)
     lines = read_count_lines(wdir / "count_lines.gpkg", crs=surf.crs)
-    options = detection_every(ProcessOptions(), info.fps)  # the defaults: NanoDet, tiles, ~10 detections a second
+    options = settled_options(ProcessOptions(), info.fps)  # the defaults: NanoDet, tiles, ~10 detections a second
     plan: dict = {}
     t0 = time.perf_counter()
     with Progress("detect + track", BarColumn(), "{task.completed}/{task.total} frames", TimeRemainingColumn(),

@@ -98,9 +98,9 @@ def process(
     from trafficgeo.video.pipeline import (
         ProcessOptions,
         detect_and_track,
-        detection_every,
         finish_run,
         hold_folder,
+        settled_options,
         write_run_info,
     )
     from trafficgeo.video.reader import VideoReadWarning, video_info
@@ -115,7 +115,7 @@ def process(
     cam, doc = _camera(camera)
     surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
     lane_set, count_lines = _layout(cam, surf, lanes, lines)
-    opts = detection_every(opts, video_info(video).fps)  # settled here too, for process.json
+    opts = settled_options(opts, video_info(video).fps)  # settled here too, for process.json
     mask = None
     if roi is not None:
         from trafficgeo.video.roi import read_roi
