@@ -206,9 +206,10 @@ def main() -> None:
         score = count_scores(result.crossings, truth_counts, end_s=end)
         errs = score.speed_errors[np.isfinite(score.speed_errors)]  # tracks seen under 1 s carry no speed
         frames = n / max(int(every or 1), 1)
+        suffix = {"2": "nd", "3": "rd"}.get(every, "th")
         label = {"background": "background subtraction", "nanodet-full": "learned (NanoDet), full frame",
-                 "nanodet": "learned (NanoDet) + camera-aware tiles"}[name] + (f", every {every}th frame" if every
-                                                                              else "")
+                 "nanodet": "learned (NanoDet) + camera-aware tiles"}[name] + (f", every {every}{suffix} frame"
+                                                                              if every else "")
         print(f"| {label} | {n / t_pipe:.1f} | {n / t_pipe / info.fps:.2f} | {t_decode / t_pipe:.2f} | "
               f"{precision:.1%} | {recall:.1%} ({n_true}) | {score.accuracy:.1%} | {np.mean(np.abs(errs)):.2f} km/h "
               f"({np.mean(errs):+.2f}, {errs.size} of {score.speed_errors.size}) |", flush=True)

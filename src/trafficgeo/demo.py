@@ -255,8 +255,9 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     m = {"video_realtime_factor": info.duration_s / elapsed, "detection_precision": precision,
          "detection_recall": recall, "video_count_accuracy": score.accuracy,
          "video_spot_speed_mae_kmh": float(np.mean(np.abs(errs))) if errs.size else float("nan")}
-    t = Table(title=f"Demo world video, the default detector (built-in NanoDet + tiles, every {options.every}th "
-                    "frame): measured vs truth")
+    step = {1: "every frame", 2: "every 2nd frame", 3: "every 3rd frame"}.get(options.every,
+                                                                           f"every {options.every}th frame")
+    t = Table(title=f"Demo world video, the default detector (built-in NanoDet + tiles, {step}): measured vs truth")
     for col in ("quantity", "measured"):
         t.add_column(col, justify="right" if col != "quantity" else "left")
     t.add_row("speed of decode + detect + track", f"{m['video_realtime_factor']:.2f} x real time")
