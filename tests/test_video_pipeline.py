@@ -3,6 +3,7 @@ smoke test on the real Intel clip."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +46,7 @@ def test_process_writes_every_output_and_no_checkpoint(world: Path, tmp_path: Pa
     assert pd.read_csv(out / "detections.csv")["time"].min() < 0.2
     assert tracks["track_id"].nunique() >= 3 and (tracks["time"].diff().dropna() > -10).all()
     assert "vehicles" in stdout
+    assert re.search(r"tracks in [0-9.]+ s \([0-9.]+x real time\)", " ".join(stdout.split())), stdout
 
 
 def test_an_interrupted_run_resumes_to_the_same_tracks(world: Path, tmp_path: Path) -> None:

@@ -154,8 +154,10 @@ def process(
     read_doc, short = _what_was_read(video, opts, read, caught)
     if short:
         console.print(short, markup=False, soft_wrap=True)
+    seen_s = (read_doc["end_s"] - read_doc["start_s"]) if read_doc.get("end_s") is not None else 0.0
+    pace = f" ({seen_s / elapsed:.2f}x real time)" if seen_s > 0 and elapsed > 0 else ""
     console.print(f"{len(detections)} detections, {tracks['track_id'].nunique() if len(tracks) else 0} tracks "
-                  f"in {elapsed:.1f} s")
+                  f"in {elapsed:.1f} s{pace}")
     if not len(tracks):
         raise InputError(f"{video}: no vehicle was tracked; check --roi, --start/--end and the detector")
     result, written = _analyze_and_write(cam, surf, tracks_from_table(tracks), lane_set, count_lines,
