@@ -50,6 +50,8 @@ def test_shipped_file_matches_registry():
     notice = builtin_models.builtin_models_notice()
     assert "Copyright 2020-2021 RangiLyu" in notice and "Copyright (c) 2021 Vladimir Mandic" in notice
     assert NANODET_G_416.sha256 in notice
+    source = (path.parent / "SOURCE.txt").read_text()  # provenance beside the file, as tests/data has it
+    assert NANODET_G_416.sha256 in source and "Apache-2.0 AND MIT" in source
 
 
 def test_registry_entry():
