@@ -1125,7 +1125,8 @@ def _process_table(p: dict[str, Any]) -> str:
             ["start / end", f"{opts.get('start_s', '-')} / {opts.get('end_s') or 'end'}", "s"],
             ["every n-th frame", opts.get("every", "-"), ""], ["detections", p.get("detections", "-"), ""],
             ["track boxes", p.get("track_rows", "-"), ""], ["processing time", (p.get("seconds"), 1), "s"]]
-    tiling = (p.get("detector") or {}).get("tiling") if isinstance(p.get("detector"), dict) else None
+    detector = p.get("detector")
+    tiling = detector.get("tiling") if isinstance(detector, dict) else None
     warns: list[str] = []
     if isinstance(tiling, dict):
         tiles = tiling.get("tiles") or []

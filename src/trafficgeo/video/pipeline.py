@@ -103,6 +103,8 @@ def settled_options(options: ProcessOptions, fps: float) -> ProcessOptions:
       detections (demo world, every 3rd frame: per-lane counts 93.6 -> 96.4 %, speed at the lines 1.52 -> 1.40
       km/h; every 5th: 90.9 -> 96.4 %; every frame: 92.7 -> 94.5 %; bench_video).
     """
+    if options.every is not None and options.tracker is not None:
+        return options  # settled already (replace() would check the detector, e.g. open an ONNX model, again)
     from trafficgeo.video.detector_names import is_background
 
     background = is_background(options.detector)
