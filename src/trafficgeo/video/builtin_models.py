@@ -74,8 +74,8 @@ class BuiltinModel:
 NANODET_G_416 = BuiltinModel(
     name="nanodet",
     file_name="nanodet-g-416.onnx",
-    sha256="f94d4920aad26349574700b70baf276b13cd06cef9f57e39f49788f52fe9d7a3",
-    size_bytes=7_618_281,
+    sha256="d317f27716c68c47e2e081c96afc2ba35f18ac6440bb6ceeb6e2e7aabb9b6578",
+    size_bytes=7_616_967,
     input_size_px=416,
     layout="nanodet",
     color_order="BGR",

@@ -18,7 +18,8 @@ from trafficgeo.video.blobs import SizeRules, blob_ground_size, classify_sizes
 from trafficgeo.video.builtin_models import builtin_model, builtin_model_path
 from trafficgeo.video.detections import Detections, Detector
 from trafficgeo.video.onnx_detect import OnnxDetector
-from trafficgeo.video.tiling import TiledDetector, TilePlan, plan_tiles
+from trafficgeo.video.tile_bands import plan_bands
+from trafficgeo.video.tiling import TiledDetector, TilePlan
 
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera
@@ -60,7 +61,7 @@ def make_learned_detector(*, camera: Camera | None = None, surface: Surface | No
     area = road if road is not None else roi
     plan = None
     if tiles and camera is not None and surface is not None and area is not None:
-        plan = plan_tiles(camera, surface, area, input_size=model.input_size_px)
+        plan = plan_bands(camera, surface, area, input_size=model.input_size_px)
     tiled = plan is not None and len(plan.tiles) > 0
     base: Detector = OnnxDetector(path, format=model.layout, conf=conf, iou=iou, roi=None if tiled else roi,
                                   threads=threads)

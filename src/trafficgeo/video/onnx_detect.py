@@ -6,6 +6,7 @@ ultralytics RT-DETR, RF-DETR, NanoDet). trafficgeo never downloads weights. Pixe
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -187,6 +188,7 @@ class OnnxDetector:
         self.roi = None if roi is None else np.asarray(roi)
         self._decoding = Decoding(np.array(sorted(self.class_map), dtype=np.int64), self.conf, self.input_hw,
                                   fit.options)
+        self._decodings = {self.input_hw: self._decoding}
 
     @property
     def format(self) -> str:
@@ -211,6 +213,7 @@ class OnnxDetector:
         self._batch = image.shape[0]
         meta = dict(self._session.get_modelmeta().custom_metadata_map or {})
         h, w = image.shape[2:]
+        self.dynamic_hw = h is None and w is None and not self._extra  # runs at any input size (multiples of 32)
         imgsz = parse_literal(meta.get("imgsz"))
         imgsz = [imgsz, imgsz] if isinstance(imgsz, int) else imgsz
         if h is None or w is None:
@@ -267,9 +270,12 @@ class OnnxDetector:
         """Vehicles in ``image`` ((H, W, 3) uint8 BGR); ``time_s`` is not used."""
         return self.detect_batch([image])[0]
 
-    def detect_batch(self, images: Sequence[np.ndarray]) -> list[Detections]:
+    def detect_batch(self, images: Sequence[np.ndarray], input_hw: tuple[int, int] | None = None
+                     ) -> list[Detections]:
         """Vehicles in each of several equally sized images (e.g. the tiles of a frame), in as few model runs as
-        the model's batch dimension allows."""
+        the model's batch dimension allows. ``input_hw``: the model input (h, w) px to fit them into, for a model
+        whose input size is free (:attr:`dynamic_hw`; multiples of its largest stride, 32); default
+        :attr:`input_hw`."""
         images = [check_image(im, f"image {k}") for k, im in enumerate(images)]
         if not images:
             return []
@@ -277,13 +283,21 @@ class OnnxDetector:
         if any(im.shape[:2] != (h, w) for im in images):
             raise InputError(f"detect_batch: images of sizes {sorted({im.shape[:2] for im in images})}; give "
                              "equally sized images")
-        blob, geom = self.layout.pre.blob(images, self.input_hw)
+        hw = self.input_hw if input_hw is None else (int(input_hw[0]), int(input_hw[1]))
+        if hw != self.input_hw and not self.dynamic_hw:
+            raise InputError(f"{self.path}: the model's input is fixed at {self.input_hw[1]}x{self.input_hw[0]} "
+                             f"px; it cannot run at {hw[1]}x{hw[0]}")
+        if hw not in self._decodings:
+            if min(hw) < 32 or hw[0] % 32 or hw[1] % 32:
+                raise InputError(f"OnnxDetector: input size {hw[1]}x{hw[0]} px must be multiples of 32 px")
+            self._decodings[hw] = replace(self._decoding, input_hw=hw)
+        blob, geom = self.layout.pre.blob(images, hw)
         outs = self._infer(blob, (w, h))
         geom = IDENTITY if self.layout.sizes_input else geom
         found = []
         for out in outs:
             try:
-                raw = self.layout.decode(out, self._decoding)
+                raw = self.layout.decode(out, self._decodings[hw])
             except (IndexError, ValueError) as exc:
                 raise InputError(f"{self.path}: outputs of shapes {[list(o.shape) for o in out.values()]} do not "
                                  f"decode as {self.layout.title} ({_one_line(exc)}); {SUPPORTED}") from None

@@ -73,7 +73,8 @@ def cut_by_tile(boxes: np.ndarray, tile: Sequence[int], frame_shape: tuple[int, 
 class TiledDetector:
     """A :class:`~trafficgeo.video.detections.Detector` running ``base`` on the full frame and on each tile of
     ``plan`` (the base letterboxes every crop to its own input size; ``base.detect_batch(crops)`` is used for the
-    tiles of each size when it exists), then shifting the tile boxes to the frame, dropping those cut by a tile's
+    tiles of each size when it exists; with a plan giving input sizes (``tile_input_hw``, ``full_input_hw``) it is
+    called with ``input_hw=`` per size), then shifting the tile boxes to the frame, dropping those cut by a tile's
     inner edge (:func:`cut_by_tile`) and merging all with :func:`merge_boxes`.
 
     ``base`` must not filter by an ROI of its own (its frames are crops): give ``roi`` (bool (H, W)) here instead;
@@ -85,6 +86,9 @@ class TiledDetector:
         if getattr(base, "roi", None) is not None and len(plan.tiles):
             raise ValueError("TiledDetector: the base detector has an ROI; it would see crops, not frames - build it "
                              "without one and give the ROI to TiledDetector")
+        if (plan.tile_input_hw is not None or plan.full_input_hw is not None) and not hasattr(base, "detect_batch"):
+            raise InputError("tiled detector: the plan gives each tile its own input size, but the detector has no "
+                             "detect_batch(images, input_hw=...); plan square tiles for it (plan_tiles)")
         self.base, self.plan = base, plan
         self.iou, self.containment = float(iou), float(containment)
         self.roi = None if roi is None else check_roi(roi, plan.frame_shape, "TiledDetector roi")
@@ -96,15 +100,23 @@ class TiledDetector:
         if shape != self.plan.frame_shape:
             raise InputError(f"tiled detector: a {shape[1]}x{shape[0]} frame, but the tiles were planned for "
                              f"{self.plan.frame_shape[1]}x{self.plan.frame_shape[0]} frames; plan them for this video")
-        full = self.base.detect(image, time_s)
-        crops = [image[y0:y1, x0:x1] for x0, y0, x1, y1 in self.plan.tiles]
+        plan = self.plan
+        if plan.full_input_hw is None:
+            full = self.base.detect(image, time_s)
+        else:
+            full = self.base.detect_batch([image], input_hw=plan.full_input_hw)[0]
+        crops = [image[y0:y1, x0:x1] for x0, y0, x1, y1 in plan.tiles]
+        sized = plan.tile_input_hw is not None
         if not crops:
             parts = [full]
-        elif hasattr(self.base, "detect_batch"):  # one call per crop size (a batch holds images of one size)
+        elif hasattr(self.base, "detect_batch"):  # one call per crop and input size (a batch holds one size)
             found: list[Detections | None] = [None] * len(crops)
-            for size in dict.fromkeys(c.shape for c in crops):
-                idx = [k for k, c in enumerate(crops) if c.shape == size]
-                for k, det in zip(idx, self.base.detect_batch([crops[k] for k in idx]), strict=True):
+            keys = [(c.shape, tuple(plan.tile_input_hw[k]) if sized else None) for k, c in enumerate(crops)]
+            for key in dict.fromkeys(keys):
+                idx = [k for k, kk in enumerate(keys) if kk == key]
+                batch = [crops[k] for k in idx]
+                dets = self.base.detect_batch(batch, input_hw=key[1]) if sized else self.base.detect_batch(batch)
+                for k, det in zip(idx, dets, strict=True):
                     found[k] = det
             parts = [full, *found]
         else:

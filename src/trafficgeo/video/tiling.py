@@ -42,9 +42,9 @@ from trafficgeo.traffic.lanes import Lanes
 from trafficgeo.video.detections import check_roi
 from trafficgeo.video.tiled_detector import CUT_MARGIN_PX, TiledDetector, cut_by_tile, merge_boxes
 
-__all__ = ["LARGE_VEHICLE_M", "REFERENCE_CAR_M", "RegionReach", "RoadSamples", "TilePlan", "TiledDetector",
-           "box_size_px", "cut_by_tile", "lane_samples", "merge_boxes", "plan_tiles", "roi_samples",
-           "vehicle_boxes", "vehicle_size_px"]
+__all__ = ["LARGE_VEHICLE_M", "REFERENCE_CAR_M", "RegionReach", "RoadSamples", "RoadView", "TilePlan",
+           "TiledDetector", "box_size_px", "cut_by_tile", "finish_plan", "lane_samples", "merge_boxes", "plan_tiles",
+           "road_view", "roi_samples", "vehicle_boxes", "vehicle_size_px"]
 
 REFERENCE_CAR_M = (4.4, 1.8, 1.5)  # length, width, height (m): the small vehicle that must be detectable
 LARGE_VEHICLE_M = VEHICLE_DIMENSIONS["truck"]  # the vehicle that must lie whole in a tile (its extent = overlap)
@@ -272,6 +272,8 @@ class TilePlan:
     camera_xy: np.ndarray = field(default_factory=lambda: np.zeros(2), repr=False)  # camera (x, y), CRS units
     unit_m: float = 1.0  # metres per CRS unit
     cut_margin_px: float = CUT_MARGIN_PX  # see cut_by_tile
+    tile_input_hw: np.ndarray | None = None  # (K, 2) model input (h, w) px per tile; None: input_size square
+    full_input_hw: tuple[int, int] | None = None  # model input (h, w) px of the full frame; None: square
 
     def __post_init__(self) -> None:
         h, w = (int(v) for v in self.frame_shape)
@@ -283,22 +285,47 @@ class TilePlan:
             raise InputError(f"tile plan: tile {tiles[np.argmax(bad)].tolist()} is not inside the {w}x{h} frame; give "
                              "x0, y0, x1, y1 pixel indices with 0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height")
         object.__setattr__(self, "tiles", tiles)
+        if self.tile_input_hw is not None:
+            hw = np.asarray(self.tile_input_hw, dtype=np.int64).reshape(-1, 2)
+            if hw.shape[0] != tiles.shape[0] or (hw < 1).any():
+                raise InputError(f"tile plan: {hw.shape[0]} tile input sizes for {tiles.shape[0]} tiles; give one "
+                                 "positive (h, w) per tile")
+            object.__setattr__(self, "tile_input_hw", hw)
+        if self.full_input_hw is not None:
+            object.__setattr__(self, "full_input_hw", tuple(int(v) for v in self.full_input_hw))
 
     @property
     def full_scale(self) -> float:
-        """Scale of the full frame into the detector input (letterbox: input_size / longer side)."""
-        return self.input_size / max(self.frame_shape)
+        """Scale of the full frame into the detector input (letterbox: the input's side / the frame's)."""
+        ih, iw = self.full_input_hw or (self.input_size, self.input_size)
+        return min(ih / self.frame_shape[0], iw / self.frame_shape[1])
 
     @property
     def tile_scales(self) -> np.ndarray:
-        """(K,) scale of each tile into the detector input."""
+        """(K,) scale of each tile into the detector input (letterbox)."""
         t = self.tiles.astype(np.float64)
-        return self.input_size / np.maximum(t[:, 2] - t[:, 0], t[:, 3] - t[:, 1])
+        th, tw = t[:, 3] - t[:, 1], t[:, 2] - t[:, 0]
+        if self.tile_input_hw is None:
+            return self.input_size / np.maximum(tw, th)
+        return np.minimum(self.tile_input_hw[:, 0] / th, self.tile_input_hw[:, 1] / tw)
+
+    @property
+    def tile_inputs_hw(self) -> np.ndarray:
+        """(K, 2) model input (h, w) px of each tile."""
+        if self.tile_input_hw is not None:
+            return self.tile_input_hw
+        return np.full((len(self.tiles), 2), self.input_size, dtype=np.int64)
 
     @property
     def added_input_pixels(self) -> int:
-        """Detector-input pixels the tiles add per frame (the full frame alone: ``input_size ** 2``)."""
-        return int(len(self.tiles) * self.input_size ** 2)
+        """Detector-input pixels the tiles add per frame (besides :attr:`full_input_pixels`)."""
+        return int(np.prod(self.tile_inputs_hw, axis=1).sum())
+
+    @property
+    def full_input_pixels(self) -> int:
+        """Detector-input pixels of the full frame's pass."""
+        ih, iw = self.full_input_hw or (self.input_size, self.input_size)
+        return int(ih * iw)
 
     @property
     def added_frame_pixels(self) -> int:
@@ -335,10 +362,13 @@ class TilePlan:
             sides = np.maximum(self.tiles[:, 2] - self.tiles[:, 0], self.tiles[:, 3] - self.tiles[:, 1])
             tiled = self._tiled_distance_m()
             where = f" over the road {tiled[0]:.0f}-{tiled[1]:.0f} m from the camera" if tiled else ""
-            lines.append(f"tiling: {len(self.tiles)} tile{'s' if len(self.tiles) > 1 else ''} of {sides.min()}-"
-                         f"{sides.max()} px (zoom up to {self.tile_scales.max():.1f}x){where} besides the full frame: "
-                         f"the detector runs {len(self.tiles) + 1} times per frame "
-                         f"({self.added_frame_pixels / 1e6:.2f} Mpx of crops)")
+            zoom = self.tile_scales
+            n = len(self.tiles)
+            total = self.full_input_pixels + self.added_input_pixels
+            lines.append(f"tiling: {n} tile{'s' if n > 1 else ''} of {sides.min()}-{sides.max()} px (zoom "
+                         f"{zoom.min():.2f}-{zoom.max():.2f}x){where} besides the full frame: the detector runs "
+                         f"{n + 1} times per frame on {total / 1e6:.2f} Mpx of input "
+                         f"({total / self.full_input_pixels:.1f}x the full frame's)")
         lines.extend(self.warnings())
         return lines
 
@@ -373,6 +403,9 @@ class TilePlan:
             "input_size": self.input_size, "min_size_px": self.min_size_px, "max_upscale": self.max_upscale,
             "vehicle_m": list(self.vehicle_m), "frame_shape": list(self.frame_shape),
             "tiles": self.tiles.astype(int).tolist(), "passes_per_frame": len(self.tiles) + 1,
+            "tile_input_hw": self.tile_inputs_hw.astype(int).tolist(),
+            "full_input_hw": list(self.full_input_hw or (self.input_size, self.input_size)),
+            "full_input_pixels": self.full_input_pixels,
             "added_input_pixels": self.added_input_pixels, "added_frame_pixels": self.added_frame_pixels,
             "regions": [{"name": r.name, "unit": r.unit, "in_view": round(r.in_view_m, 1),
                          "full_frame": round(r.full_frame_m, 1), "tiles_only": round(r.tiles_m, 1),
@@ -478,35 +511,16 @@ def plan_tiles(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame
     even the maximum zoom cannot bring to ``min_tiled_size_px`` get no tile. Returns the plan with, per lane, the
     road beyond reach.
     """
-    h, w = camera.height, camera.width
-    if frame_shape is not None and tuple(int(v) for v in frame_shape[:2]) != (h, w):
-        raise InputError(f"tiling: frames of {frame_shape[1]}x{frame_shape[0]} px do not match the camera's "
-                         f"{w}x{h} px calibration; calibrate at the video's resolution")
-    for name, value in (("input_size", input_size), ("min_size_px", min_size_px), ("max_upscale", max_upscale),
-                        ("min_tiled_size_px", min_tiled_size_px)):
-        if not (np.isfinite(value) and value > 0):
-            raise InputError(f"tiling: {name} {value!r} must be a positive number")
+    view = road_view(camera, surface, road, frame_shape, input_size=input_size, min_size_px=min_size_px,
+                     max_upscale=max_upscale, min_tiled_size_px=min_tiled_size_px, vehicle_m=vehicle_m,
+                     max_distance_m=max_distance_m, step_m=step_m, roi_step_px=roi_step_px)
+    h, w = view.frame_shape
     s_in = int(input_size)
     t_max = min(h, w)
     t_min = min(t_max, int(np.ceil(s_in / max_upscale)))
-    mpu = _mpu(camera)
-    if isinstance(road, Lanes):
-        samples, unit = lane_samples(road, surface, step_m=step_m, metres_per_unit_=mpu), "m"
-    else:
-        samples, unit = roi_samples(camera, surface, np.asarray(road), step_px=roi_step_px), "m2"
-    dist_m = _horizontal_distance_m(samples.xyz, camera.position[:2], mpu)
-    seen = world_to_pixels(camera, samples.xyz, surface).ok
-    if max_distance_m is not None:
-        seen &= dist_m <= float(max_distance_m)
-    size = np.full(len(dist_m), np.nan)
-    size[seen] = vehicle_size_px(camera, samples.xyz[seen], samples.heading_deg[seen], vehicle_m)
-    seen &= np.isfinite(size)
-    size[~seen] = np.nan
-    car_box = np.full((len(dist_m), 4), np.nan)
-    car_box[seen] = vehicle_boxes(camera, samples.xyz[seen], samples.heading_deg[seen], vehicle_m)
-    full_scale = s_in / max(h, w)
+    samples, size, car_box = view.samples, view.size_px, view.car_box
     with np.errstate(invalid="ignore"):
-        need = seen & (size * full_scale < min_size_px) & (size * s_in / t_min >= min_tiled_size_px)
+        need = view.seen & (size * s_in / max(h, w) < min_size_px) & (size * s_in / t_min >= min_tiled_size_px)
     idx = np.flatnonzero(need)
     tiles: list[tuple[int, int, int, int]] = []
     if idx.size:
@@ -532,17 +546,74 @@ def plan_tiles(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame
             open_[served] = False
             open_[seed] = False  # always: even a tile that could not hold it whole is its best effort
             tiles.append(tuple(int(v) for v in cand[best]))
-    tile_arr = np.asarray(tiles, dtype=np.int64).reshape(-1, 4)
-    plan = TilePlan(frame_shape=(h, w), input_size=s_in, min_size_px=float(min_size_px),
-                    max_upscale=float(max_upscale), tiles=tile_arr, regions=(), samples=samples, size_px=size,
-                    best_input_px=np.full(len(size), np.nan), vehicle_m=tuple(float(v) for v in vehicle_m),
-                    camera_xy=camera.position[:2].copy(), unit_m=mpu)
-    best = np.full(len(size), np.nan)
-    if seen.any():
-        best[seen] = plan.input_size_px(car_box[seen])
+    return finish_plan(camera, view, np.asarray(tiles, dtype=np.int64).reshape(-1, 4), input_size=s_in,
+                       min_size_px=min_size_px, max_upscale=max_upscale, vehicle_m=vehicle_m)
+
+
+@dataclass(frozen=True, eq=False)
+class RoadView:
+    """The counted road as the camera sees it, for a tile planner: the ``samples``, their horizontal distance
+    ``dist_m`` (m) from the camera, whether each is in view (``seen``), the reference car's size ``size_px``
+    (full-frame px, NaN out of view) and box ``car_box`` (N, 4) there; ``unit`` ``"m"`` (lanes) or ``"m2"`` (ROI)."""
+
+    frame_shape: tuple[int, int]
+    samples: RoadSamples
+    unit: str
+    dist_m: np.ndarray
+    seen: np.ndarray
+    size_px: np.ndarray
+    car_box: np.ndarray
+    metres_per_unit: float
+
+
+def road_view(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame_shape: tuple[int, int] | None = None,
+              *, input_size: float = 416, min_size_px: float = 24.0, max_upscale: float = 2.0,
+              min_tiled_size_px: float = 16.0, vehicle_m: Sequence[float] = REFERENCE_CAR_M,
+              max_distance_m: float | None = None, step_m: float = 1.0, roi_step_px: int = 8) -> RoadView:
+    """The :class:`RoadView` of ``road`` (lanes, or a bool ROI mask (H, W)) within ``max_distance_m`` (m; None =
+    all) of the camera; InputError for frames of another size than the calibration or a non-positive setting."""
+    h, w = camera.height, camera.width
+    if frame_shape is not None and tuple(int(v) for v in frame_shape[:2]) != (h, w):
+        raise InputError(f"tiling: frames of {frame_shape[1]}x{frame_shape[0]} px do not match the camera's "
+                         f"{w}x{h} px calibration; calibrate at the video's resolution")
+    for name, value in (("input_size", input_size), ("min_size_px", min_size_px), ("max_upscale", max_upscale),
+                        ("min_tiled_size_px", min_tiled_size_px)):
+        if not (np.isfinite(value) and value > 0):
+            raise InputError(f"tiling: {name} {value!r} must be a positive number")
+    mpu = _mpu(camera)
+    if isinstance(road, Lanes):
+        samples, unit = lane_samples(road, surface, step_m=step_m, metres_per_unit_=mpu), "m"
+    else:
+        samples, unit = roi_samples(camera, surface, np.asarray(road), step_px=roi_step_px), "m2"
+    dist_m = _horizontal_distance_m(samples.xyz, camera.position[:2], mpu)
+    seen = world_to_pixels(camera, samples.xyz, surface).ok
+    if max_distance_m is not None:
+        seen &= dist_m <= float(max_distance_m)
+    size = np.full(len(dist_m), np.nan)
+    size[seen] = vehicle_size_px(camera, samples.xyz[seen], samples.heading_deg[seen], vehicle_m)
+    seen &= np.isfinite(size)
+    size[~seen] = np.nan
+    car_box = np.full((len(dist_m), 4), np.nan)
+    car_box[seen] = vehicle_boxes(camera, samples.xyz[seen], samples.heading_deg[seen], vehicle_m)
+    return RoadView((h, w), samples, unit, dist_m, seen, size, car_box, mpu)
+
+
+def finish_plan(camera: Camera, view: RoadView, tiles: np.ndarray, *, input_size: int, min_size_px: float,
+                max_upscale: float, vehicle_m: Sequence[float], tile_input_hw: np.ndarray | None = None,
+                full_input_hw: tuple[int, int] | None = None) -> TilePlan:
+    """The :class:`TilePlan` of ``tiles`` over ``view``, with what the detector reaches on each lane."""
+    plan = TilePlan(frame_shape=view.frame_shape, input_size=int(input_size), min_size_px=float(min_size_px),
+                    max_upscale=float(max_upscale), tiles=tiles, regions=(), samples=view.samples,
+                    size_px=view.size_px, best_input_px=np.full(len(view.size_px), np.nan),
+                    vehicle_m=tuple(float(v) for v in vehicle_m), camera_xy=camera.position[:2].copy(),
+                    unit_m=view.metres_per_unit, tile_input_hw=tile_input_hw, full_input_hw=full_input_hw)
+    best = np.full(len(view.size_px), np.nan)
+    if view.seen.any():
+        best[view.seen] = plan.input_size_px(view.car_box[view.seen])
     object.__setattr__(plan, "best_input_px", best)
-    object.__setattr__(plan, "regions", _regions(samples, seen, size * full_scale >= min_size_px,
-                                                 best >= min_size_px, dist_m, unit))
+    object.__setattr__(plan, "regions", _regions(view.samples, view.seen,
+                                                 view.size_px * plan.full_scale >= min_size_px,
+                                                 best >= min_size_px, view.dist_m, view.unit))
     return plan
 
 
