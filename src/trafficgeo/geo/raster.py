@@ -563,7 +563,6 @@ def read_display(path: str | os.PathLike[str], max_px: int, *, bounds: tuple[flo
     from rasterio.errors import WindowError
     from rasterio.vrt import WarpedVRT
     from rasterio.windows import Window, from_bounds
-    from rasterio.windows import bounds as window_bounds
 
     from trafficgeo.crs import same_horizontal_crs
 
@@ -610,7 +609,7 @@ def read_display(path: str | os.PathLike[str], max_px: int, *, bounds: tuple[flo
     offset = (int(win.col_off), int(win.row_off))
     transform = grid @ Affine.translation(*offset) @ Affine.scale(cols / shape[1], rows / shape[0])
     out_crs = crs if (warp and crs is not None and src_crs is not None) else src_crs
-    left, bottom, right, top = window_bounds(win, grid)
+    (left, right), (bottom, top) = pixel_to_map(grid, [offset[0], offset[0] + cols], [offset[1] + rows, offset[1]])
     return DisplayRaster(data, mask > 0, transform, out_crs, nodata, k, grid, (*offset, cols, rows),
                          (float(left), float(bottom), float(right), float(top)), str(path))
 
