@@ -221,38 +221,6 @@ class GeoRaster:
         data = np.array(self.data[:, r0:r1, c0:c1], copy=True)
         return self._replace(data, self.transform @ Affine.translation(c0, r0))
 
-    def overview(self, max_size: int) -> GeoRaster:
-        """A decimated copy whose longer side is at most ``max_size`` pixels (``self`` if already that small).
-
-        Each output pixel is the mean of a ``k x k`` block of input pixels (``k`` the smallest integer factor that
-        fits), ignoring nodata/NaN cells; the transform is scaled by ``k``, so map positions are kept. The last
-        row/column of blocks may be partial (they extend past the original edge; their mean uses the cells that
-        exist). Integer data are rounded back to their dtype; blocks without any valid cell get ``nodata``
-        (NaN for float data, 0 for integer data without nodata).
-        """
-        max_size = int(max_size)
-        if max_size < 1:
-            raise ValueError(f"overview max_size must be >= 1, got {max_size}")
-        k = math.ceil(max(self.rows, self.cols) / max_size)
-        if k <= 1:
-            return self
-        row_starts = np.arange(0, self.rows, k)
-        col_starts = np.arange(0, self.cols, k)
-        is_int = np.issubdtype(self.data.dtype, np.integer) or self.data.dtype == np.bool_
-        out = np.empty((self.count, row_starts.size, col_starts.size), dtype=self.data.dtype)
-        for b in range(self.count):  # one band at a time keeps the float64 temporaries small
-            band = self.data[b]
-            valid = self._valid(band)
-            values = band if valid.all() else np.where(valid, band, 0)
-            sums = np.add.reduceat(np.add.reduceat(values, row_starts, axis=0, dtype=np.float64), col_starts, axis=1)
-            counts = np.add.reduceat(np.add.reduceat(valid, row_starts, axis=0, dtype=np.int64), col_starts, axis=1)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                mean = sums / counts
-            fill = self.nodata if self.nodata is not None else (0.0 if is_int else np.nan)
-            mean[counts == 0] = fill
-            out[b] = np.rint(mean) if is_int else mean
-        return self._replace(out, self.transform @ Affine.scale(k))
-
     def _valid(self, band: np.ndarray) -> np.ndarray:
         """Boolean mask of the cells of ``band`` that hold data (not NaN, not ``nodata``)."""
         valid = np.ones(band.shape, dtype=bool)
@@ -507,24 +475,13 @@ def open_raster(path: str | os.PathLike[str], what: str = "raster") -> tuple[ras
 
 @dataclass(frozen=True, eq=False)
 class DisplayRaster:
-    """A raster (or a part of it) read decimated for display (:func:`read_display`).
-
-    Attributes:
-        data: ``(bands, rows, cols)`` in the file's dtype: bands 1-3 (colour) and 4 (alpha) of files with three
-            or more bands, band 1 of the others (grey, or grey + alpha).
-        valid: ``(rows, cols)`` bool, GDAL's mask of band 1: False at nodata, under a transparent alpha and
-            outside the source of a warped read.
-        transform: display pixel ``(col, row)`` (corner convention) -> map ``(x, y)`` in CRS units.
-        crs: CRS of the map coordinates (the file's, or the one warped to), or None.
-        nodata: the file's nodata value, or None.
-        factor: full-resolution pixels per display pixel along each axis (integer; 1: not decimated).
-        grid_transform: full-resolution pixel ``(col, row)`` -> map ``(x, y)`` of the grid read (the file's, or the
-            warped grid's).
-        window: ``(col_off, row_off, cols, rows)``: the part read, in full-resolution pixels of that grid; the
-            display image covers exactly this part.
-        bounds: ``(left, bottom, right, top)`` of that part (outer pixel edges) in map units.
-        path: the file, for messages.
-    """
+    """A raster (or a part of it) read decimated for display (:func:`read_display`): ``data`` ``(bands, rows, cols)``
+    in the file's dtype (bands 1-3 and the alpha band 4 of files with 3 or more bands, else band 1); ``valid``
+    ``(rows, cols)``, GDAL's mask of band 1 (False at nodata, transparent alpha, outside a warped source);
+    ``transform``: display pixel ``(col, row)`` (corners) -> map ``(x, y)``; ``factor``: full-resolution pixels per
+    display pixel (integer, 1: none); ``grid_transform``: the same for the full-resolution grid (the file's, or the
+    warped one); ``window``: ``(col_off, row_off, cols, rows)`` of that grid read (what the image covers), with its
+    ``bounds`` (left, bottom, right, top) in map units."""
 
     data: np.ndarray
     valid: np.ndarray
@@ -544,17 +501,10 @@ def read_display(path: str | os.PathLike[str], max_px: int, *, bounds: tuple[flo
     most ``max_px`` pixels (each display pixel the average of ``k x k`` file pixels; GDAL uses the file's overviews
     when it has them), so that even huge files need little memory.
 
-    Args:
-        path: a GeoTIFF, or any GDAL raster with a geotransform or a world file.
-        max_px: longest side of the display image (px).
-        bounds: read only the pixels within ``(left, bottom, right, top)`` (map units, of ``crs`` when warped);
-            whole pixels, so the part read may reach half a pixel beyond. None: the whole raster.
-        crs: reproject to this CRS when the file has another (a file without a CRS is taken to be in it).
-        north_up: reproject a rotated or sheared grid to a north-up one.
-        what: starts the messages (the option or the kind of file).
-
-    Returns:
-        The display image and its georeferencing; None when ``bounds`` do not overlap the raster.
+    ``bounds`` (left, bottom, right, top; map units, of ``crs`` when warped): read only the whole pixels within them
+    (None: the whole raster; the result is None when they do not overlap it). ``crs``: reproject to it when the file
+    has another CRS (one without is taken to be in it). ``north_up``: reproject a rotated grid to a north-up one.
+    ``what`` starts the messages (the option or the kind of file).
 
     Raises:
         InputError: as :func:`open_raster`, or the file cannot be read.

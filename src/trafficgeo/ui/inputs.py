@@ -223,8 +223,9 @@ class Orthophoto:
 def load_ortho(path: str | Path) -> Orthophoto:
     """Read a georeferenced orthophoto (a GeoTIFF, or any GDAL raster with a geotransform or a world file).
 
-    Orthophotos above :data:`MAX_DISPLAY_PX` on a side are read decimated (:func:`~trafficgeo.geo.raster.
-    read_display`), so even huge files need little memory; coordinates always use the full-resolution grid.
+    Orthophotos above :data:`MAX_DISPLAY_PX` on a side are read decimated by an integer factor
+    (:func:`~trafficgeo.geo.raster.read_display`), so even huge files need little memory; coordinates always use
+    the full-resolution grid.
     """
     display = read_display(path, MAX_DISPLAY_PX, what="orthophoto")
     assert display is not None  # no bounds: the whole raster
