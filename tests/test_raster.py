@@ -212,7 +212,7 @@ def test_map_to_pixel_vectorized_and_pixel_centres() -> None:
     np.testing.assert_allclose(r, rows, atol=1e-9)
 
 
-# ---------------------------------------------------------------------- crop / overview
+# ---------------------------------------------------------------------- crop
 def test_crop_keeps_georeferencing(ortho: GeoRaster) -> None:
     bounds = (636200.2, 849100.7, 636500.9, 849400.1)
     sub = ortho.crop(bounds)
@@ -243,42 +243,6 @@ def test_crop_errors(ortho: GeoRaster) -> None:
     assert str(ORTHO) in str(exc.value)
     with pytest.raises(InputError, match="left < right"):
         ortho.crop((636300.0, 849100.0, 636200.0, 849400.0))
-
-
-def test_overview_of_linear_ramp_is_exact() -> None:
-    ras = _ramp(rows=40, cols=60)
-    ov = ras.overview(16)
-    assert ov.shape == (10, 15)  # factor 4
-    assert ov.transform.almost_equals(ras.transform @ Affine.scale(4), precision=1e-12)
-    assert ov.bounds == ras.bounds
-    # the mean of a linear function over a block is its value at the block centre
-    c, r = np.meshgrid(np.arange(15) + 0.5, np.arange(10) + 0.5)
-    x, y = ov.pixel_to_map(c, r)
-    np.testing.assert_allclose(ov.data[0], _ramp_value(ras, x, y), atol=1e-9)
-    assert ras.overview(60) is ras
-
-
-def test_overview_partial_blocks_and_nodata() -> None:
-    data = np.arange(7 * 5, dtype=np.float64).reshape(1, 7, 5)
-    data[0, 0, 0] = -1.0
-    ras = GeoRaster(data, Affine(1, 0, 0, 0, -1, 7), None, nodata=-1.0)
-    ov = ras.overview(3)  # factor 3: 3 x 2 blocks, the last row/column partial
-    assert ov.shape == (3, 2)
-    assert ov.data[0, 0, 0] == pytest.approx(np.mean([1, 2, 5, 6, 7, 10, 11, 12]))  # nodata cell skipped
-    assert ov.data[0, 2, 1] == pytest.approx(np.mean([33, 34]))  # partial corner block: row 6, cols 3-4
-    all_nodata = GeoRaster(np.full((1, 4, 4), 255, np.uint8), Affine(1, 0, 0, 0, -1, 4), None, nodata=255)
-    assert np.all(all_nodata.overview(2).data == 255)
-
-
-def test_overview_of_orthophoto_keeps_content(ortho: GeoRaster) -> None:
-    ov = ortho.overview(300)
-    assert max(ov.shape) <= 300 and ov.shape == (131, 295) and ov.data.dtype == np.uint8
-    assert ov.resolution == (4.0, 4.0)
-    rng = np.random.default_rng(2)
-    left, bottom, right, top = ortho.bounds
-    x = rng.uniform(left + 10, right - 10, 2000)
-    y = rng.uniform(bottom + 10, top - 10, 2000)
-    assert _pearson(ov.sample_bilinear(x, y, 1), ortho.sample_bilinear(x, y, 1)) > 0.85
 
 
 # ---------------------------------------------------------------------- bilinear sampling

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import base64
 import json
+from html import unescape
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -357,7 +358,7 @@ def test_calibration_only_folder_lists_what_is_missing(site: dict[str, Path], tm
     assert "--ortho" in left["orthophoto behind the maps"]
     assert "--frame" in left["frame behind the GCP residuals"]
     assert "traffic" in left
-    assert "computed here from the camera JSON&#x27;s covariance on the GCP plane" in page.html
+    assert "computed here from the camera JSON's covariance on the GCP plane" in unescape(page.html)
     lo = _left_out(page.html)
     assert "pass --ortho" in lo and "pass --frame" in lo
 

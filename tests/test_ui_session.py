@@ -15,8 +15,8 @@ from trafficgeo.calibration import read_gcps
 from trafficgeo.camera.io import read_camera_json
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import pixels_to_world
-from trafficgeo.geo.raster import GeoRaster, write_geotiff
-from trafficgeo.ui.inputs import MAX_DISPLAY_PX, Orthophoto, load_ground, load_ortho
+from trafficgeo.geo.raster import write_geotiff
+from trafficgeo.ui.inputs import MAX_DISPLAY_PX, load_ground, load_ortho
 from trafficgeo.ui.session import ConflictError, NotFoundError, Session, SessionError, open_session
 from ui_support import CRS, Scene, shared_scene
 
@@ -333,9 +333,10 @@ def test_large_orthophoto_is_shown_downsampled_with_full_resolution_coordinates(
 def test_input_errors_for_the_ortho_and_ground(tmp_path, scene):
     from affine import Affine
 
-    geo = GeoRaster(np.zeros((1, 4, 4), np.uint8), Affine(1e-5, 0, 10.0, 0, -1e-5, 50.0), "EPSG:4326")
+    write_geotiff(tmp_path / "lonlat.tif", np.zeros((1, 4, 4), np.uint8), Affine(1e-5, 0, 10.0, 0, -1e-5, 50.0),
+                  "EPSG:4326")
     with pytest.raises(InputError, match="geographic"):
-        Orthophoto.from_raster(geo)
+        load_ortho(tmp_path / "lonlat.tif")
     cv2.imwrite(str(tmp_path / "plain.png"), np.zeros((4, 4, 3), np.uint8))
     with pytest.raises(InputError, match="no georeferencing"):
         load_ortho(tmp_path / "plain.png")

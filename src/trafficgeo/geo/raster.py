@@ -37,7 +37,8 @@ from trafficgeo.crs import crs_label, is_geographic, parse_crs, utm_crs_for
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_path
 
-__all__ = ["GeoRaster", "read_dem", "read_raster", "write_geotiff"]
+__all__ = ["DisplayRaster", "GeoRaster", "map_to_pixel", "open_raster", "pixel_size", "pixel_to_map", "read_dem",
+           "read_display", "read_raster", "write_geotiff"]
 
 #: World-file suffixes tried beside an image, besides the ``<ext[0]><ext[-1]>w`` and ``<ext>w`` forms.
 _WORLD_SUFFIXES = (".wld",)
@@ -67,6 +68,33 @@ def _to_pyproj(crs: object) -> pyproj.CRS | None:
     if isinstance(crs, rasterio.crs.CRS):
         return pyproj.CRS.from_wkt(crs.to_wkt())
     return parse_crs(crs)  # type: ignore[arg-type]
+
+
+# ---------------------------------------------------------------------- pixel <-> map
+def pixel_to_map(transform: Affine, col: ArrayLike, row: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous pixel ``(col, row)`` (corner convention) -> map ``(x, y)`` in CRS units through ``transform``,
+    float64, vectorized."""
+    t = transform
+    c = np.asarray(col, dtype=np.float64)
+    r = np.asarray(row, dtype=np.float64)
+    return t.c + (t.a * c + t.b * r), t.f + (t.d * c + t.e * r)
+
+
+def map_to_pixel(transform: Affine, x: ArrayLike, y: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """Map ``(x, y)`` (CRS units) -> continuous pixel ``(col, row)`` (corner convention) through ``transform``,
+    float64, vectorized. The coordinates are differenced against the transform's origin first, so 5e6-sized ones
+    keep their precision."""
+    t = transform
+    dx = np.asarray(x, dtype=np.float64) - t.c
+    dy = np.asarray(y, dtype=np.float64) - t.f
+    det = t.a * t.e - t.b * t.d
+    return (t.e * dx - t.b * dy) / det, (t.a * dy - t.d * dx) / det
+
+
+def pixel_size(transform: Affine) -> tuple[float, float]:
+    """(xres, yres): pixel width and height of ``transform``, positive, in CRS units."""
+    t = transform
+    return float(math.hypot(t.a, t.d)), float(math.hypot(t.b, t.e))
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,8 +160,7 @@ class GeoRaster:
     @property
     def resolution(self) -> tuple[float, float]:
         """(xres, yres): pixel width and height, positive, in CRS units."""
-        t = self.transform
-        return float(math.hypot(t.a, t.d)), float(math.hypot(t.b, t.e))
+        return pixel_size(self.transform)
 
     @property
     def is_north_up(self) -> bool:
@@ -154,20 +181,11 @@ class GeoRaster:
     # ------------------------------------------------------------------ pixel <-> map
     def map_to_pixel(self, x: ArrayLike, y: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Map ``(x, y)`` (CRS units) -> continuous pixel ``(col, row)`` (corner convention), float64, vectorized."""
-        t = self.transform
-        dx = np.asarray(x, dtype=np.float64) - t.c
-        dy = np.asarray(y, dtype=np.float64) - t.f
-        det = t.a * t.e - t.b * t.d
-        col = (t.e * dx - t.b * dy) / det
-        row = (t.a * dy - t.d * dx) / det
-        return col, row
+        return map_to_pixel(self.transform, x, y)
 
     def pixel_to_map(self, col: ArrayLike, row: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Continuous pixel ``(col, row)`` (corner convention) -> map ``(x, y)`` in CRS units, float64, vectorized."""
-        t = self.transform
-        c = np.asarray(col, dtype=np.float64)
-        r = np.asarray(row, dtype=np.float64)
-        return t.c + (t.a * c + t.b * r), t.f + (t.d * c + t.e * r)
+        return pixel_to_map(self.transform, col, row)
 
     # ------------------------------------------------------------------ derived rasters
     def _replace(self, data: np.ndarray, transform: Affine) -> GeoRaster:
@@ -202,38 +220,6 @@ class GeoRaster:
             )
         data = np.array(self.data[:, r0:r1, c0:c1], copy=True)
         return self._replace(data, self.transform @ Affine.translation(c0, r0))
-
-    def overview(self, max_size: int) -> GeoRaster:
-        """A decimated copy whose longer side is at most ``max_size`` pixels (``self`` if already that small).
-
-        Each output pixel is the mean of a ``k x k`` block of input pixels (``k`` the smallest integer factor that
-        fits), ignoring nodata/NaN cells; the transform is scaled by ``k``, so map positions are kept. The last
-        row/column of blocks may be partial (they extend past the original edge; their mean uses the cells that
-        exist). Integer data are rounded back to their dtype; blocks without any valid cell get ``nodata``
-        (NaN for float data, 0 for integer data without nodata).
-        """
-        max_size = int(max_size)
-        if max_size < 1:
-            raise ValueError(f"overview max_size must be >= 1, got {max_size}")
-        k = math.ceil(max(self.rows, self.cols) / max_size)
-        if k <= 1:
-            return self
-        row_starts = np.arange(0, self.rows, k)
-        col_starts = np.arange(0, self.cols, k)
-        is_int = np.issubdtype(self.data.dtype, np.integer) or self.data.dtype == np.bool_
-        out = np.empty((self.count, row_starts.size, col_starts.size), dtype=self.data.dtype)
-        for b in range(self.count):  # one band at a time keeps the float64 temporaries small
-            band = self.data[b]
-            valid = self._valid(band)
-            values = band if valid.all() else np.where(valid, band, 0)
-            sums = np.add.reduceat(np.add.reduceat(values, row_starts, axis=0, dtype=np.float64), col_starts, axis=1)
-            counts = np.add.reduceat(np.add.reduceat(valid, row_starts, axis=0, dtype=np.int64), col_starts, axis=1)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                mean = sums / counts
-            fill = self.nodata if self.nodata is not None else (0.0 if is_int else np.nan)
-            mean[counts == 0] = fill
-            out[b] = np.rint(mean) if is_int else mean
-        return self._replace(out, self.transform @ Affine.scale(k))
 
     def _valid(self, band: np.ndarray) -> np.ndarray:
         """Boolean mask of the cells of ``band`` that hold data (not NaN, not ``nodata``)."""
@@ -330,11 +316,29 @@ def _read_world_file(path: Path) -> Affine:
     return centre @ Affine.translation(-0.5, -0.5)
 
 
-def _open_error(path: Path, exc: Exception) -> InputError:
+def _open_error(path: Path, exc: Exception, label: str | None = None) -> InputError:
     reason = " ".join(str(exc).split())
     if len(reason) > 100:
         reason = reason[:97] + "..."
-    return InputError(f"{path} is not a raster GDAL can read ({reason}); give a GeoTIFF or an image with a world file")
+    return InputError(f"{label or path} is not a raster GDAL can read ({reason}); give a GeoTIFF or an image with a "
+                      "world file")
+
+
+def _georeferencing(path: Path, transform: Affine, has_gcps: bool, label: str) -> Affine:
+    """``transform`` when it georeferences the file, else the transform of a world file beside it.
+
+    Raises:
+        InputError: neither (``label`` starts the message), or the file has only ground control points.
+    """
+    if not (transform.is_identity or transform.determinant == 0 or not all(map(math.isfinite, transform[:6]))):
+        return transform
+    worlds = _world_file_candidates(path)
+    if worlds:
+        return _read_world_file(worlds[0])
+    if has_gcps:
+        raise InputError(f"{label}: georeferenced only by ground control points, not a geotransform; "
+                         "warp it first (e.g. gdalwarp in.tif out.tif)")
+    raise InputError(f"{label}: no georeferencing; add a world file (.wld) or use a GeoTIFF")
 
 
 def _read(path: str | os.PathLike[str], crs: object, what: str, bands: Sequence[int] | None, *,
@@ -361,17 +365,7 @@ def _read(path: str | os.PathLike[str], crs: object, what: str, bands: Sequence[
         raise _open_error(p, exc) from None
     except RasterioError as exc:
         raise InputError(f"{what} {p} could not be read ({' '.join(str(exc).split())}); check the file") from None
-    if transform.is_identity or transform.determinant == 0 or not all(map(math.isfinite, transform[:6])):
-        worlds = _world_file_candidates(p)
-        if worlds:
-            transform = _read_world_file(worlds[0])
-        elif has_gcps:
-            raise InputError(
-                f"{p}: georeferenced only by ground control points, not a geotransform; "
-                "warp it first (e.g. gdalwarp in.tif out.tif)"
-            )
-        else:
-            raise InputError(f"{p}: no georeferencing; add a world file (.wld) or use a GeoTIFF")
+    transform = _georeferencing(p, transform, has_gcps, str(p))
     out_crs = parse_crs(crs) if crs is not None else _to_pyproj(file_crs)
     picked = tuple(descriptions[i - 1] for i in indexes)
     return GeoRaster(data, transform, out_crs, nodata, picked, str(p))
@@ -453,6 +447,121 @@ def display_rgb(data: np.ndarray, valid: np.ndarray | None = None,
     if out.shape[0] == 1:
         out = np.repeat(out, 3, axis=0)
     return np.moveaxis(out, 0, -1)
+
+
+def open_raster(path: str | os.PathLike[str], what: str = "raster") -> tuple[rasterio.io.DatasetReader, Affine]:
+    """Open a raster with rasterio: the open dataset (the caller closes it) and its pixel-corner ``(col, row)`` ->
+    map ``(x, y)`` transform (the file's geotransform, else a world file's). ``what`` starts the messages (the
+    option or the kind of file).
+
+    Raises:
+        InputError: the file is missing, not a raster GDAL reads, or not georeferenced by a geotransform or a
+            world file.
+    """
+    p = Path(path)
+    _check_file(p, what)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            ds = rasterio.open(p)
+    except RasterioError as exc:
+        raise _open_error(p, exc, f"{what} {p}") from None
+    try:
+        return ds, _georeferencing(p, ds.transform, bool(ds.gcps[0]), f"{what} {p}")
+    except InputError:
+        ds.close()
+        raise
+
+
+@dataclass(frozen=True, eq=False)
+class DisplayRaster:
+    """A raster (or a part of it) read decimated for display (:func:`read_display`): ``data`` ``(bands, rows, cols)``
+    in the file's dtype (bands 1-3 and the alpha band 4 of files with 3 or more bands, else band 1); ``valid``
+    ``(rows, cols)``, GDAL's mask of band 1 (False at nodata, transparent alpha, outside a warped source);
+    ``transform``: display pixel ``(col, row)`` (corners) -> map ``(x, y)``; ``factor``: full-resolution pixels per
+    display pixel (integer, 1: none); ``grid_transform``: the same for the full-resolution grid (the file's, or the
+    warped one); ``window``: ``(col_off, row_off, cols, rows)`` of that grid read (what the image covers), with its
+    ``bounds`` (left, bottom, right, top) in map units."""
+
+    data: np.ndarray
+    valid: np.ndarray
+    transform: Affine
+    crs: pyproj.CRS | None
+    nodata: float | None
+    factor: int
+    grid_transform: Affine
+    window: tuple[int, int, int, int]
+    bounds: tuple[float, float, float, float]
+    path: str
+
+
+def read_display(path: str | os.PathLike[str], max_px: int, *, bounds: tuple[float, float, float, float] | None = None,
+                 crs: pyproj.CRS | None = None, north_up: bool = False, what: str = "raster") -> DisplayRaster | None:
+    """Read a raster for display, decimated by the smallest integer factor ``k`` that brings its longer side to at
+    most ``max_px`` pixels (each display pixel the average of ``k x k`` file pixels; GDAL uses the file's overviews
+    when it has them), so that even huge files need little memory.
+
+    ``bounds`` (left, bottom, right, top; map units, of ``crs`` when warped): read only the whole pixels within them
+    (None: the whole raster; the result is None when they do not overlap it). ``crs``: reproject to it when the file
+    has another CRS (one without is taken to be in it). ``north_up``: reproject a rotated grid to a north-up one.
+    ``what`` starts the messages (the option or the kind of file).
+
+    Raises:
+        InputError: as :func:`open_raster`, or the file cannot be read.
+    """
+    from rasterio.enums import Resampling
+    from rasterio.errors import WindowError
+    from rasterio.vrt import WarpedVRT
+    from rasterio.windows import Window, from_bounds
+
+    from trafficgeo.crs import same_horizontal_crs
+
+    src, grid = open_raster(path, what)
+    with src:
+        try:
+            src_crs = _to_pyproj(src.crs)
+            warp = (crs is not None and src_crs is not None and not same_horizontal_crs(src_crs, crs)) or \
+                (north_up and (grid.b != 0 or grid.d != 0))
+            if warp:
+                extra = {} if grid == src.transform else {"src_transform": grid}
+                ds = WarpedVRT(src, crs=crs.to_wkt() if (crs is not None and src_crs is not None) else src.crs,
+                               resampling=Resampling.bilinear, **extra)
+                grid = ds.transform
+            else:
+                ds = src
+            try:
+                full = Window(0, 0, ds.width, ds.height)
+                win = full
+                if bounds is not None:
+                    try:
+                        win = from_bounds(*bounds, transform=grid).intersection(full)
+                    except WindowError:
+                        return None
+                    c0, r0 = math.floor(win.col_off), math.floor(win.row_off)
+                    win = Window(c0, r0, math.ceil(win.col_off + win.width) - c0,
+                                 math.ceil(win.row_off + win.height) - r0)
+                    if win.width < 1 or win.height < 1:
+                        return None
+                k = max(1, math.ceil(max(win.width, win.height) / max_px))
+                shape = (math.ceil(win.height / k), math.ceil(win.width / k))
+                idx = list(range(1, min(ds.count, 4) + 1)) if ds.count >= 3 else [1]
+                resampling = Resampling.average if k > 1 else Resampling.nearest
+                data = ds.read(idx, window=win, out_shape=(len(idx), *shape), resampling=resampling, masked=False)
+                mask = ds.read_masks(1, window=win, out_shape=shape, resampling=Resampling.nearest)
+            finally:
+                if ds is not src:
+                    ds.close()
+        except RasterioError as exc:
+            raise InputError(f"{what} {path}: could not be read ({' '.join(str(exc).split())}); check the "
+                             "file") from None
+        nodata = src.nodata
+    cols, rows = int(win.width), int(win.height)
+    offset = (int(win.col_off), int(win.row_off))
+    transform = grid @ Affine.translation(*offset) @ Affine.scale(cols / shape[1], rows / shape[0])
+    out_crs = crs if (warp and crs is not None and src_crs is not None) else src_crs
+    (left, right), (bottom, top) = pixel_to_map(grid, [offset[0], offset[0] + cols], [offset[1] + rows, offset[1]])
+    return DisplayRaster(data, mask > 0, transform, out_crs, nodata, k, grid, (*offset, cols, rows),
+                         (float(left), float(bottom), float(right), float(top)), str(path))
 
 
 # ---------------------------------------------------------------------- writing

@@ -200,7 +200,19 @@ def aggregate_counts(crossings: pd.DataFrame, interval_s: float, start: float, e
     previous vehicle took to pass its own length; needs ``length_m``). Intervals without vehicles are listed with a
     count of 0 for every line, lane and direction seen.
     """
-    edges = interval_edges(start, end, interval_s)
+    return _aggregate(crossings, interval_edges(start, end, interval_s))
+
+
+def period_counts(crossings: pd.DataFrame, start: float, end: float) -> pd.DataFrame:
+    """:func:`aggregate_counts` over the whole observed period [start, end] (s) as one interval, whatever its
+    length: every crossing counts (also one outside the period), flows are over ``end - start`` (NaN when the
+    period is empty)."""
+    return _aggregate(crossings, np.array([float(start), float(end)]))
+
+
+def _aggregate(crossings: pd.DataFrame, edges: np.ndarray) -> pd.DataFrame:
+    """:func:`aggregate_counts` over the intervals between ``edges`` (s); a crossing before the first edge counts
+    in the first interval, one after the last in the last."""
     names = set(crossings["class"].fillna("").astype(str)) if len(crossings) else set()
     classes = sorted(c for c in names if c) + ([""] if "" in names and len(names) > 1 else [])  # "": unknown
     groups = crossings.groupby(["line", "lane", "direction"], sort=True) if len(crossings) else []

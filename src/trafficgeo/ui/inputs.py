@@ -26,16 +26,21 @@ import cv2
 import numpy as np
 import pandas as pd
 import pyproj
-import rasterio
 from affine import Affine
 from numpy.typing import ArrayLike
-from rasterio.enums import Resampling
-from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
 from trafficgeo.crs import crs_label, is_geographic, same_horizontal_crs
 from trafficgeo.errors import InputError
 from trafficgeo.geo.georef import GroundCheckOptions, check_gcp_heights
-from trafficgeo.geo.raster import GeoRaster, display_rgb, read_dem, read_raster
+from trafficgeo.geo.raster import (
+    DisplayRaster,
+    display_rgb,
+    map_to_pixel,
+    pixel_size,
+    pixel_to_map,
+    read_dem,
+    read_display,
+)
 from trafficgeo.geo.surface import DEMSurface
 
 #: Largest side (px) of the orthophoto image sent to the browser; larger orthophotos are shown block-averaged.
@@ -116,7 +121,7 @@ def load_video_frame(path: str | Path, at_s: float) -> FrameImage:
 
 
 # --------------------------------------------------------------------------------------------------- orthophoto
-def _to_display(raster: GeoRaster) -> np.ndarray:
+def _to_display(raster: DisplayRaster) -> np.ndarray:
     """8-bit BGRA image of a raster: colours from :func:`~trafficgeo.geo.raster.display_rgb`, band 4 of 8-bit
     rasters as alpha; nodata cells are transparent."""
     data = raster.data
@@ -129,7 +134,7 @@ def _to_display(raster: GeoRaster) -> np.ndarray:
         if raster.nodata is not None and not math.isnan(raster.nodata):
             valid &= band != raster.nodata
     if data.dtype != np.uint8 and not valid.any():
-        raise InputError(f"orthophoto {raster.label}: every cell is nodata; check the file")
+        raise InputError(f"orthophoto {raster.path}: every cell is nodata; check the file")
     rgb = display_rgb(data, valid)
     alpha = np.where(valid, 255, 0).astype(np.uint8)
     if n >= 4 and data.dtype == np.uint8:
@@ -164,8 +169,7 @@ class Orthophoto:
     @property
     def resolution(self) -> tuple[float, float]:
         """(xres, yres): pixel width and height in CRS units."""
-        t = self.transform
-        return float(math.hypot(t.a, t.d)), float(math.hypot(t.b, t.e))
+        return pixel_size(self.transform)
 
     def contains(self, col: float, row: float) -> bool:
         """Whether raster position (col, row) (corner convention) lies on the orthophoto."""
@@ -173,19 +177,12 @@ class Orthophoto:
 
     def pixel_to_map(self, col: ArrayLike, row: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """World (x, y) in CRS units (float64 arrays) of raster positions (col, row) (corner convention)."""
-        t = self.transform
-        c = np.asarray(col, dtype=np.float64)
-        r = np.asarray(row, dtype=np.float64)
-        return t.c + (t.a * c + t.b * r), t.f + (t.d * c + t.e * r)
+        return pixel_to_map(self.transform, col, row)
 
     def map_to_pixel(self, x: ArrayLike, y: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Raster positions (col, row) (corner convention, float64 arrays) of world (x, y) in CRS units; the
         coordinates are differenced against the transform origin first, so 5e6-sized ones keep their precision."""
-        t = self.transform
-        dx = np.asarray(x, dtype=np.float64) - t.c
-        dy = np.asarray(y, dtype=np.float64) - t.f
-        det = t.a * t.e - t.b * t.d
-        return (t.e * dx - t.b * dy) / det, (t.a * dy - t.d * dx) / det
+        return map_to_pixel(self.transform, x, y)
 
     def pixel_to_world(self, col: float, row: float) -> tuple[float, float]:
         """World (x, y) in CRS units of one raster position (col, row) (corner convention)."""
@@ -211,58 +208,28 @@ class Orthophoto:
                 f"(at most {MAX_DISPLAY_PX} px a side); picked coordinates still use the full-resolution grid")
 
     @classmethod
-    def from_raster(cls, raster: GeoRaster) -> Orthophoto:
-        """From an in-memory raster (block-averaged for display when above :data:`MAX_DISPLAY_PX`)."""
-        k = max(1, math.ceil(max(raster.rows, raster.cols) / MAX_DISPLAY_PX))
-        extent = (k * math.ceil(raster.cols / k), k * math.ceil(raster.rows / k))  # a partial last block
-        return cls._make(raster.overview(MAX_DISPLAY_PX), raster.transform, raster.cols, raster.rows, k, extent,
-                         raster.label)
-
-    @classmethod
-    def _make(cls, display: GeoRaster, transform: Affine, cols: int, rows: int, factor: int,
-              extent: tuple[int, int], source: str) -> Orthophoto:
+    def from_display(cls, display: DisplayRaster) -> Orthophoto:
+        """From an orthophoto read for display (:func:`~trafficgeo.geo.raster.read_display`, whole raster)."""
         crs = display.crs
         if crs is not None and is_geographic(crs):
-            raise InputError(f"orthophoto {source} is in the geographic CRS {crs_label(crs)} (degrees); reproject "
-                             "it to a projected CRS, e.g. gdalwarp -t_srs EPSG:32633 in.tif out.tif")
-        return cls(transform=transform, crs=crs, cols=cols, rows=rows, png=_png(_to_display(display), source),
-                   display_factor=factor, display_extent=extent, source=source)
-
-
-class _NoGeotransform(Exception):
-    pass
+            raise InputError(f"orthophoto {display.path} is in the geographic CRS {crs_label(crs)} (degrees); "
+                             "reproject it to a projected CRS, e.g. gdalwarp -t_srs EPSG:32633 in.tif out.tif")
+        _, _, cols, rows = display.window
+        return cls(transform=display.grid_transform, crs=crs, cols=cols, rows=rows,
+                   png=_png(_to_display(display), display.path), display_factor=display.factor,
+                   display_extent=(cols, rows), source=display.path)
 
 
 def load_ortho(path: str | Path) -> Orthophoto:
     """Read a georeferenced orthophoto (a GeoTIFF, or any GDAL raster with a geotransform or a world file).
 
-    Orthophotos above :data:`MAX_DISPLAY_PX` on a side are read decimated (averaged; GDAL uses the file's overviews
-    when it has them), so even huge files need little memory; coordinates always use the full-resolution grid.
+    Orthophotos above :data:`MAX_DISPLAY_PX` on a side are read decimated by an integer factor
+    (:func:`~trafficgeo.geo.raster.read_display`), so even huge files need little memory; coordinates always use
+    the full-resolution grid.
     """
-    p = Path(path)
-    if not p.exists():
-        raise InputError(f"orthophoto {p} does not exist; check the path")
-    if p.is_dir():
-        raise InputError(f"orthophoto {p} is a folder, not a file; give the orthophoto GeoTIFF")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(p) as ds:
-                t = ds.transform
-                if t.is_identity or t.determinant == 0 or not all(map(math.isfinite, t[:6])):
-                    raise _NoGeotransform
-                rows, cols = ds.height, ds.width
-                k = max(1, math.ceil(max(rows, cols) / MAX_DISPLAY_PX))
-                bands = list(range(1, min(ds.count, 4) + 1))
-                shape = (len(bands), math.ceil(rows / k), math.ceil(cols / k))
-                data = ds.read(bands, out_shape=shape,
-                               resampling=Resampling.average if k > 1 else Resampling.nearest)
-                crs, nodata = ds.crs, ds.nodata
-    except (RasterioError, _NoGeotransform):
-        # Unreadable, or georeferenced only by a world file: the project's reader finds it or says why.
-        return Orthophoto.from_raster(read_raster(p))
-    display = GeoRaster(data, t @ Affine.scale(cols / shape[2], rows / shape[1]), crs, nodata, path=str(p))
-    return Orthophoto._make(display, t, cols, rows, k, (cols, rows), str(p))
+    display = read_display(path, MAX_DISPLAY_PX, what="orthophoto")
+    assert display is not None  # no bounds: the whole raster
+    return Orthophoto.from_display(display)
 
 
 # ------------------------------------------------------------------------------------------------------- ground

@@ -1,0 +1,210 @@
+"""The inputs of a report: the files of a run folder (and beside the camera JSON), found by name unless given
+(see :mod:`trafficgeo.report.html` for the names and the order of the search), as plain dataclasses."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from trafficgeo.errors import InputError
+from trafficgeo.io.run_manifest import COMPARE_MANIFEST, MANIFEST, RunIncompleteError, verify_outputs
+
+CALIBRATION_REPORT_FORMAT = "trafficgeo.calibration-report/1"
+CAMERA_NAMES = ("camera.json",)
+REPORT_NAMES = ("report.json", "calibration_report.json", "calibration.json")
+FRAME_NAMES = ("frame.png", "frame.jpg", "frame.jpeg")
+FRAME_KEYS = ("frame", "frame_path", "frame_image")
+VIDEO_NAMES = ("video.mp4", "video.mov", "video.mkv", "video.avi")
+ORTHO_NAMES = ("ortho.tif", "ortho.tiff", "orthophoto.tif", "orthophoto.tiff", "ortho.vrt")
+DEM_NAMES = ("dem.tif", "dem.tiff")
+ACCURACY_NAMES = ("accuracy.tif",)
+SITE_NAMES = ("site.gpkg",)
+
+
+@dataclass(frozen=True)
+class TrafficRun:
+    """An ``analyze``/``process`` output folder: its ``summary.json`` and, for process runs, ``process.json``."""
+
+    folder: Path
+    summary: dict[str, Any]
+    process: dict[str, Any] | None = None
+    compare: bool = False  # compare-sumo results are in the folder and match their manifest
+    compare_problem: str | None = None  # why compare-sumo results in the folder are not used
+
+
+@dataclass(frozen=True)
+class ReportInputs:
+    """The files a report is built from (None: not given and not found)."""
+
+    run_dir: Path
+    camera: Path | None = None
+    calibration_report: Path | Mapping[str, Any] | None = None
+    frame: Path | None = None
+    frame_given: bool = False
+    video: Path | None = None
+    video_given: bool = False
+    video_time_s: float = 0.0
+    ortho: Path | None = None
+    dem: Path | None = None
+    accuracy: Path | None = None
+    site: Path | None = None
+    traffic: tuple[TrafficRun, ...] = ()
+
+    @property
+    def empty(self) -> bool:
+        """True when there is nothing to report (no calibration, accuracy map or traffic run)."""
+        return (self.camera is None and self.calibration_report is None and self.accuracy is None
+                and not self.traffic)
+
+
+def _subfolders(folder: Path) -> list[Path]:
+    try:
+        return sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
+    except OSError:
+        return []
+
+
+def _find(dirs: list[Path], names: tuple[str, ...]) -> Path | None:
+    for d in dirs:
+        for name in names:
+            if (d / name).is_file():
+                return d / name
+    return None
+
+
+def _given_file(path: str | Path | None, option: str, hint: str) -> Path | None:
+    if path is None:
+        return None
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{option} {p}: file not found; {hint}")
+    return p
+
+
+def read_json(path: Path) -> Any:
+    """The JSON document in ``path``.
+
+    Raises:
+        InputError: the file cannot be read or is not JSON.
+    """
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: not readable JSON ({' '.join(str(exc).split())}); write it again with "
+                         "trafficgeo") from None
+
+
+def _resolve(text: Any, bases: list[Path]) -> Path | None:
+    """A path named in a JSON file: as given (absolute or from the working folder), else from ``bases`` (a
+    ``process`` run stores its paths as typed, relative to the folder it ran in)."""
+    if not isinstance(text, str) or not text:
+        return None
+    p = Path(text)
+    if p.is_file():
+        return p
+    if not p.is_absolute():
+        for b in bases:
+            if (b / p).is_file():
+                return b / p
+    return None
+
+
+def _traffic_runs(dirs: list[Path]) -> tuple[TrafficRun, ...]:
+    runs = []
+    for d in dirs:
+        if (d / MANIFEST).is_file() or ((d / "summary.json").is_file() and (
+                (d / "vehicles.csv").is_file() or (d / "trajectories.csv").is_file())):
+            manifest = verify_outputs(d)  # refuses a half-written run or a mix of two runs' files
+            if not manifest.has("summary.json"):
+                continue
+            summary = read_json(d / "summary.json")
+            if not isinstance(summary, dict):
+                raise InputError(f"{d / 'summary.json'}: not a summary written by 'trafficgeo analyze'")
+            process = read_json(d / "process.json") if manifest.has("process.json") else None
+            compare, problem = False, None
+            if (d / "compare_counts.csv").is_file():
+                try:
+                    compare = verify_outputs(d, ("compare_counts.csv",), name=COMPARE_MANIFEST).has(
+                        "compare_counts.csv")
+                except RunIncompleteError:
+                    problem = ("compare-sumo results incomplete or from an earlier run of this folder; run "
+                               "'trafficgeo compare-sumo' again")
+            runs.append(TrafficRun(d, summary, process if isinstance(process, dict) else None, compare, problem))
+    return tuple(runs)
+
+
+def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
+                calibration_report: str | Path | Mapping[str, Any] | None = None, frame: str | Path | None = None,
+                ortho: str | Path | None = None, dem: str | Path | None = None,
+                video: str | Path | None = None) -> ReportInputs:
+    """The files of a run folder (see the module docstring); given paths override what is found.
+
+    Raises:
+        InputError: ``run_dir`` is not a folder, or a given file does not exist.
+    """
+    root = Path(run_dir)
+    if not root.is_dir():
+        raise InputError(f"{root}: not a folder; give the output folder of 'trafficgeo calibrate', 'analyze' or "
+                         "'process'")
+    dirs = [root, *_subfolders(root)]
+    cam = _given_file(camera, "--camera", "give the camera JSON written by 'trafficgeo calibrate'") or \
+        _find(dirs, CAMERA_NAMES)
+    traffic = _traffic_runs(dirs)
+    if cam is None:  # a process run names its camera
+        for run in traffic:
+            cam = _resolve((run.process or {}).get("camera"), [run.folder, root, run.folder.resolve().parent])
+            if cam is not None:
+                break
+    extra = [cam.parent] if cam is not None and cam.parent.resolve() not in {d.resolve() for d in dirs} else []
+    site_dirs = dirs + extra
+    if isinstance(calibration_report, Mapping):
+        rep: Path | Mapping[str, Any] | None = calibration_report
+    else:
+        rep = _given_file(calibration_report, "--calibration-report", "give the report JSON of 'trafficgeo "
+                          "calibrate --report'")
+        if rep is None:
+            for d in site_dirs:
+                found = _find([d], REPORT_NAMES)
+                if found is not None and _is_calibration_report(found):
+                    rep = found
+                    break
+    frame_path = _given_file(frame, "--frame", "give a PNG or JPEG of the video frame the GCPs were clicked on")
+    frame_given = frame_path is not None
+    if frame_path is None and cam is not None:
+        doc = read_json(cam)
+        for key in FRAME_KEYS:
+            frame_path = _resolve(doc.get(key) if isinstance(doc, dict) else None, [cam.parent])
+            if frame_path is not None:
+                break
+    frame_path = frame_path or _find(site_dirs, FRAME_NAMES)
+    video_path = _given_file(video, "--video", "give the video file")
+    video_given = video_path is not None
+    time_s = 0.0
+    if video_path is None:
+        for run in traffic:
+            info = run.process or {}
+            video_path = _resolve(info.get("video"), [run.folder, root, run.folder.resolve().parent])
+            if video_path is not None:
+                start = (info.get("options") or {}).get("start_s")
+                time_s = float(start) if isinstance(start, int | float) and math.isfinite(start) else 0.0
+                break
+    video_path = video_path or _find(site_dirs, VIDEO_NAMES)
+    ortho_path = _given_file(ortho, "--ortho", "give the orthophoto GeoTIFF") or _find(site_dirs, ORTHO_NAMES)
+    dem_path = _given_file(dem, "--dem", "give the DEM GeoTIFF") or _find(site_dirs, DEM_NAMES)
+    return ReportInputs(run_dir=root, camera=cam, calibration_report=rep, frame=frame_path, frame_given=frame_given,
+                        video=video_path, video_given=video_given, video_time_s=time_s, ortho=ortho_path,
+                        dem=dem_path, accuracy=_find(site_dirs, ACCURACY_NAMES), site=_find(site_dirs, SITE_NAMES),
+                        traffic=traffic)
+
+
+def _is_calibration_report(path: Path) -> bool:
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    return isinstance(doc, dict) and doc.get("format") == CALIBRATION_REPORT_FORMAT
+

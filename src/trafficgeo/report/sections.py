@@ -1,0 +1,241 @@
+"""The calibration sections of a report as data (:mod:`trafficgeo.report.blocks`): the camera and its fit, the
+GCPs with their residuals, and the accuracy map.
+
+Units: pixels (px) in the image; positions in the CRS's units relative to the plan-view origin; ground errors in
+metres.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from trafficgeo.report import figures as F
+from trafficgeo.report.blocks import Block, Heading, Part, Section, Text, figure, items, num, table
+from trafficgeo.report.context import ReportContext, frame_image
+
+
+def calibration_sections(b: ReportContext) -> list[Section]:
+    """The calibration section and the GCP section (none, and a note, without a camera or calibration report)."""
+    rep, doc, g = b.report, b.doc or {}, b.gcps
+    if rep is None and b.camera is None:
+        b.skip("calibration", "no camera.json or calibration report.json found: pass --camera / --calibration-report "
+               "(the outputs of 'trafficgeo calibrate')")
+        return []
+    parts: list[Part] = []
+    if rep is not None and rep.get("summary"):
+        parts.append((Text(str(rep["summary"]), "summary"),))
+    elif rep is None:
+        b.skip("calibration report tables (leave-one-out ground errors, check points, warnings)",
+               "no calibration report.json found: pass --calibration-report (calibrate --report)")
+    parts.append(_camera_table(b))
+    if rep is not None:
+        parts.append((Heading("Fit statistics"), _stats_table(rep, b)))
+    elif doc.get("stats"):
+        s = doc["stats"]
+        parts.append((Heading("Fit statistics"), table(["quantity", "value", "unit"], [
+            ["control points / inliers", f"{s.get('n_control', '-')} / {s.get('n_inliers', '-')}", ""],
+            ["mean residual", s.get("mean_px"), "px"], ["RMSE", s.get("rmse_px"), "px"],
+            ["leave-one-out RMSE", s.get("loo_rmse_px"), "px"]])))
+    unc = (rep or {}).get("uncertainty") or doc.get("uncertainty")
+    if unc:
+        parts.append((Heading("Parameter uncertainty"), *_uncertainty_blocks(unc)))
+    if rep is not None:
+        if rep.get("outliers"):
+            parts.append((Heading("Outliers"), items([f"{o['id']}: {o['reason']}" for o in rep["outliers"]], "warn")))
+        if rep.get("warnings"):
+            parts.append((Heading("Warnings"), items([str(w) for w in rep["warnings"]], "warn")))
+        if rep.get("recommendations"):
+            parts.append((Heading("Recommendations"), items([str(r) for r in rep["recommendations"]])))
+    sections = [Section("calibration", "Calibration", tuple(parts))]
+    if g is None:
+        b.skip("GCP figures and table", "the calibration lists no GCPs")
+        return sections
+    sections.append(_gcp_section(b))
+    return sections
+
+
+def _gcp_section(b: ReportContext) -> Section:
+    """The GCPs on the frame and on the map, the residual histograms and the per-GCP table."""
+    rep, g = b.report, b.gcps
+    assert g is not None
+    size = tuple(b.camera.image_size) if b.camera is not None else tuple(rep["image_size"])  # type: ignore[index]
+    image = frame_image(b)
+    ok = np.isfinite(g["u"]) & np.isfinite(g["v"])
+    on_frame = figure(F.residuals_on_frame(g[ok], size, image),
+                      "GCPs where they were clicked, with their residual vectors (projected survey point minus "
+                      "clicked pixel, px) magnified by the factor in the title; red crosses are outliers left "
+                      "out of the fit, blue squares check points.", b.dpi)
+    cam_xy, heading = None, None
+    if b.camera is not None:
+        cam_xy, heading = (float(b.camera.position[0]), float(b.camera.position[1])), b.camera.orientation.heading_deg
+    elif rep is not None:
+        p = rep["camera"]["position"]
+        cam_xy, heading = (float(p[0]), float(p[1])), float(rep["camera"]["orientation"]["heading_deg"])
+    xs = [g["x"].to_numpy(float)] + ([np.array([cam_xy[0]])] if cam_xy else [])
+    ys = [g["y"].to_numpy(float)] + ([np.array([cam_xy[1]])] if cam_xy else [])
+    for part in F.geometry_parts(b.footprint):
+        fx, fy = np.asarray(part.exterior.coords).T[:2]
+        xs.append(fx)
+        ys.append(fy)
+    if b.footprint is None:
+        b.skip("camera footprint on the GCP map", "no site.gpkg and no accuracy map: pass --dem (or run 'trafficgeo "
+               "accuracy ... --gis site.gpkg')")
+    bg = b.background(xs, ys, "GCP map")
+    on_map = figure(F.gcps_on_map(g, b.axes, camera_xy=cam_xy, heading_deg=heading, footprint=b.footprint,
+                                  background=bg),
+                    f"GCPs at their surveyed positions, the camera (triangle, arrow: viewing direction) and the "
+                    f"ground it sees (footprint). Arrows: where each clicked pixel's ray meets the point's "
+                    f"elevation, minus the survey point (magnified). Axes in {b.axes.unit} from the local "
+                    "origin.", b.dpi)
+    histograms = figure(F.residual_histograms(g),
+                        "Fit residuals and leave-one-out errors of the inlier GCPs, in the image (px) and on the "
+                        "ground (m). The leave-one-out error (the camera fitted without that point) is the honest "
+                        "error to expect for a new point.", b.dpi)
+    return Section("gcps", "GCPs and residuals", ((on_frame,), (on_map,), (histograms, *_gcp_residual_table(b))))
+
+
+def _camera_table(b: ReportContext) -> Part:
+    rep, doc = b.report or {}, b.doc or {}
+    unc = rep.get("uncertainty") or doc.get("uncertainty") or {}
+    ps = unc.get("position_std_m") or [float("nan")] * 3
+    os_ = unc.get("orientation_std_deg") or {}
+    if b.camera is not None:
+        pos, o, f = b.camera.position, b.camera.orientation.to_dict(), b.camera.focal_px
+        dist, size = b.camera.dist, b.camera.image_size
+    else:
+        c = rep["camera"]
+        pos, o, f, dist, size = c["position"], c["orientation"], c["focal_px"], c["dist"], rep["image_size"]
+    u = b.axes.unit
+    rows = [
+        ["position X, Y, Z", ", ".join(num(v, 3) for v in pos), u, ", ".join(num(v, 2) for v in ps) + " m"],
+        ["heading (clockwise from grid north)", (o["heading_deg"], 2), "deg", num(os_.get("heading"), 3) + " deg"],
+        ["tilt (below the horizon)", (o["tilt_deg"], 2), "deg", num(os_.get("tilt"), 3) + " deg"],
+        ["roll", (o["roll_deg"], 2), "deg", num(os_.get("roll"), 3) + " deg"],
+        ["focal length", (f, 1), "px", num(unc.get("focal_std_px"), 1) + " px"],
+        ["k1, k2", f"{num(dist[0], 4)}, {num(dist[1], 4)}", "", ""],
+        ["image size", f"{size[0]} x {size[1]}", "px", ""],
+    ]
+    model = rep.get("model") or doc.get("model") or {}
+    desc = model.get("description") or ", ".join(model.get("free_parameters") or [])
+    if desc:
+        rows.append(["free parameters", desc, "", ""])
+    reasons = items([str(r) for r in model.get("reasons") or []], "note")
+    return Heading("Camera"), table(["quantity", "value", "unit", "1-sigma"], rows), reasons
+
+
+def _stats_table(rep: dict[str, Any], b: ReportContext) -> Block:
+    s, c, d = rep.get("stats", {}), rep.get("check", {}), rep.get("distance_ratios", {})
+    rows = [
+        ["control points / inliers / outliers", f"{s.get('n_control')} / {s.get('n_inliers')} / "
+                                                f"{s.get('n_outliers')}", ""],
+        ["mean / RMSE / max residual (inliers)",
+         f"{num(s.get('mean_px'))} / {num(s.get('rmse_px'))} / {num(s.get('max_px'))}", "px"],
+        ["sigma0 (1 = residuals match the stated noise)", (s.get("sigma0"), 2), ""],
+        ["redundancy (observations - parameters)", s.get("redundancy"), ""],
+        ["leave-one-out RMSE", (s.get("loo_rmse_px"), 2), "px"],
+        ["leave-one-out ground error: RMSE / median", f"{num(s.get('loo_ground_rmse_m'), 3)} / "
+                                                      f"{num(s.get('loo_ground_median_m'), 3)}", "m"],
+    ]
+    if c.get("n"):
+        rows += [["check points (not in the fit)", c["n"], ""],
+                 ["check points: RMSE / max", f"{num(c.get('rmse_px'))} / {num(c.get('max_px'))}", "px"],
+                 ["check points: ground RMSE", (c.get("ground_rmse_m"), 3), "m"]]
+    if d.get("n_pairs"):
+        rows.append([f"distance ratio error (eq. 15, {d['n_pairs']} pairs): mean / median / max",
+                     f"{num(d.get('mean_pct'))} / {num(d.get('median_pct'))} / {num(d.get('max_pct'))}", "%"])
+    p = rep.get("pose_consistency", {})
+    if p.get("available"):
+        sp, ang = p["position_spread_m"], p["angle_spread_deg"]
+        rows += [[f"pose spread over {p['n_fits']} leave-one-out fits: X, Y, Z",
+                  ", ".join(num(v, 3) for v in sp), "m"],
+                 ["pose spread: heading, tilt, roll", ", ".join(num(ang[k], 3) for k in ("heading", "tilt", "roll")),
+                  "deg"],
+                 [f"largest camera shift (without {p.get('most_influential_gcp')})",
+                  (p.get("max_position_deviation_m"), 3), "m"]]
+    if b.grid is not None and b.gcps is not None and "predicted_m" in b.gcps.columns:
+        inl = b.gcps[b.gcps["status"] == "inlier"]
+        rows.append(["predicted 1-sigma ground error at the inlier GCPs (accuracy map), median",
+                     (float(np.nanmedian(inl["predicted_m"])) if inl["predicted_m"].notna().any() else float("nan"),
+                      3), "m"])
+    return table(["quantity", "value", "unit"], rows)
+
+
+def _uncertainty_blocks(unc: dict[str, Any]) -> Part:
+    params = unc.get("parameters") or {}
+    rows = []
+    for name, p in params.items():
+        v, s = p.get("value"), p.get("std")
+        rel = abs(s / v) * 100 if isinstance(v, int | float) and isinstance(s, int | float) and v else float("nan")
+        rows.append([name, (v, 6), (s, 6), (rel, 2)])
+    out: list[Block] = []
+    if rows:
+        out.append(table(["parameter", "value", "1-sigma", "1-sigma / |value| (%)"], rows,
+                         caption="free parameters (rotation vector rad; translation in CRS units; focal px; "
+                                 "distortion unitless); from the fit covariance"
+                                 + (", scaled by sigma0^2" if unc.get("scaled_by_variance_factor") else "")))
+    high = unc.get("high_correlations") or []
+    if high:
+        out.append(items([f"parameters {h['a']} and {h['b']} are {abs(h['correlation']):.3f} correlated"
+                          for h in high], "warn"))
+    if not params:
+        out.append(Text("Only the propagated 1-sigma of position, angles and focal length are stored in the camera "
+                        "JSON (see the camera table); the per-parameter table needs the calibration report.", "note"))
+    return tuple(out)
+
+
+def _gcp_residual_table(b: ReportContext) -> Part:
+    g = b.gcps
+    assert g is not None
+    has_pred = "predicted_m" in g.columns
+    cols = ["id", "role", "status", "u", "v", "du", "dv", "|e| px", "LOO px", "ground m", "LOO ground m"]
+    cols += ["predicted 1-sigma m"] if has_pred else []
+    cols += ["outlier / reason"]
+    rows, classes = [], []
+    for r in g.to_dict("records"):
+        row = [r["id"], r["role"], r["status"], (r["u"], 1), (r["v"], 1), (r["du"], 2), (r["dv"], 2),
+               (r["error_px"], 2), (r["loo_error_px"], 2), (r["ground_error_m"], 3), (r["loo_ground_error_m"], 3)]
+        if has_pred:
+            row.append((r["predicted_m"], 3))
+        row.append(("OUTLIER: " if r["status"] == "outlier" else "") + r["reason"])
+        rows.append(row)
+        classes.append(r["status"] if r["status"] in ("outlier", "check") else "")
+    note = ("du, dv: projected minus clicked (px). Ground: horizontal distance (m) from the surveyed X, Y to where "
+            "the clicked pixel's ray meets the point's elevation; LOO: with the camera fitted without the point."
+            + (" Predicted 1-sigma: the accuracy map at the point (calibration covariance and 1 px pixel noise), "
+               "to compare with the leave-one-out ground error." if has_pred else ""))
+    return Heading("Per-GCP residuals"), table(cols, rows, row_classes=classes), Text(note, "note")
+
+
+def accuracy_section(b: ReportContext) -> Section | None:
+    """The accuracy map with what it predicts at the GCPs against what was measured there; None without one."""
+    if b.grid is None:
+        return None
+    values, bounds = b.grid.values, b.grid.bounds
+    left, bottom, right, top = bounds
+    cam_xy = (float(b.camera.position[0]), float(b.camera.position[1])) if b.camera is not None else None
+    gxy = b.gcps[["x", "y"]].to_numpy(float) if b.gcps is not None else None
+    xs = [np.array([left, right])] + ([np.array([cam_xy[0]])] if cam_xy else [])
+    ys = [np.array([bottom, top])] + ([np.array([cam_xy[1]])] if cam_xy else [])
+    bg = b.background(xs, ys, "accuracy map")
+    finite = values[np.isfinite(values)]
+    text = [f"Source: {b.grid.source}."]
+    if finite.size:
+        text.append(f"Over the visible ground the expected 1-sigma horizontal error ranges from {finite.min():.2f} m "
+                    f"to {finite.max():.2f} m (median {np.median(finite):.2f} m).")
+    if b.gcps is not None and "predicted_m" in b.gcps.columns and b.report is not None:
+        s = b.report.get("stats", {})
+        inl = b.gcps[b.gcps["status"] == "inlier"]
+        if inl["predicted_m"].notna().any():
+            text.append(f"At the inlier GCPs it predicts {np.nanmedian(inl['predicted_m']):.3f} m (median); the "
+                        f"leave-one-out ground error measured there is {num(s.get('loo_ground_median_m'), 3)} m "
+                        f"(median), RMSE {num(s.get('loo_ground_rmse_m'), 3)} m.")
+        c = b.report.get("check", {})
+        if c.get("n"):
+            text.append(f"Check points, never used in the fit: ground RMSE {num(c.get('ground_rmse_m'), 3)} m.")
+    fig = F.accuracy_map(values, bounds, b.axes, background=bg, camera_xy=cam_xy, gcps_xy=gxy)
+    shown = figure(fig, "Expected 1-sigma horizontal ground error (m) of a point seen by the camera: calibration "
+                   "uncertainty and pixel noise carried through the ray-surface intersection; contours in metres.",
+                   b.dpi)
+    return Section("accuracy", "Accuracy map", ((Text(" ".join(text)), shown),))

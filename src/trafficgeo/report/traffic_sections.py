@@ -1,0 +1,279 @@
+"""The traffic sections of a report as data (:mod:`trafficgeo.report.blocks`): one per ``analyze``/``process`` run,
+with its summary, maps and diagrams, the vehicles per class and lane, the counts per line and lane, the video
+processing and the ``compare-sumo`` results.
+
+Units: positions in the CRS's units; distances in metres; speeds in km/h; flows in vehicles per hour; times in
+seconds.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from trafficgeo.errors import InputError
+from trafficgeo.report import figures as F
+from trafficgeo.report.blocks import Block, Heading, Part, Section, Table, Text, figure, items, num, table
+from trafficgeo.report.context import ReportContext
+from trafficgeo.report.inputs import TrafficRun, read_json
+from trafficgeo.traffic.lines import period_counts
+
+TABLE_ROWS = 200
+TEXT_COLUMNS = ("track_id", "class", "lane", "line", "source_track")
+
+
+def read_table(path: Path, text_cols: tuple[str, ...] = TEXT_COLUMNS) -> pd.DataFrame | None:
+    """A CSV table trafficgeo wrote (None when there is none), with ``text_cols`` as text ("" for empty).
+
+    Raises:
+        InputError: the file is not a readable table.
+    """
+    if not path.is_file():
+        return None
+    try:
+        t = pd.read_csv(path, dtype={c: str for c in text_cols}, keep_default_na=False, na_values=[""])
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a table trafficgeo wrote ({' '.join(str(exc).split())[:80]}); run the "
+                         "command again") from None
+    for c in text_cols:
+        if c in t.columns:
+            t[c] = t[c].fillna("").astype(str)
+    return t
+
+
+def _layout(folder: Path, crs: Any) -> tuple[list[tuple[str, Any]], list[tuple[str, Any]]]:
+    """(name, geometry) of the lanes and of the counting lines a run used, in ``crs``."""
+    gpkg = folder / "trajectories.gpkg"
+    if not gpkg.is_file():
+        return [], []
+    import pyogrio
+
+    from trafficgeo.io.gis import read_gis
+
+    names = set(pyogrio.list_layers(gpkg)[:, 0])
+    lanes, lines = [], []
+    if "lanes" in names:
+        g = read_gis(gpkg, layer="lanes")
+        g = g.to_crs(crs) if crs is not None and g.crs is not None else g
+        lanes = [(str(n), geom) for n, geom in zip(g["lane"], g.geometry, strict=True)]
+    if "count_lines" in names:
+        g = read_gis(gpkg, layer="count_lines")
+        g = g.to_crs(crs) if crs is not None and g.crs is not None else g
+        lines = [(str(n), geom) for n, geom in zip(g["name"], g.geometry, strict=True)]
+    return lanes, lines
+
+
+def traffic_section(b: ReportContext, run: TrafficRun, k: int) -> Section:
+    """The section of the ``k``-th traffic run (1-based); what it cannot show is noted in ``b``."""
+    rel = run.folder.relative_to(b.inputs.run_dir) if run.folder != b.inputs.run_dir else Path(".")
+    name = "." if str(rel) == "." else str(rel)
+    kind = "process" if run.process is not None else "analyze"
+    title = f"Traffic: {name}" if len(b.inputs.traffic) > 1 or name != "." else "Traffic"
+    points = read_table(run.folder / "trajectories.csv")
+    vehicles = read_table(run.folder / "vehicles.csv")
+    counts = read_table(run.folder / "counts.csv")
+    crossings = read_table(run.folder / "crossings.csv")
+    s = run.summary
+    b.used.append((f"traffic run ({kind})", str(run.folder)))
+    parts: list[Part] = [_run_summary(run, s)]
+    lanes, lines = _layout(run.folder, b.crs)
+    if points is not None and len(points):
+        sp = points["speed_kmh"].to_numpy(float)
+        sp = sp[np.isfinite(sp)]
+        speed_range = (0.0, max(float(np.percentile(sp, 98)) if sp.size else 1.0, 1.0))
+        xs = [points["x"].to_numpy(float)] + [np.asarray(g.coords)[:, 0] for _, g in lines]
+        ys = [points["y"].to_numpy(float)] + [np.asarray(g.coords)[:, 1] for _, g in lines]
+        bg = b.background(xs, ys, f"trajectories, {name}")
+        parts.append((figure(F.trajectories_map(points, b.axes, background=bg, lanes=lanes, lines=lines,
+                                                speed_range=speed_range),
+                             f"World trajectories (smoothed footprint centres) coloured by speed (km/h), with the "
+                             f"lanes and counting lines used. Axes in {b.axes.unit} from the local origin.", b.dpi),))
+        parts.append((figure(F.time_space_diagram(points, metres_per_unit=b.m_per_unit, speed_range=speed_range),
+                             "Time-space diagram: distance along the road (m, measured on a reference line through "
+                             "the middle of all trajectories) against time (s), coloured by speed (km/h), one panel "
+                             "per direction of travel.", b.dpi),))
+    else:
+        b.skip(f"trajectories map and time-space diagram ({name})", "no trajectory points (trajectories.csv missing "
+               "or empty)")
+    if not lanes:
+        b.skip(f"lanes ({name})", "the run has no lanes: pass --lanes to analyze/process for per-lane results")
+    if vehicles is not None and len(vehicles) and _speed_columns(vehicles)[0] in vehicles.columns:
+        parts.append((figure(F.speed_histograms(vehicles, column=_speed_columns(vehicles)[0]),
+                             "Distribution of the vehicles' speeds (distance travelled along the direction of travel "
+                             "over the time seen, km/h) per main lane; dashed: median.", b.dpi),))
+        parts.append((Heading("Vehicles"), *_vehicle_tables(vehicles)))
+    else:
+        b.skip(f"speed histograms and vehicle tables ({name})", "no vehicles (vehicles.csv missing or empty)")
+    if counts is not None and len(counts):
+        parts.append((figure(F.counts_over_time(counts), "Vehicles counted per interval at each counting line, per "
+                             "lane and direction (+1: crossing from left to right looking along the line).", b.dpi),))
+    else:
+        b.skip(f"counts per lane over time ({name})", "no counts (no counting lines, or nobody crossed them): pass "
+               "--lines to analyze/process")
+    if crossings is not None and len(crossings):
+        parts.append((Heading("Counts and speeds per line and lane"), _crossing_table(crossings, s)))
+    if counts is not None and len(counts):
+        parts.append(_counts_table(counts))
+    compare = read_table(run.folder / "compare_counts.csv") if run.compare else None
+    if compare is not None and len(compare):
+        parts.append(_comparison(b, run, compare))
+    elif run.compare_problem is not None:
+        b.skip(f"observed against simulated ({name})", run.compare_problem)
+    if run.process is not None:
+        parts.append((Heading("Video processing"), *_process_table(run.process)))
+    return Section(f"traffic-{k}", title, tuple(parts))
+
+
+def _comparison(b: ReportContext, run: TrafficRun, compare: pd.DataFrame) -> Part:
+    """The ``compare-sumo`` results of a run: GEH of the counts, the flows figure, and speeds per line and lane."""
+    doc = read_json(run.folder / "compare_summary.json") if (run.folder / "compare_summary.json").is_file() else {}
+    counts = doc.get("counts", {}) if isinstance(doc, dict) else {}
+    out: list[Block] = [Heading("Observed vs simulated (compare-sumo)")]
+    if counts:
+        out.append(Text(f'{counts.get("rows", len(compare))} counts (line, lane, direction, interval): '
+                        f'{num(100.0 * float(counts.get("share_geh_below_5", float("nan"))), 1)} % with GEH < 5 '
+                        f'(the usual acceptance target is 85 %); observed {counts.get("total_observed", "")} '
+                        f'vehicles, simulated {counts.get("total_simulated", "")}.'))
+    out.append(figure(F.observed_vs_simulated(compare), "Observed against simulated hourly flows per line, lane, "
+                      "direction and interval (veh/h); grey: where the GEH statistic is below 5.", b.dpi))
+    cols = [("line", "line"), ("lane", "lane"), ("direction", "direction"), ("interval_start", "from s"),
+            ("interval_end", "to s"), ("observed", "observed"), ("simulated", "simulated"), ("geh", "GEH")]
+    cols = [(c, label) for c, label in cols if c in compare.columns]
+    rows, classes = [], []
+    for d in compare.head(TABLE_ROWS).to_dict("records"):
+        rows.append([d[c] if c in ("line", "lane") else (f"{int(d[c]):+d}" if c == "direction" else
+                     (int(d[c]) if c in ("observed", "simulated") else (d[c], 2 if c == "geh" else 1)))
+                     for c, _ in cols])
+        classes.append("outlier" if float(d.get("geh", 0.0)) >= 5.0 else "")
+    out.append(table([label for _, label in cols], rows, row_classes=classes))
+    speeds = read_table(run.folder / "compare_speeds.csv")
+    if speeds is not None and len(speeds):
+        scols = [("line", "line"), ("lane", "lane"), ("observed_n", "observed n"),
+                 ("observed_mean_kmh", "observed mean km/h"), ("simulated_n", "simulated n"),
+                 ("simulated_mean_kmh", "simulated mean km/h"), ("mean_difference_kmh", "difference km/h"),
+                 ("ks_statistic", "KS distance"), ("ks_pvalue", "KS p")]
+        scols = [(c, label) for c, label in scols if c in speeds.columns]
+        srows = [[d[c] if c in ("line", "lane") else (int(d[c]) if c.endswith("_n") and np.isfinite(d[c]) else
+                  (d[c], 2)) for c, _ in scols] for d in speeds.head(TABLE_ROWS).to_dict("records")]
+        out += [Heading("Spot speeds at the lines, observed vs simulated", 4),
+                table([label for _, label in scols], srows)]
+    return tuple(out)
+
+
+def _run_summary(run: TrafficRun, s: dict[str, Any]) -> Part:
+    period = s.get("period_s") or [float("nan"), float("nan")]
+    dropped = ", ".join(f"{k} {v}" for k, v in (s.get("dropped_points") or {}).items()) or "none"
+    classes = ", ".join(f"{k or 'unknown'} {v}" for k, v in (s.get("classes") or {}).items()) or "-"
+    opts = s.get("options") or {}
+    rows = [["folder", str(run.folder), ""],
+            ["observed period", f"{num(period[0])} to {num(period[1])}", "s"],
+            ["vehicles", s.get("vehicles"), ""], ["classes", classes, ""],
+            ["track points / rejected as outliers", f"{s.get('points')} / {s.get('outlier_points')}", ""],
+            ["points not used, by reason", dropped, ""],
+            ["mean of the vehicles' speeds (distance travelled / time seen)", (s.get("mean_speed_kmh"), 1),
+             "km/h"],
+            ["lane changes", s.get("lane_changes"), ""]]
+    for key, label, unit in (("interval_s", "counting interval", "s"),
+                             ("pixel_sigma", "pixel noise of a track point", "px"),
+                             ("max_metres_per_px", "points farther than this many metres per pixel not used", "m")):
+        if key in opts:
+            rows.append([label, opts[key], unit])
+    warns = s.get("warnings") or []
+    return table(["quantity", "value", "unit"], rows), items([str(w) for w in warns], "warn")
+
+
+def _q(a: np.ndarray, q: float) -> float:
+    """The ``q``-th percentile of the finite values of ``a`` (NaN when there are none)."""
+    a = a[np.isfinite(a)]
+    return float(np.percentile(a, q)) if a.size else float("nan")
+
+
+def _speed_columns(v: pd.DataFrame) -> tuple[str, str]:
+    """The vehicles' speed column and its 1-sigma: ``speed_kmh``, or ``mean_speed_kmh`` in runs written before
+    ``speed_kmh`` existed."""
+    return ("speed_kmh", "speed_std_kmh") if "speed_kmh" in v.columns else ("mean_speed_kmh", "mean_speed_std_kmh")
+
+
+def _vehicle_tables(v: pd.DataFrame) -> list[Table]:
+    """Speeds, lengths, times seen and paths per class, and speeds and lane changes per main lane."""
+    def col(g: pd.DataFrame, c: str) -> np.ndarray:
+        return g[c].to_numpy(float) if c in g.columns else np.full(len(g), np.nan)
+
+    speed, speed_std = _speed_columns(v)
+    rows = []
+    for cls, g in v.groupby(v["class"].replace("", "unknown") if "class" in v.columns else pd.Series(
+            ["all"] * len(v), index=v.index), sort=True):
+        sp = col(g, speed)
+        rows.append([cls, len(g), (_q(sp, 50), 1), (float(np.nanmean(sp)) if np.isfinite(sp).any() else np.nan, 1),
+                     (_q(sp, 15), 1), (_q(sp, 85), 1), (_q(col(g, speed_std), 50), 2),
+                     (_q(col(g, "length_m"), 50), 2), (_q(col(g, "length_std_m"), 50), 2),
+                     (_q(col(g, "duration_s"), 50), 1), (_q(col(g, "path_length_m"), 50), 1)])
+    out = [table(["class", "vehicles", "median speed km/h", "mean speed km/h", "15th pct km/h", "85th pct km/h",
+                  "median speed 1-sigma km/h", "median length m", "median length 1-sigma m", "median time seen s",
+                  "median path m"], rows, caption="per class: each vehicle's speed is its distance travelled over the "
+                  "time seen")]
+    if "lane" in v.columns:
+        rows = []
+        for lane, g in v.groupby(v["lane"].replace("", "(none)"), sort=True):
+            sp = col(g, speed)
+            rows.append([lane, len(g), (_q(sp, 50), 1), (_q(sp, 15), 1), (_q(sp, 85), 1),
+                         (_q(col(g, speed_std), 50), 2),
+                         int(g["lane_changes"].sum()) if "lane_changes" in g.columns else "-"])
+        out.append(table(["main lane", "vehicles", "median speed km/h", "15th pct km/h", "85th pct km/h",
+                          "median speed 1-sigma km/h", "lane changes"], rows, caption="per main lane"))
+    return out
+
+
+def _crossing_table(c: pd.DataFrame, s: dict[str, Any]) -> Table:
+    """Per line, lane and direction over the whole observed period: count, flow, time- and space-mean speed and
+    mean headway (:func:`trafficgeo.traffic.lines.period_counts`), and the 85th percentile of the spot speeds."""
+    period = s.get("period_s") or [0.0, 0.0]
+    start, end = float(period[0]), float(period[1])
+    stats = period_counts(c if "class" in c.columns else c.assign(**{"class": ""}), start, end)
+    p85 = {key: _q(sp[np.isfinite(sp) & (sp > 0)], 85) for key, sp in (
+        (k, g["speed_kmh"].to_numpy(float)) for k, g in c.groupby(["line", "lane", "direction"], sort=True))}
+    rows = [[r["line"], r["lane"] or "-", f"{int(r['direction']):+d}", int(r["count"]), (r["flow_veh_h"], 0),
+             (r["time_mean_speed_kmh"], 1), (r["space_mean_speed_kmh"], 1),
+             (p85[(r["line"], r["lane"], r["direction"])], 1), (r["mean_headway_s"], 1)]
+            for r in stats.to_dict("records")]
+    return table(["line", "lane", "direction", "vehicles", "flow veh/h", "time-mean speed km/h",
+                  "space-mean speed km/h", "85th pct speed km/h", "mean headway s"], rows,
+                 caption=f"all crossings over the observed {max(end - start, 1e-9):.1f} s (spot speeds at the line)")
+
+
+def _counts_table(counts: pd.DataFrame) -> Part:
+    cols = [("line", "line"), ("lane", "lane"), ("direction", "direction"), ("interval_start", "from s"),
+            ("interval_end", "to s"), ("count", "vehicles"), ("flow_veh_h", "flow veh/h"),
+            ("time_mean_speed_kmh", "time-mean km/h"), ("space_mean_speed_kmh", "space-mean km/h"),
+            ("mean_headway_s", "mean headway s"), ("mean_gap_s", "mean gap s")]
+    cols = [(c, label) for c, label in cols if c in counts.columns]
+    rows = []
+    for d in counts.head(TABLE_ROWS).to_dict("records"):
+        rows.append([d[c] if c in ("line", "lane") else (f"{int(d[c]):+d}" if c == "direction" else
+                                                         (int(d[c]) if c == "count" else (d[c], 1)))
+                     for c, _ in cols])
+    out: list[Block] = [Heading("Counts per interval"), table([label for _, label in cols], rows)]
+    if len(counts) > TABLE_ROWS:
+        out.append(Text(f"first {TABLE_ROWS} of {len(counts)} rows; all are in counts.csv", "note"))
+    return tuple(out)
+
+
+def _process_table(p: dict[str, Any]) -> Part:
+    opts = p.get("options") or {}
+    rows = [["video", p.get("video", "-"), ""], ["detector", opts.get("detector", "-"), ""],
+            ["start / end", f"{opts.get('start_s', '-')} / {opts.get('end_s') or 'end'}", "s"],
+            ["every n-th frame", opts.get("every", "-"), ""], ["detections", p.get("detections", "-"), ""],
+            ["track boxes", p.get("track_rows", "-"), ""], ["processing time", (p.get("seconds"), 1), "s"]]
+    detector = p.get("detector")
+    tiling = detector.get("tiling") if isinstance(detector, dict) else None
+    warns: list[str] = []
+    if isinstance(tiling, dict):
+        tiles = tiling.get("tiles") or []
+        rows.append(["detector passes per frame (full frame + tiles over the far road)",
+                     tiling.get("passes_per_frame", len(tiles) + 1), ""])
+        rows.append(["size a car must reach in the detector's input", tiling.get("min_size_px", "-"), "px"])
+        warns = [str(w) for w in tiling.get("warnings") or []]
+    return table(["quantity", "value", "unit"], rows), items(warns, "warn")
