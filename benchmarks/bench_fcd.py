@@ -87,10 +87,11 @@ def read_ours(path: str) -> pd.DataFrame:
 
 
 def read_ours_expat(path: str) -> pd.DataFrame:
-    import trafficgeo.io.sumo as sumo_io
+    import trafficgeo.io.fcd_parse as fcd_parse
+    from trafficgeo.io.sumo import read_fcd
 
-    sumo_io._parse_fcd_fast = lambda body, where: None  # force the general path
-    return sumo_io.read_fcd(path)
+    fcd_parse._parse_fcd_fast = lambda *args: None  # force the general path
+    return read_fcd(path)
 
 
 def read_sumolib_nested(path: str) -> pd.DataFrame:
