@@ -10,7 +10,9 @@ import html
 import io
 import re
 import xml.parsers.expat
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 import pandas as pd
@@ -24,6 +26,7 @@ _STR_ATTRS = ("id", "type", "lane")
 _WS = np.frombuffer(b" \t\r\n", np.uint8)
 _ROOT = re.compile(rb"\A(?:\xef\xbb\xbf)?(?:\s+|<\?.*?\?>|<!--.*?-->|<!DOCTYPE[^>]*>)*<([\w:.-]+)", re.DOTALL)
 _ATTR_NAMES = re.compile(rb'([\w:.-]+)\s*=\s*"')
+_PIECE_BYTES = 8 << 20  # bytes per piece the vectorised parser works on
 
 
 def _root_element(head: bytes, p: Path, hint: str) -> re.Match[bytes]:
@@ -69,10 +72,12 @@ def _spans_table(arr: np.ndarray, starts: list[np.ndarray], ends: list[np.ndarra
     return table if len(table) == starts[0].size else None
 
 
-def _parse_fcd_fast(body: bytes, where: str) -> dict[str, object] | None:
-    """Vehicle attributes of an FCD body (from ``<fcd-export``) laid out as SUMO writes it: every vehicle with
-    the same attributes in the same order, no comments. Vectorised over the bytes; None if the layout differs."""
-    if b"<!--" in body or b"<![CDATA[" in body or not body[-4096:].rstrip().endswith(b"</fcd-export>"):
+def _parse_fcd_fast(body: bytes, where: str, last: bool = True) -> dict[str, object] | None:
+    """Vehicle attributes of a piece of an FCD body (from ``<fcd-export`` or a ``<timestep``; ``last``: up to the
+    file's end) laid out as SUMO writes it: every vehicle with the same attributes in the same order, no comments.
+    Vectorised over the bytes; None if the layout differs."""
+    if (b"<!--" in body or b"<![CDATA[" in body or b"<?" in body
+            or (last and not body[-4096:].rstrip().endswith(b"</fcd-export>"))):
         return None
     arr = np.frombuffer(body, np.uint8)
     lt, q = np.flatnonzero(arr == ord("<")), np.flatnonzero(arr == ord('"'))
@@ -107,13 +112,12 @@ def _parse_fcd_fast(body: bytes, where: str) -> dict[str, object] | None:
 
 def _parse_fcd_expat(p: Path) -> dict[str, object]:
     """Vehicle attributes of any well-formed FCD file (slower, general)."""
-    rows: list[dict[str, str]] = []
+    rows: list[tuple[str | None, ...]] = []  # (time, *_VEHICLE_ATTRS): only what the table needs is kept
     now: list[str | None] = [None]
 
     def start(name: str, attrs: dict[str, str]) -> None:
         if name == "vehicle":
-            attrs["time"] = now[0]  # type: ignore[assignment]
-            rows.append(attrs)
+            rows.append((now[0], *map(attrs.get, _VEHICLE_ATTRS)))
         elif name == "timestep":
             now[0] = attrs.get("time")
 
@@ -124,19 +128,51 @@ def _parse_fcd_expat(p: Path) -> dict[str, object]:
             parser.ParseFile(fh)
     except xml.parsers.expat.ExpatError as exc:
         raise InputError(f"{p}: broken XML ({exc}; a truncated file from an interrupted run?); {_FCD_HINT}") from None
-    wanted = set(_VEHICLE_ATTRS)
-    keys = {k for r in rows for k in r.keys() & wanted}
-    return {k: [r.get(k) for r in rows] for k in keys | {"time"}}
+    columns = [list(c) for c in zip(*rows, strict=True)] if rows else [[] for _ in range(len(_VEHICLE_ATTRS) + 1)]
+    cols: dict[str, object] = {"time": columns[0]}
+    cols.update((k, v) for k, v in zip(_VEHICLE_ATTRS, columns[1:], strict=True) if any(x is not None for x in v))
+    return cols
 
 
 def _fcd_columns(p: Path) -> dict[str, object]:
-    text = p.read_bytes()
-    root = _root_element(text[:1 << 20], p, _FCD_HINT)
-    if root.group(1) != b"fcd-export":
-        raise InputError(f"{p}: root element is <{root.group(1).decode(errors='replace')}>, not <fcd-export>; "
-                         f"{_FCD_HINT}")
-    cols = _parse_fcd_fast(text[root.start(1) - 1:], str(p))
+    """Vehicle attribute columns of an FCD file: the vectorised parser piece by piece, else expat."""
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 20)
+        root = _root_element(head, p, _FCD_HINT)
+        if root.group(1) != b"fcd-export":
+            raise InputError(f"{p}: root element is <{root.group(1).decode(errors='replace')}>, not <fcd-export>; "
+                             f"{_FCD_HINT}")
+        cols = _parse_fcd_pieces(_pieces(fh, head[root.start(1) - 1:]), str(p))
     return cols if cols is not None else _parse_fcd_expat(p)
+
+
+def _pieces(fh: BinaryIO, first: bytes) -> Iterator[tuple[bytes, bool]]:
+    """The FCD body from ``first`` on in pieces of about :data:`_PIECE_BYTES`, each cut right before a
+    ``<timestep`` (so a timestep and its vehicles stay together); True with the last piece."""
+    buf = bytearray(first)
+    while more := fh.read(_PIECE_BYTES):
+        buf += more
+        cut = buf.rfind(b"<timestep", 1)
+        if cut > 0:
+            yield bytes(buf[:cut]), False
+            del buf[:cut]
+    yield bytes(buf), True
+
+
+def _parse_fcd_pieces(pieces: Iterable[tuple[bytes, bool]], where: str) -> dict[str, object] | None:
+    """:func:`_parse_fcd_fast` over the pieces, joined; None as soon as one piece is not in SUMO's layout or has
+    other vehicle attributes than the others."""
+    parts: list[dict[str, object]] = []
+    for body, last in pieces:
+        cols = _parse_fcd_fast(body, where, last)
+        if cols is None or (parts and len(cols) > 1 and cols.keys() != parts[0].keys()):
+            return None
+        if len(cols) > 1:  # a piece without vehicles adds nothing
+            parts.append(cols)
+    if len(parts) <= 1:
+        return parts[0] if parts else {"time": np.empty(0)}
+    return {k: pd.concat([c[k] for c in parts], ignore_index=True) if k in _STR_ATTRS else
+            np.concatenate([c[k] for c in parts]) for k in parts[0]}
 
 
 def _parse_time(values: ArrayLike, where: str) -> np.ndarray:
