@@ -147,15 +147,21 @@ def _fcd_columns(p: Path) -> dict[str, object]:
 
 
 def _pieces(fh: BinaryIO, first: bytes) -> Iterator[tuple[bytes, bool]]:
-    """The FCD body from ``first`` on in pieces of about :data:`_PIECE_BYTES`, each cut right before a
-    ``<timestep`` (so a timestep and its vehicles stay together); True with the last piece."""
+    """The FCD body from ``first`` on in pieces of about :data:`_PIECE_BYTES` (longer only to hold a whole timestep),
+    each cut right before a ``<timestep`` (so a timestep and its vehicles stay together); True with the last."""
     buf = bytearray(first)
-    while more := fh.read(_PIECE_BYTES):
-        buf += more
-        cut = buf.rfind(b"<timestep", 1)
-        if cut > 0:
+    while True:
+        cut = buf.rfind(b"<timestep", 1, _PIECE_BYTES)
+        if cut <= 0:  # no timestep starts within a piece's length: cut after the first one, however long
+            cut = buf.find(b"<timestep", 1)
+        if cut > 0 and len(buf) >= _PIECE_BYTES:
             yield bytes(buf[:cut]), False
             del buf[:cut]
+            continue
+        more = fh.read(_PIECE_BYTES)
+        if not more:
+            break
+        buf += more
     yield bytes(buf), True
 
 
