@@ -1,6 +1,12 @@
 """Parsing SUMO FCD XML into raw vehicle attribute columns (bytes -> text/float columns, times in s).
 
-See :func:`trafficgeo.io.fcd_read.read_fcd` for the table built from them.
+SUMO writes every ``<vehicle>`` with the same attributes in the same order, so the values can be cut out of the
+bytes with numpy (positions of ``<`` and ``"``) and read by pandas' C CSV parser: :func:`_parse_fcd_fast`. The
+file is streamed in pieces of :data:`_PIECE_BYTES` cut before a ``<timestep`` (memory: the pieces' index arrays
+plus the columns), and a file in any other layout (comments, mixed attribute sets, ...) is read by expat instead
+(:func:`_parse_fcd_expat`, general but about five times slower and three times the memory). Figures, against
+sumolib and ElementTree: :mod:`trafficgeo.io.sumo` and ``benchmarks/bench_fcd.py``. See
+:func:`trafficgeo.io.fcd_read.read_fcd` for the table built from the columns.
 """
 
 from __future__ import annotations
