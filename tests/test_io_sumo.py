@@ -10,7 +10,7 @@ import pandas as pd
 import pyproj
 import pytest
 
-import trafficgeo.io.sumo as sumo_io
+import trafficgeo.io.fcd_parse as fcd_parse
 from trafficgeo.crs import projected_to_lonlat
 from trafficgeo.errors import InputError
 from trafficgeo.io.sumo import (
@@ -320,7 +320,7 @@ def test_sumo_files_take_the_fast_path(monkeypatch: pytest.MonkeyPatch, world: t
     def no_expat(p: Path) -> None:
         raise AssertionError(f"{p} went through the slow expat parser")
 
-    monkeypatch.setattr(sumo_io, "_parse_fcd_expat", no_expat)
+    monkeypatch.setattr(fcd_parse, "_parse_fcd_expat", no_expat)
     _, run = world
     assert len(read_fcd(run.fcd, net=run.net)) > 1000
     assert len(read_fcd(SAMPLE)) == 15

@@ -390,7 +390,7 @@ def test_length_in_a_us_feet_crs_is_the_metric_length():
 
 
 def test_box_derivatives_match_finite_differences():
-    from trafficgeo.traffic.boxes import _Cuboids
+    from trafficgeo.traffic.cuboids import _Cuboids
 
     cam, surf = world_camera(), crossfall_road()
     rng = np.random.default_rng(4)

@@ -41,6 +41,8 @@ from pathlib import Path
 import numpy as np
 import pyproj
 from numpy.typing import ArrayLike
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from trafficgeo.crs import (
@@ -671,23 +673,16 @@ def _unit(crs: pyproj.CRS | None) -> str:
 
 
 def _clusters(points: np.ndarray, tol: float) -> list[list[int]]:
-    """Single-linkage groups of points closer than ``tol`` (union-find), sorted, in order of first row."""
-    parent = list(range(len(points)))
-
-    def find(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for i, j in cKDTree(points).query_pairs(tol):
-        ri, rj = find(i), find(j)
-        if ri != rj:
-            parent[max(ri, rj)] = min(ri, rj)
+    """Single-linkage groups of points closer than ``tol`` (connected components of the close pairs), each sorted,
+    in order of first row."""
+    n = len(points)
+    pairs = cKDTree(points).query_pairs(tol, output_type="ndarray").reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    labels = connected_components(graph, directed=False)[1]
     groups: dict[int, list[int]] = {}
-    for i in range(len(points)):
-        groups.setdefault(find(i), []).append(i)
-    return sorted(groups.values(), key=lambda g: g[0])
+    for i, label in enumerate(labels.tolist()):
+        groups.setdefault(label, []).append(i)
+    return list(groups.values())
 
 
 def _flatness(points: np.ndarray) -> float:

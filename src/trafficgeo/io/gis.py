@@ -289,6 +289,8 @@ def _write_parquet(target: Path, layers: list[Layer], crs: pyproj.CRS) -> None:
 
 # ----------------------------------------------------------------------------------------------------------------
 # GeoJSON (RFC 7946)
+# Written here, not by GDAL's GeoJSON driver: that gives every feature every layer's fields, drops the position of
+# a 3-D point with NaN z and rounds float attributes (0.1 + 0.2 -> 0.3); see tests/test_io_gis_geojson.py.
 
 
 def _to_lonlat(geoms: np.ndarray, crs: pyproj.CRS) -> np.ndarray:

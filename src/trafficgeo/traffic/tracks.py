@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.errors import InputError
+from trafficgeo.io.mot import read_mot
 
 CSV_HINT = ("give a CSV with columns frame,track_id and u,v (ground point, px) or x1,y1,x2,y2 (box, px), optionally "
             "class,score,time, or a MOT Challenge .txt")
@@ -63,23 +64,6 @@ def _numeric(df: pd.DataFrame, col: str, where: str) -> np.ndarray:
     return values.to_numpy(dtype=np.float64)
 
 
-def _read_mot(path: Path) -> pd.DataFrame:
-    try:
-        raw = pd.read_csv(path, header=None, skipinitialspace=True)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not a readable MOT file ({' '.join(str(exc).split())}); {CSV_HINT}") from None
-    if raw.shape[1] < 6:
-        raise InputError(f"{path}: a MOT line needs at least frame,id,left,top,width,height; found "
-                         f"{raw.shape[1]} columns; {CSV_HINT}")
-    df = pd.DataFrame({"frame": raw[0], "track_id": raw[1], "x1": raw[2], "y1": raw[3]})
-    w = pd.to_numeric(raw[4], errors="coerce")
-    h = pd.to_numeric(raw[5], errors="coerce")
-    df["x2"] = pd.to_numeric(df["x1"], errors="coerce") + w
-    df["y2"] = pd.to_numeric(df["y1"], errors="coerce") + h
-    df["score"] = raw[6] if raw.shape[1] > 6 else np.nan
-    return df
-
-
 MIN_FPS, MAX_FPS = 0.1, 1000.0  # frames per second a track file's frame numbers may be timed with
 
 
@@ -96,7 +80,7 @@ def read_tracks(path: str | Path, *, fps: float | None = None) -> ImageTracks:
                          "frames per second, e.g. 25")
     mot = p.suffix.lower() == ".txt"
     if mot:
-        df = _read_mot(p)
+        df = read_mot(p, CSV_HINT)
     else:
         try:
             df = pd.read_csv(p, skipinitialspace=True)
