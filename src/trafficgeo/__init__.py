@@ -1,7 +1,136 @@
-"""trafficgeo: georeferenced, lane-level traffic data from a fixed camera and common GIS data."""
+"""trafficgeo: georeferenced, lane-level traffic data from a fixed camera and common GIS data.
 
-from trafficgeo.errors import CalibrationError, InputError, TrafficgeoError
+The library is the product; the ``trafficgeo`` command is a thin skin over these functions (each takes objects or
+paths, returns plain dataclasses and tables, and raises :class:`InputError` naming the parameter or file at fault)::
+
+    import trafficgeo as tg
+
+    camera = tg.load_camera("camera.json")                      # or tg.calibrate(gcps, image_size).camera
+    surface = tg.load_surface("cloud.laz", "camera.json")        # a number, "plane", a DEM or a point cloud
+    run = tg.process_video("video.mp4", camera, surface, "run", lanes="lanes.gpkg", lines="lines.gpkg")
+    run.traffic.counts                                           # per line, lane, direction and interval
+    tg.RunFolder("run").vehicles()                               # read back, typed by one schema
+
+Names are imported on first use, so ``import trafficgeo`` stays light.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+from trafficgeo.errors import CalibrationError, InputError, OutputError, TrafficgeoError
 
 __version__ = "0.1.0"
 
-__all__ = ["CalibrationError", "InputError", "TrafficgeoError", "__version__"]
+# name -> module that defines it (the curated public API; one concept per module)
+_API: dict[str, str] = {
+    # camera and calibration
+    "Camera": "trafficgeo.camera.model",
+    "calibrate": "trafficgeo.calibration.pipeline",
+    "Calibration": "trafficgeo.calibration.pipeline",
+    "CalibrationOptions": "trafficgeo.calibration.pipeline",
+    "read_gcps": "trafficgeo.calibration.gcps",
+    "GCPTable": "trafficgeo.calibration.gcps",
+    # ground
+    "georeference": "trafficgeo.geo.mapping",
+    "GroundPoints": "trafficgeo.geo.mapping",
+    "ConstantSurface": "trafficgeo.geo.surface",
+    # inputs, from paths or objects
+    "load_camera": "trafficgeo.traffic.loading",
+    "load_surface": "trafficgeo.traffic.loading",
+    "load_lanes": "trafficgeo.traffic.loading",
+    "load_lines": "trafficgeo.traffic.loading",
+    "load_tracks": "trafficgeo.traffic.loading",
+    "Lanes": "trafficgeo.traffic.lanes",
+    "CountLine": "trafficgeo.traffic.lines",
+    "ImageTracks": "trafficgeo.traffic.tracks",
+    # traffic
+    "analyze_tracks": "trafficgeo.traffic.analyze",
+    "TrafficResult": "trafficgeo.traffic.analyze",
+    "TrajectoryOptions": "trafficgeo.traffic.trajectories",
+    "RunFolder": "trafficgeo.traffic.run_folder",
+    "SCHEMAS": "trafficgeo.traffic.run_folder",
+    "compare_with_sumo": "trafficgeo.traffic.validation",
+    "Comparison": "trafficgeo.traffic.validation",
+    "export_fcd": "trafficgeo.traffic.validation",
+    # video
+    "process_video": "trafficgeo.video.run",
+    "ProcessResult": "trafficgeo.video.run",
+    "ProcessOptions": "trafficgeo.video.pipeline",
+    "stitch": "trafficgeo.video.run",
+    "make_detector": "trafficgeo.video.detect",
+    "Detections": "trafficgeo.video.detections",
+}
+
+__all__ = [
+    "SCHEMAS",
+    "Calibration",
+    "CalibrationError",
+    "CalibrationOptions",
+    "Camera",
+    "Comparison",
+    "ConstantSurface",
+    "CountLine",
+    "Detections",
+    "GCPTable",
+    "GroundPoints",
+    "ImageTracks",
+    "InputError",
+    "Lanes",
+    "OutputError",
+    "ProcessOptions",
+    "ProcessResult",
+    "RunFolder",
+    "TrafficResult",
+    "TrafficgeoError",
+    "TrajectoryOptions",
+    "__version__",
+    "analyze_tracks",
+    "calibrate",
+    "compare_with_sumo",
+    "export_fcd",
+    "georeference",
+    "load_camera",
+    "load_lanes",
+    "load_lines",
+    "load_surface",
+    "load_tracks",
+    "make_detector",
+    "process_video",
+    "read_gcps",
+    "stitch",
+]
+
+
+def __getattr__(name: str) -> Any:
+    module = _API.get(name)
+    if module is None:
+        raise AttributeError(f"module 'trafficgeo' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # imported once
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_API))
+
+
+if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from __getattr__
+    from trafficgeo.calibration.gcps import GCPTable, read_gcps
+    from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, calibrate
+    from trafficgeo.camera.model import Camera
+    from trafficgeo.geo.mapping import GroundPoints, georeference
+    from trafficgeo.geo.surface import ConstantSurface
+    from trafficgeo.traffic.analyze import TrafficResult, analyze_tracks
+    from trafficgeo.traffic.lanes import Lanes
+    from trafficgeo.traffic.lines import CountLine
+    from trafficgeo.traffic.loading import load_camera, load_lanes, load_lines, load_surface, load_tracks
+    from trafficgeo.traffic.run_folder import SCHEMAS, RunFolder
+    from trafficgeo.traffic.tracks import ImageTracks
+    from trafficgeo.traffic.trajectories import TrajectoryOptions
+    from trafficgeo.traffic.validation import Comparison, compare_with_sumo, export_fcd
+    from trafficgeo.video.detect import make_detector
+    from trafficgeo.video.detections import Detections
+    from trafficgeo.video.pipeline import ProcessOptions
+    from trafficgeo.video.run import ProcessResult, process_video, stitch

@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 
 from trafficgeo.cli import app, console
-from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt, _camera, _surface
+from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt, _camera
 from trafficgeo.errors import InputError
 
 LanesOpt = Annotated[Path | None, typer.Option(help="lane polygons or boundary lines (GIS), or boundary lines drawn "
@@ -70,27 +70,29 @@ def analyze(
 
     from trafficgeo.cli.report import check_html_path
     from trafficgeo.report.traffic import print_analysis
-    from trafficgeo.traffic.analyze import analyze as run_analysis
-    from trafficgeo.traffic.analyze import write_analysis
+    from trafficgeo.traffic.analyze import analyze_tracks
     from trafficgeo.traffic.lines import check_interval
+    from trafficgeo.traffic.loading import load_surface
+    from trafficgeo.traffic.run_folder import RunFolder
     from trafficgeo.traffic.tracks import read_tracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
 
     _check_out_dir(out)
     check_html_path(report_html)
     check_interval(interval)
+    if not (resolution > 0 and resolution < float("inf")):
+        raise InputError(f"--resolution {resolution} must be a positive cell size in metres, e.g. 0.25")
     opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
                              max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
-    cam, doc = _camera(camera)
+    cam, _doc = _camera(camera)  # a bad camera file is named before the tracks are read
     image_tracks = read_tracks(tracks, fps=fps)
-    surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
-    lane_set, count_lines = _layout(cam, surf, lanes, lines)
+    surf = load_surface(surface, camera, surface_crs=surface_crs, resolution_m=resolution)
     console.print(f"surface: {surf.describe()}")
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task("tracks", total=len(image_tracks.track_ids))
-        analysis = run_analysis(cam, surf, image_tracks, lanes=lane_set, lines=count_lines, interval_s=interval,
-                                options=opts, progress=lambda i, n: progress.update(task, completed=i))
-    written = write_analysis(out, analysis, cam)
+        analysis = analyze_tracks(cam, surf, image_tracks, lanes, lines, interval_s=interval, options=opts,
+                                  progress=lambda i, n: progress.update(task, completed=i))
+    written = RunFolder(out).write_traffic(analysis, cam)
     print_analysis(analysis, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")
     if report_html is not None:
@@ -115,13 +117,7 @@ def compare_sumo(
     import math
 
     from trafficgeo.report.traffic import print_comparison
-    from trafficgeo.traffic.lines import read_count_lines
-    from trafficgeo.traffic.validation import (
-        compare_with_simulation,
-        read_observed_run,
-        simulated_points,
-        write_comparison,
-    )
+    from trafficgeo.traffic.validation import compare_with_sumo, read_observed_run, write_comparison
 
     out = out or observed
     _check_out_dir(out)
@@ -129,9 +125,7 @@ def compare_sumo(
         raise InputError(f"--time-offset {time_offset}: give the simulation's time minus the observed time as a "
                          "finite number of seconds, e.g. 0")
     run = read_observed_run(observed)
-    count_lines = read_count_lines(lines, crs=run.crs) if lines is not None else None
-    sim = simulated_points(fcd, run.crs, net=net, net_crs=net_crs, time_offset_s=time_offset)
-    comparison = compare_with_simulation(run, sim, lines=count_lines)
+    comparison = compare_with_sumo(run, fcd, net=net, net_crs=net_crs, lines=lines, time_offset_s=time_offset)
     written = write_comparison(out, comparison, run.crs)
     print_comparison(comparison, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")
@@ -146,28 +140,13 @@ def export_fcd(
     geo: Annotated[bool, typer.Option(help="write lon/lat (like sumo --fcd-output.geo)")] = False,
 ) -> None:
     """Export the observed trajectories as SUMO FCD (front bumpers, m/s) for replay and comparison in SUMO."""
-    import numpy as np
-    import pandas as pd
-
     from trafficgeo.io.run_manifest import check_writable_file
-    from trafficgeo.io.sumo import write_fcd
-    from trafficgeo.traffic.boxes import dimensions_for
-    from trafficgeo.traffic.validation import read_observed_run
+    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.traffic.validation import export_fcd as write_observed_fcd
 
     if output.suffix.lower() != ".xml":
         raise InputError(f"--output {output}: SUMO FCD is XML; name it .xml (e.g. observed.fcd.xml)")
     check_writable_file(output)
-    observed = read_observed_run(run)
-    path = run / "trajectories.csv"
-    if "trajectories.csv" not in observed.outputs:
-        raise InputError(f"{run}: no trajectories.csv; give the --out folder of 'trafficgeo analyze'")
-    pts = pd.read_csv(path, dtype={"track_id": str, "class": str, "lane": str}, keep_default_na=False,
-                      na_values=[""])
-    pts["class"] = pts["class"].fillna("")
-    half = 0.5 * dimensions_for(pts["class"].to_numpy())[:, 0]
-    if "length_m" in pts.columns:
-        half = np.where(np.isfinite(pts["length_m"]), 0.5 * pts["length_m"], half)
-    cols = ["track_id", "time", "x", "y", "z", "speed_kmh", "heading_deg", "class", "lane"]
-    write_fcd(output, pts[[c for c in cols if c in pts.columns]], crs=observed.crs, net=net, net_crs=net_crs,
-              geo=geo, front_offset_m=half)
-    console.print(f"{pts['track_id'].nunique()} vehicles, {len(pts)} points -> wrote {output}")
+    n = write_observed_fcd(run, output, net=net, net_crs=net_crs, geo=geo)
+    vehicles = RunFolder(run).table("trajectories.csv", required=("track_id",))["track_id"].nunique()
+    console.print(f"{vehicles} vehicles, {n} points -> wrote {output}")

@@ -150,3 +150,22 @@ def world_to_pixels(camera: Camera, xyz: object, surface: Surface | None = None,
             hidden = hits.ok & (hits.distance < dist - tol)
             status[check[hidden]] = "occluded"
     return ImagePoints(uv=uv, status=status, depth=depth)
+
+
+def georeference(camera: Camera, pixels: object, surface: Surface, *, height_m: float = 0.0,
+                 min_incidence_deg: float = DEFAULT_MIN_INCIDENCE_DEG) -> GroundPoints:
+    """Pixels (N, 2) ``u, v`` (pixel-centre convention, :mod:`trafficgeo.camera.model`) to the ground: where each
+    pixel's ray first meets ``surface`` lifted by ``height_m`` metres (e.g. a car roof), in the camera's CRS, with a
+    status for pixels that cannot be mapped (above the horizon, outside the image, grazing rays, off the data).
+
+    >>> import numpy as np, trafficgeo as tg
+    >>> cam = tg.Camera.from_orientation((1920, 1080), 1400.0, [0.0, 0.0, 10.0], 0.0, 20.0)
+    >>> ground = tg.georeference(cam, [[959.5, 800.0], [959.5, 0.0]], tg.ConstantSurface(0.0))
+    >>> ground.status.tolist(), np.round(ground.xyz[0], 2).tolist()
+    (['ok', 'above_horizon'], [0.0, 16.95, 0.0])
+    """
+    crs = camera_crs(camera)
+    from trafficgeo.crs import metres_per_unit
+
+    lift = float(height_m) / (metres_per_unit(crs) if crs is not None else 1.0)
+    return pixels_to_world(camera, pixels, surface, height=lift, min_incidence_deg=min_incidence_deg)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from rich.console import Console
 from rich.table import Table
 
-from trafficgeo.traffic.analyze import Analysis, summary
+from trafficgeo.traffic.analyze import TrafficResult, summary
 from trafficgeo.traffic.validation import Comparison
 
 
@@ -13,7 +13,7 @@ def _kmh(value: float) -> str:
     return "-" if value != value else f"{value:.1f}"
 
 
-def print_analysis(analysis: Analysis, console: Console) -> None:
+def print_analysis(analysis: TrafficResult, console: Console) -> None:
     """Totals and per-line counts of an ``analyze`` run."""
     s = summary(analysis)
     t0, t1 = s["period_s"]

@@ -17,6 +17,7 @@ Outputs of :func:`write_analysis` (all written atomically):
 
 from __future__ import annotations
 
+import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -39,8 +40,10 @@ OUTPUT_FILES = ("vehicles.csv", "counts.csv", "crossings.csv", "trajectories.csv
 
 
 @dataclass(frozen=True)
-class Analysis:
-    """Everything ``analyze`` computes; tables as described in the module docstring."""
+class TrafficResult:
+    """Everything ``analyze`` computes from one set of image tracks: the tables of
+    :mod:`trafficgeo.traffic.run_folder` (``points`` is ``trajectories.csv``), the ``period`` (s) the tracks span,
+    the points dropped per reason, the lanes and lines used, the options and the warnings."""
 
     points: pd.DataFrame
     vehicles: pd.DataFrame
@@ -52,6 +55,9 @@ class Analysis:
     lines: list[CountLine] = field(default_factory=list)
     options: dict[str, object] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+
+
+Analysis = TrafficResult  # the former name
 
 
 def add_lanes(world: WorldTracks, lanes: Lanes, *, min_dwell_s: float = 1.0) -> None:
@@ -142,7 +148,7 @@ def line_warnings(camera: Camera, surface: Surface, lines: list[CountLine], opti
 
 def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lanes | None = None,
             lines: list[CountLine] | None = None, interval_s: float = 60.0,
-            options: TrajectoryOptions | None = None, progress=None) -> Analysis:
+            options: TrajectoryOptions | None = None, progress=None) -> TrafficResult:
     """The whole analysis of one set of image tracks (see the module docstring)."""
     from trafficgeo.traffic.lines import interval_edges
     from trafficgeo.traffic.plausibility import check_camera_above_surface, lanes_warning
@@ -173,9 +179,39 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
     lane_problem = lanes_warning(camera, surface, lanes, world.points)
     if lane_problem is not None:
         warnings.append(lane_problem)
-    return Analysis(points=world.points, vehicles=world.vehicles, crossings=crossings, counts=counts,
+    return TrafficResult(points=world.points, vehicles=world.vehicles, crossings=crossings, counts=counts,
                     period=period, dropped=world.dropped, lanes=lanes, lines=list(lines or []),
                     options={**asdict(opts), "interval_s": interval_s}, warnings=warnings)
+
+
+def analyze_tracks(camera: Camera | str | os.PathLike, surface: Surface | float | str | os.PathLike,
+                   tracks: ImageTracks | pd.DataFrame | str | os.PathLike,
+                   lanes: Lanes | str | os.PathLike | None = None,
+                   lines: list[CountLine] | str | os.PathLike | None = None, *, interval_s: float = 60.0,
+                   options: TrajectoryOptions | None = None, fps: float | None = None, resolution_m: float = 0.25,
+                   progress=None) -> TrafficResult:
+    """Image tracks -> world trajectories, true speeds (km/h), lanes and counts at counting lines (``trafficgeo
+    analyze``). Each input is an object or a path (:mod:`trafficgeo.traffic.loading`): ``camera`` (camera JSON),
+    ``surface`` (number, ``"plane"``, DEM or point cloud gridded at ``resolution_m`` m), ``tracks`` (table, tracks
+    CSV or MOT file; ``fps`` when it has no time column), ``lanes`` and ``lines`` (GIS files or image CSVs). Counts
+    per ``interval_s`` seconds; ``options`` for the trajectory smoother. Nothing is written: see
+    :meth:`trafficgeo.traffic.run_folder.RunFolder.write_traffic`.
+
+    >>> import pandas as pd, trafficgeo as tg
+    >>> boxes = pd.read_csv(world / "truth_tracks.csv").dropna(subset=["x1"]).rename(columns={"vehicle": "track_id"})
+    >>> result = tg.analyze_tracks(world / "camera_truth.json", world / "cloud.laz",
+    ...                            boxes[["frame", "time", "track_id", "x1", "y1", "x2", "y2", "class"]],
+    ...                            lanes=world / "lanes.gpkg", lines=world / "count_lines.gpkg")
+    >>> len(result.vehicles) > 0, list(result.counts.columns[:3])
+    (True, ['line', 'lane', 'direction'])
+    """
+    from trafficgeo.traffic.loading import load_camera_document, load_layout, load_surface, load_tracks
+
+    cam, doc = load_camera_document(camera)
+    surf = load_surface(surface, camera if doc is not None else cam, resolution_m=resolution_m)
+    lane_set, count_lines = load_layout(cam, surf, lanes, lines)
+    return analyze(cam, surf, load_tracks(tracks, fps=fps), lanes=lane_set, lines=count_lines, interval_s=interval_s,
+                   options=options, progress=progress)
 
 
 # ------------------------------------------------------------------------------------------------ writing
@@ -191,7 +227,7 @@ def _paths_layer(points: pd.DataFrame, vehicles: pd.DataFrame):
     return Layer("paths", geoms, {c: vehicles[c].to_numpy() for c in vehicles.columns})
 
 
-def gis_layers(analysis: Analysis, crs: pyproj.CRS) -> list:
+def gis_layers(analysis: TrafficResult, crs: pyproj.CRS) -> list:
     """The GeoPackage layers: points, paths, and the lanes and counting lines used."""
     from trafficgeo.io.gis import Layer, points_layer
 
@@ -208,7 +244,7 @@ def gis_layers(analysis: Analysis, crs: pyproj.CRS) -> list:
     return layers
 
 
-def summary(analysis: Analysis) -> dict[str, object]:
+def summary(analysis: TrafficResult) -> dict[str, object]:
     """Totals for the terminal and ``summary.json``."""
     veh = analysis.vehicles
     per_line = analysis.crossings.groupby(["line", "lane", "direction"]).size() if len(analysis.crossings) else []
@@ -229,7 +265,8 @@ def summary(analysis: Analysis) -> dict[str, object]:
     }
 
 
-def write_analysis(out_dir: str | Path, analysis: Analysis, camera: Camera, *, publish: bool = True) -> list[Path]:
+def write_analysis(out_dir: str | Path, analysis: TrafficResult, camera: Camera, *, publish: bool = True
+                   ) -> list[Path]:
     """Write the outputs (module docstring) into ``out_dir``; returns the paths written.
 
     The folder's run manifest (:mod:`trafficgeo.io.run_manifest`) is removed first and, with ``publish``, written

@@ -12,7 +12,6 @@ Simulation time ``t`` is observed time ``t + time_offset_s``.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -52,28 +51,27 @@ class ObservedRun:
 
 
 def read_observed_run(folder: str | Path) -> ObservedRun:
-    """Read an ``analyze`` output folder."""
+    """Read an ``analyze``/``process`` output folder (:class:`~trafficgeo.traffic.run_folder.RunFolder`)."""
+    from trafficgeo.traffic.run_folder import RunFolder
+
     d = Path(folder)
     if not d.is_dir():
         raise InputError(f"{d}: not a folder; {RUN_HINT}")
     for name in ("summary.json", "counts.csv", "crossings.csv"):
         if not (d / name).is_file():
             raise InputError(f"{d}: no {name}; {RUN_HINT}")
+    run = RunFolder(d)
     manifest = verify_outputs(d, require=("summary.json", "counts.csv", "crossings.csv"))
+    summary = run.summary()
     try:
-        summary = json.loads((d / "summary.json").read_text())
         period = (float(summary["period_s"][0]), float(summary["period_s"][1]))
         interval = float(summary["options"]["interval_s"])
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError, IndexError):
+    except (KeyError, TypeError, ValueError, IndexError):
         raise InputError(f"{d / 'summary.json'}: not a summary written by 'trafficgeo analyze'; run it again") from None
     crs = pyproj.CRS.from_wkt(summary["crs"]) if summary.get("crs") else None
-    text = {"line": str, "lane": str, "track_id": str, "class": str}
-    counts = pd.read_csv(d / "counts.csv", dtype=text, keep_default_na=False, na_values=[""])
-    crossings = pd.read_csv(d / "crossings.csv", dtype=text, keep_default_na=False, na_values=[""])
-    for table in (counts, crossings):
-        for col in ("lane", "class"):
-            if col in table.columns:
-                table[col] = table[col].fillna("")
+    counts = run.table("counts.csv", required=("line", "lane", "direction", "interval_start", "interval_end",
+                                                "count"))
+    crossings = run.table("crossings.csv", required=("line", "track_id", "lane", "direction", "time"))
     lines, lanes = _layout_layers(d / "trajectories.gpkg") if manifest.has("trajectories.gpkg") else ([], None)
     return ObservedRun(d, crs, period, interval, counts, crossings, lines, lanes, frozenset(manifest.files))
 
@@ -167,3 +165,60 @@ def write_comparison(out_dir: str | Path, comparison: Comparison, crs: pyproj.CR
     written.append(out / "compare_summary.json")
     publish_outputs(out, written, command="compare-sumo", name=COMPARE_MANIFEST)
     return written
+
+
+def compare_with_sumo(run: ObservedRun | str | Path, fcd: str | Path, *, net: str | Path | None = None,
+                      net_crs: str | None = None, lines: list[CountLine] | str | Path | None = None,
+                      time_offset_s: float = 0.0, out_dir: str | Path | None = None) -> Comparison:
+    """Observed vs simulated traffic (``trafficgeo compare-sumo``): the run (a run folder, or an :class:`ObservedRun`)
+    against a SUMO FCD output ``fcd`` (network coordinates through ``net``, a ``.net.xml``; ``net_crs`` when its
+    PROJ string is not enough), at the run's counting lines or ``lines`` (objects or a GIS file): per-lane counts
+    (GEH), spot speeds (KS) and travel times. ``time_offset_s``: simulation time minus observed time (s). With
+    ``out_dir``, the comparison tables are written there too (:func:`write_comparison`).
+
+    >>> import trafficgeo as tg
+    >>> cmp = tg.compare_with_sumo(out / "run", world / "sumo" / "fcd.xml", net=world / "sumo" / "road.net.xml")
+    >>> cmp.count_summary["rows"] > 0, 0.0 <= cmp.count_summary["share_geh_below_5"] <= 1.0
+    (True, True)
+    """
+    import math
+
+    from trafficgeo.traffic.lines import read_count_lines
+
+    if not math.isfinite(time_offset_s):
+        raise InputError(f"time_offset_s {time_offset_s}: give the simulation's time minus the observed time as a "
+                         "finite number of seconds, e.g. 0")
+    observed = run if isinstance(run, ObservedRun) else read_observed_run(run)
+    if isinstance(lines, str | Path):
+        lines = read_count_lines(Path(lines), crs=observed.crs)
+    sim = simulated_points(fcd, observed.crs, net=net, net_crs=net_crs, time_offset_s=time_offset_s)
+    comparison = compare_with_simulation(observed, sim, lines=lines)
+    if out_dir is not None:
+        write_comparison(out_dir, comparison, observed.crs)
+    return comparison
+
+
+def export_fcd(run: str | Path, output: str | Path, *, net: str | Path | None = None, net_crs: str | None = None,
+               geo: bool = False) -> int:
+    """Write a run's observed trajectories as SUMO FCD (``trafficgeo export-fcd``): front bumpers, m/s, in the
+    run's CRS, or in the coordinates of the SUMO network ``net`` (``net_crs`` when its PROJ string is not enough),
+    or lon/lat with ``geo`` (like ``sumo --fcd-output.geo``). Returns the number of points written."""
+    from trafficgeo.io.run_manifest import check_writable_file
+    from trafficgeo.io.sumo import write_fcd
+    from trafficgeo.traffic.boxes import dimensions_for
+    from trafficgeo.traffic.run_folder import RunFolder
+
+    if Path(output).suffix.lower() != ".xml":
+        raise InputError(f"output {output}: SUMO FCD is XML; name it .xml (e.g. observed.fcd.xml)")
+    check_writable_file(output, "output")
+    observed = read_observed_run(run)
+    if "trajectories.csv" not in observed.outputs:
+        raise InputError(f"{run}: no trajectories.csv; {RUN_HINT}")
+    pts = RunFolder(run).table("trajectories.csv", required=("track_id", "time", "x", "y"))
+    half = 0.5 * dimensions_for(pts["class"].to_numpy() if "class" in pts else np.full(len(pts), ""))[:, 0]
+    if "length_m" in pts.columns:
+        half = np.where(np.isfinite(pts["length_m"]), 0.5 * pts["length_m"], half)
+    cols = ["track_id", "time", "x", "y", "z", "speed_kmh", "heading_deg", "class", "lane"]
+    write_fcd(output, pts[[c for c in cols if c in pts.columns]], crs=observed.crs, net=net, net_crs=net_crs,
+              geo=geo, front_offset_m=half)
+    return len(pts)

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from trafficgeo.traffic.lanes import Lanes
 
 BUILTIN = "nanodet"
+MIN_SIZE_PX = 32.0  # the size (px, shorter side) tiles bring a car to in NanoDet's input: recall >= 0.96 above 32 px
 
 
 class SizeClasses:
@@ -61,7 +62,7 @@ def make_learned_detector(*, camera: Camera | None = None, surface: Surface | No
     area = road if road is not None else roi
     plan = None
     if tiles and camera is not None and surface is not None and area is not None:
-        plan = plan_bands(camera, surface, area, input_size=model.input_size_px)
+        plan = plan_bands(camera, surface, area, input_size=model.input_size_px, min_size_px=MIN_SIZE_PX)
     tiled = plan is not None and len(plan.tiles) > 0
     base: Detector = OnnxDetector(path, format=model.layout, conf=conf, iou=iou, roi=None if tiled else roi,
                                   threads=threads)

@@ -1,0 +1,312 @@
+"""A run's output folder, and the one schema of every table trafficgeo writes into it.
+
+``analyze``, ``process`` and ``stitch`` write a run folder; ``compare-sumo``, ``export-fcd``, ``stitch`` (its chunks),
+the HTML report and the demo read one. All of them go through :class:`RunFolder`, and every table's columns, dtypes
+and units are defined once here (:data:`SCHEMAS`):
+
+============================  =========================================================================
+``vehicles.csv``              one row per vehicle (track): class, times, speed, length, lane (:data:`VEHICLES`)
+``crossings.csv``             one row per counting-line crossing (:data:`CROSSINGS`)
+``counts.csv``                per line x lane x direction x interval: counts, flow, speeds, headways (:data:`COUNTS`)
+``trajectories.csv``          one row per vehicle and frame, on the ground (:data:`TRAJECTORIES`)
+``trajectories.gpkg/.parquet``the same as GIS layers (paths, points, lanes, count lines) when the camera has a CRS
+``summary.json``              totals, the options used and the CRS (WKT)
+``detections.csv``            ``process``: every detection box (:data:`DETECTIONS`)
+``tracks.csv``                ``process``/``stitch``: the tracker's boxes (:data:`TRACKS`)
+``process.json``              ``process``: the video, options, what was read, the detector's tile plan
+``run.json``                  the manifest (:mod:`trafficgeo.io.run_manifest`): written last, checked by readers
+============================  =========================================================================
+
+Units: times in seconds of video (``time``, ``first_time``... from the video's start), speeds in km/h, lengths and
+distances in metres, ``x, y, z`` in the camera's CRS and its units (``"crs"`` below), pixel boxes in full-frame px
+(pixel-centre convention, :mod:`trafficgeo.video.detections`), headings in degrees clockwise from grid north. Text
+columns read back as ``""`` where empty (an unknown class, no lane), never NaN.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import pandas as pd
+
+from trafficgeo.errors import InputError
+from trafficgeo.io.run_manifest import RunManifest, verify_outputs
+
+if TYPE_CHECKING:
+    from trafficgeo.camera.model import Camera
+    from trafficgeo.traffic.analyze import TrafficResult
+
+__all__ = ["COUNTS", "CROSSINGS", "DETECTIONS", "SCHEMAS", "TRACKS", "TRAJECTORIES", "VEHICLES", "Column",
+           "RunFolder", "TableSchema"]
+
+
+@dataclass(frozen=True)
+class Column:
+    """One column: ``dtype`` one of ``"str"``, ``"int"``, ``"float"``, ``"bool"``; ``unit`` as in the module
+    docstring (``""`` for none)."""
+
+    name: str
+    dtype: str
+    unit: str = ""
+    description: str = ""
+
+
+_PANDAS = {"str": str, "int": "Int64", "float": "float64", "bool": "boolean"}
+
+
+@dataclass(frozen=True)
+class TableSchema:
+    """The columns of one output table, in order; ``families`` are column name prefixes with a shared meaning
+    (``count_`` + a class name)."""
+
+    file: str
+    columns: tuple[Column, ...]
+    families: tuple[Column, ...] = ()
+    what: str = ""
+
+    @property
+    def names(self) -> list[str]:
+        return [c.name for c in self.columns]
+
+    def column(self, name: str) -> Column:
+        """The column called ``name`` (a family member such as ``count_car`` included); KeyError if none."""
+        for c in self.columns:
+            if c.name == name:
+                return c
+        for f in self.families:
+            if name.startswith(f.name):
+                return Column(name, f.dtype, f.unit, f"{f.description} ({name[len(f.name):]})")
+        raise KeyError(f"{self.file} has no column {name!r}")
+
+    def check(self, table: pd.DataFrame) -> None:
+        """InputError unless ``table`` has every column of the schema and only schema columns."""
+        missing = [n for n in self.names if n not in table.columns]
+        extra = [n for n in table.columns if not self._known(n)]
+        if missing or extra:
+            raise InputError(f"{self.file}: columns {missing} missing and {extra} unknown; the table does not follow "
+                             f"the {self.file} schema of trafficgeo.traffic.run_folder")
+
+    def _known(self, name: str) -> bool:
+        try:
+            self.column(name)
+        except KeyError:
+            return False
+        return True
+
+    def read(self, path: Path, *, required: Iterable[str] | None = None) -> pd.DataFrame:
+        """The table at ``path`` with the schema's dtypes (text columns ``""`` where empty); ``required``: the
+        columns that must be there (default: all of the schema's)."""
+        try:
+            head = pd.read_csv(path, nrows=0)
+        except (OSError, UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+            raise InputError(f"{path}: not a readable {self.file} ({type(exc).__name__}); run trafficgeo again to "
+                             "write it") from None
+        need = list(self.names if required is None else required)
+        missing = [n for n in need if n not in head.columns]
+        if missing:
+            raise InputError(f"{path}: no column {', '.join(missing)}; not a {self.file} written by trafficgeo")
+        text = {c: str for c in head.columns if self._known(c) and self.column(c).dtype == "str"}
+        table = pd.read_csv(path, dtype=text, keep_default_na=False, na_values=[""])
+        for c in text:
+            table[c] = table[c].fillna("")
+        for c in table.columns:
+            if not self._known(c) or c in text:
+                continue
+            kind = self.column(c).dtype
+            if kind == "bool" and table[c].dtype == object:
+                table[c] = table[c].map({"True": True, "False": False, "true": True, "false": False})
+            elif kind == "int" and table[c].isna().any():
+                table[c] = table[c].astype("Int64")
+        return table
+
+
+S, KMH, M, CRS_UNITS, PX, DEG = "s", "km/h", "m", "crs", "px", "deg"
+
+VEHICLES = TableSchema("vehicles.csv", (
+    Column("track_id", "str", "", "vehicle id (the tracker's id; a split track gets a suffix)"),
+    Column("source_track", "str", "", "the tracker's id the vehicle came from"),
+    Column("class", "str", "", "vehicle class (car, van, truck, bus, motorcycle, bicycle; '' unknown)"),
+    Column("first_time", "float", S, "first time seen"),
+    Column("last_time", "float", S, "last time seen"),
+    Column("duration_s", "float", S, "time seen"),
+    Column("points", "int", "", "trajectory points used"),
+    Column("outliers", "int", "", "points rejected as outliers"),
+    Column("path_length_m", "float", M, "length of the smoothed path"),
+    Column("travel_m", "float", M, "distance between the first and last smoothed positions"),
+    Column("speed_kmh", "float", KMH, "path length / time seen"),
+    Column("speed_std_kmh", "float", KMH, "standard uncertainty of speed_kmh"),
+    Column("mean_speed_kmh", "float", KMH, "mean of the point speeds"),
+    Column("median_speed_kmh", "float", KMH, "median of the point speeds"),
+    Column("point_speed_std_kmh", "float", KMH, "standard deviation of the point speeds"),
+    Column("min_distance_m", "float", M, "nearest horizontal distance to the camera"),
+    Column("length_m", "float", M, "vehicle length measured from its boxes (NaN: not measurable)"),
+    Column("length_std_m", "float", M, "standard uncertainty of length_m"),
+    Column("lane", "str", "", "main lane ('' none)"),
+    Column("lanes", "str", "", "lanes in order of visit, '>'-separated"),
+    Column("lane_changes", "int", "", "lane changes"),
+), what="one row per vehicle")
+
+CROSSINGS = TableSchema("crossings.csv", (
+    Column("line", "str", "", "counting line name"),
+    Column("track_id", "str", "", "vehicle id (vehicles.csv)"),
+    Column("class", "str", "", "vehicle class"),
+    Column("lane", "str", "", "lane at the crossing ('' none)"),
+    Column("direction", "int", "", "+1 / -1: side of the line crossed to (left to right of the line's direction: +1)"),
+    Column("time", "float", S, "time of the crossing"),
+    Column("speed_kmh", "float", KMH, "speed at the crossing"),
+    Column("x", "float", CRS_UNITS, "crossing point x"),
+    Column("y", "float", CRS_UNITS, "crossing point y"),
+    Column("length_m", "float", M, "vehicle length"),
+    Column("hidden", "bool", "", "crossed while hidden behind a nearer vehicle (carried on)"),
+), what="one row per crossing of a counting line")
+
+COUNTS = TableSchema("counts.csv", (
+    Column("line", "str", "", "counting line name"),
+    Column("lane", "str", "", "lane ('' none)"),
+    Column("direction", "int", "", "+1 / -1, as in crossings.csv"),
+    Column("interval_start", "float", S, "interval start"),
+    Column("interval_end", "float", S, "interval end"),
+    Column("count", "int", "", "vehicles"),
+    Column("flow_veh_h", "float", "veh/h", "count / interval length"),
+    Column("time_mean_speed_kmh", "float", KMH, "mean speed at the line"),
+    Column("space_mean_speed_kmh", "float", KMH, "harmonic mean speed at the line"),
+    Column("mean_headway_s", "float", S, "mean time between successive vehicles"),
+    Column("min_headway_s", "float", S, "shortest time between successive vehicles"),
+    Column("mean_gap_s", "float", S, "mean time from a vehicle's rear to the next one's front"),
+), families=(Column("count_", "int", "", "vehicles of a class"),),
+    what="per line, lane, direction and interval")
+
+TRAJECTORIES = TableSchema("trajectories.csv", (
+    Column("track_id", "str", "", "vehicle id"),
+    Column("source_track", "str", "", "the tracker's id"),
+    Column("frame", "int", "", "video frame index"),
+    Column("time", "float", S, "time"),
+    Column("u", "float", PX, "image point used (bottom centre or the fitted footprint centre)"),
+    Column("v", "float", PX, "image point used"),
+    Column("x_obs", "float", CRS_UNITS, "ground point of the observation"),
+    Column("y_obs", "float", CRS_UNITS, "ground point of the observation"),
+    Column("x", "float", CRS_UNITS, "smoothed position"),
+    Column("y", "float", CRS_UNITS, "smoothed position"),
+    Column("speed_kmh", "float", KMH, "smoothed speed"),
+    Column("speed_std_kmh", "float", KMH, "standard uncertainty of speed_kmh"),
+    Column("heading_deg", "float", DEG, "direction of travel, clockwise from grid north"),
+    Column("accel_mps2", "float", "m/s^2", "acceleration along the path"),
+    Column("position_std_m", "float", M, "standard uncertainty of the position"),
+    Column("outlier", "bool", "", "observation rejected by the smoother"),
+    Column("distance_m", "float", M, "horizontal distance to the camera"),
+    Column("class", "str", "", "vehicle class"),
+    Column("z", "float", CRS_UNITS, "ground height"),
+    Column("lon", "float", DEG, "longitude (EPSG:4326; absent without a projected CRS)"),
+    Column("lat", "float", DEG, "latitude (EPSG:4326)"),
+    Column("lane", "str", "", "lane ('' none)"),
+    Column("length_m", "float", M, "vehicle length"),
+), what="one row per vehicle and frame")
+
+_BOX = (Column("frame", "int", "", "video frame index"), Column("time", "float", S, "frame time"),
+        Column("x1", "float", PX, "box left"), Column("y1", "float", PX, "box top"),
+        Column("x2", "float", PX, "box right"), Column("y2", "float", PX, "box bottom"))
+DETECTIONS = TableSchema("detections.csv", (
+    *_BOX, Column("score", "float", "", "detector score in [0, 1]"), Column("class", "str", "", "vehicle class"),
+), what="one row per detection box")
+TRACKS = TableSchema("tracks.csv", (
+    *_BOX[:2], Column("track_id", "str", "", "the tracker's id"), *_BOX[2:],
+    Column("score", "float", "", "detector score"), Column("class", "str", "", "vehicle class"),
+), what="one row per tracked box")
+
+SCHEMAS: dict[str, TableSchema] = {s.file: s for s in (VEHICLES, CROSSINGS, COUNTS, TRAJECTORIES, DETECTIONS,
+                                                      TRACKS)}
+RUN_HINT = "give the output folder of 'trafficgeo analyze' or 'trafficgeo process'"
+
+
+class RunFolder:
+    """The output folder ``path`` of a run: write a run's results into it, or read a finished run's tables (checked
+    against the run's manifest: a folder whose run did not finish, or whose files changed since, is refused)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._manifest: RunManifest | None = None
+
+    def __repr__(self) -> str:
+        return f"RunFolder({str(self.path)!r})"
+
+    # ------------------------------------------------------------------------------------------------ writing
+    def write_traffic(self, result: TrafficResult, camera: Camera, *, publish: bool = True) -> list[Path]:
+        """Write ``result`` (vehicles, crossings, counts, trajectories as CSV and GIS layers, summary.json); returns
+        the paths written. With ``publish=False`` the manifest is left for the caller, which adds files of its own
+        (``process``)."""
+        from trafficgeo.traffic.analyze import write_analysis
+
+        self._manifest = None
+        return write_analysis(self.path, result, camera, publish=publish)
+
+    def publish(self, files: Iterable[str | Path], *, command: str) -> None:
+        """Write the manifest listing ``files`` (names in the folder): the run is finished."""
+        from trafficgeo.io.run_manifest import publish_outputs
+
+        publish_outputs(self.path, files, command=command)
+        self._manifest = None
+
+    # ------------------------------------------------------------------------------------------------ reading
+    @property
+    def manifest(self) -> RunManifest:
+        """The run's manifest, checked (InputError for an unfinished or changed run)."""
+        if self._manifest is None:
+            if not self.path.is_dir():
+                raise InputError(f"{self.path}: not a folder; {RUN_HINT}")
+            self._manifest = verify_outputs(self.path)
+        return self._manifest
+
+    def has(self, name: str) -> bool:
+        """Whether the finished run has the output ``name``."""
+        return self.manifest.has(name)
+
+    def _require(self, name: str) -> Path:
+        if not self.has(name):
+            raise InputError(f"{self.path}: no {name}; {RUN_HINT}")
+        return self.path / name
+
+    def table(self, name: str, *, required: Iterable[str] | None = None) -> pd.DataFrame:
+        """Output table ``name`` (a key of :data:`SCHEMAS`) with the schema's dtypes."""
+        if name not in SCHEMAS:
+            raise InputError(f"{name}: not a table of a run folder; one of {', '.join(SCHEMAS)}")
+        return SCHEMAS[name].read(self._require(name), required=required)
+
+    def _json(self, name: str) -> dict[str, Any]:
+        p = self._require(name)
+        try:
+            doc = json.loads(p.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            raise InputError(f"{p}: not readable JSON; run trafficgeo again to write it") from None
+        if not isinstance(doc, dict):
+            raise InputError(f"{p}: not a {name} written by trafficgeo; run it again")
+        return doc
+
+    def summary(self) -> dict[str, Any]:
+        """``summary.json``: totals, options (``interval_s``, ...), ``period_s`` and ``crs`` (WKT or None)."""
+        return self._json("summary.json")
+
+    def process_info(self) -> dict[str, Any] | None:
+        """``process.json`` of a ``process`` run (None for an ``analyze`` run)."""
+        return self._json("process.json") if self.has("process.json") else None
+
+    def vehicles(self) -> pd.DataFrame:
+        return self.table("vehicles.csv")
+
+    def crossings(self) -> pd.DataFrame:
+        return self.table("crossings.csv")
+
+    def counts(self) -> pd.DataFrame:
+        return self.table("counts.csv")
+
+    def trajectories(self) -> pd.DataFrame:
+        return self.table("trajectories.csv", required=[c for c in TRAJECTORIES.names if c not in ("lon", "lat")])
+
+    def tracks(self) -> pd.DataFrame:
+        return self.table("tracks.csv")
+
+    def detections(self) -> pd.DataFrame:
+        return self.table("detections.csv")

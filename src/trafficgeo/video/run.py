@@ -1,0 +1,247 @@
+"""The video entry points of the Python API: :func:`process_video` (``trafficgeo process``: decode -> detect ->
+track -> analyze, streaming and resumable, into a run folder) and :func:`stitch` (``trafficgeo stitch``: the runs of
+time chunks of one video joined and analysed).
+
+Both write a :class:`~trafficgeo.traffic.run_folder.RunFolder` and return what they computed. Inputs are objects or
+paths (:mod:`trafficgeo.traffic.loading`). Times are seconds of video from its start.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from trafficgeo.camera.model import Camera
+from trafficgeo.errors import InputError
+from trafficgeo.geo.mapping import Surface
+from trafficgeo.traffic.analyze import TrafficResult, analyze
+from trafficgeo.traffic.lanes import Lanes
+from trafficgeo.traffic.lines import CountLine, check_interval
+from trafficgeo.traffic.loading import load_camera_document, load_layout, load_surface
+from trafficgeo.traffic.run_folder import RunFolder
+from trafficgeo.traffic.trajectories import TrajectoryOptions
+from trafficgeo.video.pipeline import ProcessOptions
+
+__all__ = ["ProcessResult", "process_video", "stitch"]
+
+PathLike = str | os.PathLike
+
+
+@dataclass(frozen=True)
+class ProcessResult:
+    """What :func:`process_video` did.
+
+    Attributes:
+        traffic: the analysis of the tracks (vehicles, crossings, counts, trajectories).
+        detections, tracks: the tables of ``detections.csv`` and ``tracks.csv``.
+        folder: the run folder written.
+        options: the options as run (``every`` and the tracker settled for the video).
+        read: what was decoded: ``start_s``, ``end_s`` (s, the end of the last frame used), ``frames``,
+            ``complete`` (False when the video ended before the asked end, e.g. a truncated file).
+        seconds: wall-clock time of detection and tracking (s).
+        warning: one line when less video was read than asked, else None.
+        tiling: the built-in learned detector's tile plan (``TilePlan.to_dict()``), or None.
+        files: the files written in the folder.
+    """
+
+    traffic: TrafficResult
+    detections: pd.DataFrame
+    tracks: pd.DataFrame
+    folder: RunFolder
+    options: ProcessOptions
+    read: dict[str, Any]
+    seconds: float
+    warning: str | None
+    tiling: dict[str, Any] | None
+    files: tuple[str, ...]
+
+    @property
+    def realtime_factor(self) -> float | None:
+        """Seconds of video processed per second of wall clock (None if nothing was read)."""
+        end, start = self.read.get("end_s"), self.read.get("start_s")
+        if end is None or start is None or not self.seconds > 0:
+            return None
+        return (end - start) / self.seconds
+
+
+def _what_was_read(video: Path, opts: ProcessOptions, read: dict, caught: list) -> tuple[dict, str | None]:
+    """What the frames seen (``read``: first/last frame time (s) and frames) and the reader's warnings (``caught``)
+    say about the time range read: ``process.json``'s ``read`` and a one-line warning when fewer seconds were decoded
+    than asked (or than the file says it holds), else None."""
+    from trafficgeo.video.reader import VideoReadWarning, video_info
+
+    for w in caught:  # other warnings are shown as usual
+        if not issubclass(w.category, VideoReadWarning):
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    info = video_info(video)
+    asked = opts.end_s if opts.end_s is not None else info.duration_s
+    said = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, VideoReadWarning)))
+    step = opts.every / info.fps if info.fps > 0 else 0.0
+    end = None if read["last"] is None else read["last"] + step  # the end of the last frame used
+    doc = {"start_s": read["first"], "end_s": end, "frames": read["frames"]}
+    short = end is not None and asked - end > 0.5 * step + 1e-6
+    if not (short or said):
+        return {**doc, "complete": True}, None
+    got = f"{read['first']:.2f}-{end:.2f} s ({read['frames']} frames)" if end is not None else "no frame"
+    why = said[-1] if said else f"the video is {info.duration_s:.2f} s long"  # the main pass: the last
+    return ({**doc, "complete": False},
+            f"warning: read {got} of the asked {opts.start_s:g}-{asked:.2f} s; {why}")
+
+
+def process_video(video: PathLike, camera: Camera | PathLike, surface: Surface | float | PathLike,
+                  out_dir: PathLike, lanes: Lanes | PathLike | None = None,
+                  lines: Sequence[CountLine] | PathLike | None = None, *, options: ProcessOptions | None = None,
+                  interval_s: float = 60.0, trajectory: TrajectoryOptions | None = None,
+                  roi: np.ndarray | PathLike | None = None, restart: bool = False, resolution_m: float = 0.25,
+                  surface_crs: str | None = None, annotate: PathLike | None = None,
+                  progress: Callable[[int, int, float], None] | None = None,
+                  notice: Callable[[str], None] | None = None,
+                  annotate_progress: Callable[[int, int], None] | None = None) -> ProcessResult:
+    """Detect, track and georeference the vehicles of ``video``, then count them (``trafficgeo process``), writing
+    the run folder ``out_dir`` (:mod:`trafficgeo.traffic.run_folder`). Resumes from the folder's checkpoint when run
+    again with the same inputs (``restart`` to start over).
+
+    ``camera``, ``surface``, ``lanes``, ``lines``: objects or paths (:mod:`trafficgeo.traffic.loading`; the surface
+    of a point cloud gridded at ``resolution_m`` m, ``surface_crs`` for a file without a CRS); ``options``: the
+    detector, time range, frame step and checkpoints (:class:`~trafficgeo.video.pipeline.ProcessOptions`); counts
+    per ``interval_s`` s; ``trajectory``: the smoother's options; ``roi``: a bool mask (H, W) or a mask image / CSV
+    polygon; ``annotate``: also write an annotated ``.mp4``. ``progress(frames_done, frames_total, time_s)`` per
+    frame, ``notice(line)`` for the tile plan and checkpoint news, ``annotate_progress(done, total)``.
+
+    >>> import trafficgeo as tg
+    >>> run = tg.process_video(world / "video.mp4", world / "camera_truth.json", world / "cloud.laz", out / "run",
+    ...                        lanes=world / "lanes.gpkg", lines=world / "count_lines.gpkg",
+    ...                        options=tg.ProcessOptions(end_s=4.0))
+    >>> run.read["complete"], sorted(run.folder.counts().columns)[:2]
+    (True, ['count', 'count_car'])
+    """
+    from trafficgeo.io.run_manifest import begin_outputs, check_writable_folder
+    from trafficgeo.video.checkpoint import hold_folder
+    from trafficgeo.video.pipeline import detect_and_track, finish_run, settled_options, write_run_info
+    from trafficgeo.video.reader import VideoReadWarning, video_info
+
+    out = Path(out_dir)
+    check_writable_folder(out, "out_dir")
+    check_interval(interval_s)
+    if annotate is not None and Path(annotate).suffix.lower() != ".mp4":
+        raise InputError(f"annotate {annotate}: write the annotated video as .mp4")
+    video = Path(video)
+    cam, doc = load_camera_document(camera)
+    surf = load_surface(surface, camera if doc is not None else cam, surface_crs=surface_crs,
+                        resolution_m=resolution_m)
+    lane_set, count_lines = load_layout(cam, surf, lanes, lines)
+    opts = settled_options(options or ProcessOptions(), video_info(video).fps)
+    mask = roi
+    if roi is not None and not isinstance(roi, np.ndarray):
+        from trafficgeo.video.roi import read_roi
+
+        mask = read_roi(Path(roi), cam.image_size)
+    folder = RunFolder(out)
+    with hold_folder(out):  # one run in a folder at a time
+        begin_outputs(out)  # from here until the end, readers refuse the folder
+        t0 = time.perf_counter()
+        read: dict = {"first": None, "last": None, "frames": 0}
+        detector_doc: dict = {}
+
+        def tick(done: int, total: int, t: float) -> None:
+            read.update(first=read["first"] if read["first"] is not None else t if done == 1 else opts.start_s,
+                        last=t, frames=done)
+            if progress is not None:
+                progress(done, total, t)
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", VideoReadWarning)
+            detections, tracks = detect_and_track(video, cam, surf, out, opts, roi=mask, restart=restart,
+                                                  lanes=lane_set, progress=tick, notice=notice,
+                                                  detector_info=detector_doc.update)
+        elapsed = time.perf_counter() - t0
+        read_doc, short = _what_was_read(video, opts, read, caught)
+        if not len(tracks):
+            raise InputError(f"{video}: no vehicle was tracked; check the ROI, the time range and the detector")
+        from trafficgeo.traffic.tracks import tracks_from_table
+
+        result = analyze(cam, surf, tracks_from_table(tracks), lanes=lane_set, lines=count_lines,
+                         interval_s=interval_s, options=trajectory)
+        written = folder.write_traffic(result, cam, publish=False)
+        if annotate is not None:
+            from trafficgeo.video.annotate import annotate_video
+
+            annotate_video(video, annotate, tracks, result.points, camera=cam, lines=count_lines, surface=surf,
+                           progress=annotate_progress)
+        write_run_info(out, video=str(video), camera=str(camera) if doc is not None else "", options=opts,
+                       seconds=elapsed, detections=len(detections), track_rows=len(tracks), read=read_doc,
+                       detector=detector_doc or None)
+        finish_run(out)
+        files = ("detections.csv", "tracks.csv", *(p.name for p in written), "process.json")
+        folder.publish(files, command="process")
+    return ProcessResult(result, detections, tracks, folder, opts, read_doc, elapsed, short,
+                         detector_doc.get("tiling"), files)
+
+
+def _chunk(folder: Path) -> tuple[pd.DataFrame, tuple[float, float], str | None]:
+    """A finished chunk run's tracks, its time range (s of video: start/end of its process.json, else its track
+    times) and video name."""
+    run = RunFolder(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a folder; give the output folders of finished 'trafficgeo process' runs")
+    table = run.tracks()
+    info = run.process_info() or {}
+    options = info.get("options") or {}
+    times = pd.to_numeric(table["time"], errors="coerce")
+    start, end = options.get("start_s"), options.get("end_s")
+    start = float(start) if isinstance(start, int | float) else float(times.min()) if times.notna().any() else 0.0
+    end = float(end) if isinstance(end, int | float) else float(times.max()) if times.notna().any() else start
+    video = Path(str(info["video"])).name if isinstance(info.get("video"), str) else None
+    return table, (start, end), video
+
+
+def stitch(chunks: Sequence[PathLike], camera: Camera | PathLike, surface: Surface | float | PathLike,
+           out_dir: PathLike, lanes: Lanes | PathLike | None = None,
+           lines: Sequence[CountLine] | PathLike | None = None, *, interval_s: float = 60.0,
+           resolution_m: float = 0.25, surface_crs: str | None = None,
+           notice: Callable[[str], None] | None = None) -> TrafficResult:
+    """Join the tracks of the runs of overlapping time chunks of one video (``process_video`` with ``start_s`` /
+    ``end_s``, e.g. on several machines; folders in any order) and analyse them into the run folder ``out_dir``
+    (``trafficgeo stitch``). ``notice(line)`` gets a warning per gap or unequal overlap between chunks."""
+    from trafficgeo.io.atomic import write_csv_atomic
+    from trafficgeo.io.run_manifest import check_writable_folder
+    from trafficgeo.video.stitch import plan_chunks, stitch_tracks
+
+    out = Path(out_dir)
+    check_writable_folder(out, "out_dir")
+    check_interval(interval_s)
+    seen: dict[Path, Path] = {}
+    for folder in map(Path, chunks):
+        key = folder.resolve()
+        if key in seen:
+            raise InputError(f"{folder}: given twice (as {seen[key]} too); give each chunk once")
+        if out.resolve() == key:
+            raise InputError(f"out_dir {out}: is one of the chunks; write the stitched run to a folder of its own")
+        seen[key] = folder
+    read = [_chunk(Path(folder)) for folder in chunks]
+    order, problems = plan_chunks([r[1] for r in read], [str(c) for c in chunks], [r[2] for r in read])
+    for text in problems:
+        if notice is not None:
+            notice(f"warning: {text}")
+    cam, doc = load_camera_document(camera)
+    surf = load_surface(surface, camera if doc is not None else cam, surface_crs=surface_crs,
+                        resolution_m=resolution_m)
+    lane_set, count_lines = load_layout(cam, surf, lanes, lines)
+    joined = stitch_tracks([read[k][0] for k in order])
+    joined["class"] = joined["class"].fillna("")
+    from trafficgeo.traffic.tracks import tracks_from_table
+
+    result = analyze(cam, surf, tracks_from_table(joined), lanes=lane_set, lines=count_lines, interval_s=interval_s)
+    folder = RunFolder(out)
+    written = folder.write_traffic(result, cam, publish=False)
+    write_csv_atomic(out / "tracks.csv", joined, float_format="%.3f")
+    folder.publish([*written, "tracks.csv"], command="stitch")
+    return result

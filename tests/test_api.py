@@ -1,0 +1,112 @@
+"""The Python API: the curated top-level namespace, the docstring example of every entry point run on a small
+generated world, the loaders taking paths or objects alike, and RunFolder reading back what the API wrote."""
+
+from __future__ import annotations
+
+import doctest
+import importlib
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import trafficgeo as tg
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from trafficgeo.synth.world import WorldOptions, build_world
+
+    folder = tmp_path_factory.mktemp("api_world")
+    build_world(folder, WorldOptions(seed=3, duration_s=8.0, image_size=(640, 360), count_stations=(20.0,),
+                                     veh_per_hour_per_lane=900.0))
+    return folder
+
+
+def test_namespace_is_curated_lazy_and_complete() -> None:
+    code = "import sys, trafficgeo as tg; print(sorted(m for m in sys.modules if m.startswith('trafficgeo.')))"
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert eval(loaded) == ["trafficgeo.errors"]  # nothing heavy on import
+    assert set(tg.__all__) == set(tg._API) | {"CalibrationError", "InputError", "OutputError", "TrafficgeoError",
+                                              "__version__"}
+    for name, module in tg._API.items():
+        assert getattr(tg, name) is getattr(importlib.import_module(module), name), name
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        tg.nope  # noqa: B018
+    for name in ("georeference", "analyze_tracks", "process_video", "compare_with_sumo", "stitch", "export_fcd",
+                 "load_camera", "load_surface", "RunFolder"):
+        assert getattr(tg, name).__doc__, name
+
+
+def _run_examples(func: object, globs: dict) -> None:
+    tests = doctest.DocTestFinder(recurse=False).find(func, globs=globs)
+    assert tests and tests[0].examples, f"{func.__name__} has no example"
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    for t in tests:
+        runner.run(t)
+    assert runner.failures == 0, f"the example of {func.__name__} failed (see the output above)"
+
+
+def test_every_entry_point_example_runs(world: Path, tmp_path: Path) -> None:
+    globs = {"world": world, "out": tmp_path}
+    for func in (tg.georeference, tg.analyze_tracks, tg.process_video, tg.compare_with_sumo):  # in this order
+        _run_examples(func, dict(globs))
+
+
+def test_loaders_take_paths_or_objects_and_give_the_same_analysis(world: Path) -> None:
+    cam = tg.load_camera(world / "camera_truth.json")
+    assert tg.load_camera(cam) is cam
+    surf = tg.load_surface(world / "cloud.laz", world / "camera_truth.json")
+    assert tg.load_surface(surf, cam) is surf
+    flat = tg.load_surface(90.0, cam)
+    assert float(flat.elevation(np.array([0.0]), np.array([0.0]))[0]) == 90.0
+    lanes = tg.load_lanes(world / "lanes.gpkg", cam, surf)
+    lines = tg.load_lines(world / "count_lines.gpkg", cam, surf)
+    assert tg.load_lanes(lanes, cam) is lanes and tg.load_lines(lines, cam) == lines
+    boxes = pd.read_csv(world / "truth_tracks.csv").dropna(subset=["x1"]).rename(columns={"vehicle": "track_id"})
+    table = boxes[["frame", "time", "track_id", "x1", "y1", "x2", "y2", "class"]]
+    by_path = tg.analyze_tracks(world / "camera_truth.json", world / "cloud.laz", table,
+                                lanes=world / "lanes.gpkg", lines=world / "count_lines.gpkg")
+    by_object = tg.analyze_tracks(cam, surf, tg.load_tracks(table), lanes=lanes, lines=lines)
+    pd.testing.assert_frame_equal(by_path.counts, by_object.counts)
+    pd.testing.assert_frame_equal(by_path.vehicles, by_object.vehicles)
+    # truth: every true vehicle that crossed the line in the period is counted (ideal boxes)
+    truth = pd.read_csv(world / "truth_counts.csv")
+    assert int(by_path.counts["count"].sum()) == pytest.approx(len(truth), abs=1)
+    with pytest.raises(tg.InputError, match="surface 'plane'"):
+        tg.load_surface("plane", cam)  # the GCP plane needs the camera JSON
+    with pytest.raises(tg.InputError, match="tracks: list"):
+        tg.load_tracks([1, 2])
+
+
+def test_run_folder_reads_back_what_was_written_with_the_schema(world: Path, tmp_path: Path) -> None:
+    boxes = pd.read_csv(world / "truth_tracks.csv").dropna(subset=["x1"]).rename(columns={"vehicle": "track_id"})
+    result = tg.analyze_tracks(world / "camera_truth.json", world / "cloud.laz",
+                               boxes[["frame", "time", "track_id", "x1", "y1", "x2", "y2", "class"]],
+                               lanes=world / "lanes.gpkg", lines=world / "count_lines.gpkg")
+    run = tg.RunFolder(tmp_path / "run")
+    run.write_traffic(result, tg.load_camera(world / "camera_truth.json"))
+    for name, table in (("vehicles.csv", result.vehicles), ("crossings.csv", result.crossings),
+                        ("counts.csv", result.counts), ("trajectories.csv", result.points)):
+        schema = tg.SCHEMAS[name]
+        schema.check(table)  # what analyze computes follows the schema: no column missing or unknown
+        back = run.table(name)
+        assert list(back.columns) == list(table.columns)
+        for col in back.columns:
+            kind = schema.column(col).dtype
+            if kind == "str":
+                assert back[col].tolist() == table[col].fillna("").astype(str).tolist(), col
+            elif kind == "float":
+                np.testing.assert_allclose(back[col].to_numpy(float), table[col].to_numpy(float), rtol=1e-3,
+                                           atol=1e-3 if col not in ("lon", "lat") else 1e-8, err_msg=col)
+            else:
+                assert back[col].tolist() == table[col].tolist(), col
+    assert run.summary()["vehicles"] == len(result.vehicles) and run.process_info() is None
+    (tmp_path / "run" / "counts.csv").write_text("changed")
+    with pytest.raises(tg.InputError, match="counts.csv"):
+        tg.RunFolder(tmp_path / "run").counts()  # the manifest catches a changed output
+    with pytest.raises(tg.InputError, match="not a table"):
+        run.table("nope.csv")
