@@ -323,7 +323,7 @@ def build_report(cal: Calibration) -> dict[str, Any]:
         "format": REPORT_FORMAT,
         "summary": summary,
         "image_size": list(cam.image_size),
-        "crs": cam.crs,
+        "crs": cam.crs_text,
         "metres_per_crs_unit": m,
         "camera": {
             "focal_px": f, "fx": float(cam.K[0, 0]), "fy": float(cam.K[1, 1]),

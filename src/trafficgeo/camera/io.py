@@ -8,7 +8,7 @@ Keys (units in brackets)::
     dist          [k1, k2, p1, p2, k3]        OpenCV order, normalized-coordinate model
     R             3x3 world->camera rotation  OpenCV camera axes (x right, y down, z forward)
     position      camera centre [X, Y, Z]     [CRS units]; a point projects as Xc = R (Xw - position)
-    crs           "EPSG:...", WKT or null
+    crs           "EPSG:...", WKT or null: the text the camera was given (see Camera.crs_text)
     orientation   {heading_deg, tilt_deg, roll_deg}   (informative; R is authoritative)
     rvec, tvec    OpenCV Rodrigues rvec [rad] and tvec [CRS units] mapping absolute world to camera
     ...           any further keys (calibration's gcps, stats, model) are kept as they are
@@ -41,7 +41,7 @@ def camera_to_dict(camera: Camera) -> dict[str, Any]:
         "dist": camera.dist.tolist(),
         "R": camera.R.tolist(),
         "position": camera.position.tolist(),
-        "crs": camera.crs,
+        "crs": camera.crs_text,
         "orientation": camera.orientation.to_dict(),
         "rvec": rvec.tolist(),
         "tvec": tvec.tolist(),
@@ -97,8 +97,8 @@ def read_camera_document(path: str | Path) -> tuple[Camera, dict[str, Any]]:
         raise InputError(f"{where}: 'crs' must be a string such as \"EPSG:2949\" or null")
     try:
         cam = Camera(image_size=(int(size[0]), int(size[1])), K=K, dist=dist, R=R, position=position, crs=crs)
-    except ValueError as exc:
-        raise InputError(f"{where}: {exc}") from None
+    except ValueError as exc:  # InputError (an unknown CRS) is a ValueError too
+        raise InputError(f"{where}: 'crs': {exc}" if isinstance(exc, InputError) else f"{where}: {exc}") from None
     return cam, doc
 
 

@@ -10,17 +10,64 @@ A world point ``Xw`` (CRS units, X east, Y north, Z up) projects to the pixel ``
 Pixel ``(0, 0)`` is the centre of the top-left pixel (OpenCV's convention), so the image centre of a ``W x H``
 frame is ``((W - 1) / 2, (H - 1) / 2)``. ``position`` is subtracted before anything else, so coordinates of 5e6 m
 keep float64 precision (~1e-9 m). See :mod:`trafficgeo.camera.orientation` for heading/tilt/roll.
+
+The world CRS: ``Camera(..., crs=...)`` and every constructor take text ("EPSG:2949", WKT, a PROJ string, the
+OpenDroneMap forms of :func:`trafficgeo.crs.parse_crs`), a :class:`pyproj.CRS` or ``None`` (local coordinates).
+It is parsed once, when the camera is made (an unknown CRS raises the one-line
+:class:`~trafficgeo.errors.InputError` of ``parse_crs``), and ``camera.crs`` is that ``pyproj.CRS`` (or None).
+``camera.crs_text`` is the text written to camera JSON: the text given, else ``"AUTH:CODE"`` when that is the same
+CRS, else WKT. The instance dict keeps ``crs`` as given, so ``vars(camera)`` (which run keys hash) is what it was
+when cameras held text.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
+import pyproj
+from pyproj.exceptions import CRSError
 
 from trafficgeo.camera.distortion import as_dist, distort_normalized, undistort_normalized
 from trafficgeo.camera.orientation import Orientation, orientation_from_rotation, rotation_from_orientation
+from trafficgeo.crs import parse_crs
+
+#: What a camera's ``crs`` may be given as: text, a pyproj CRS or None (see the module docstring).
+CRSInput = str | pyproj.CRS | None
+
+
+def crs_to_text(crs: pyproj.CRS | None) -> str | None:
+    """Text that :func:`trafficgeo.crs.parse_crs` reads back to the same CRS: ``"AUTH:CODE"`` (e.g. "EPSG:2949")
+    when that code is the same CRS, else the CRS's own text (WKT or PROJ string) if it parses back equal, else WKT."""
+    if crs is None:
+        return None
+    text = crs.to_string()
+    try:
+        if text and pyproj.CRS.from_user_input(text) == crs:
+            return text
+    except CRSError:
+        pass
+    return crs.to_wkt()
+
+
+class _CameraCRS:
+    """``Camera.crs``: set with text, a pyproj CRS or None; reads as the ``pyproj.CRS`` parsed once (or None).
+
+    The value as given stays in the instance dict under ``crs`` (so ``vars(camera)`` is unchanged from when cameras
+    held text) and the parsed CRS in the ``_crs`` slot. A data descriptor, so it is also the dataclass default.
+    """
+
+    def __get__(self, obj: Camera | None, owner: type | None = None) -> pyproj.CRS | None:
+        if obj is None:
+            return None  # the dataclass default
+        return obj._crs
+
+    def __set__(self, obj: Camera, value: CRSInput) -> None:
+        parsed = None if isinstance(value, str) and not value else parse_crs(value)  # "" meant local, as None
+        obj.__dict__["crs"] = value
+        object.__setattr__(obj, "_crs", parsed)
 
 
 def _as_points(a: object, dim: int, name: str) -> np.ndarray:
@@ -42,15 +89,17 @@ class Camera:
         dist: distortion [k1, k2, p1, p2, k3] (OpenCV order).
         R: 3x3 world->camera rotation (rows: image right, image down, optical axis in world coordinates).
         position: camera centre (X, Y, Z) in the world CRS units.
-        crs: the world CRS as text ("EPSG:2949", WKT, ...), or None for local coordinates.
+        crs: the world CRS as a ``pyproj.CRS`` (given as text, a CRS or None), or None for local coordinates.
     """
+
+    __slots__ = ("__dict__", "__weakref__", "_crs")
 
     image_size: tuple[int, int]
     K: np.ndarray
     dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
     R: np.ndarray = field(default_factory=lambda: np.eye(3))
     position: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    crs: str | None = None
+    crs: _CameraCRS = _CameraCRS()
 
     def __post_init__(self) -> None:
         w, h = (int(x) for x in self.image_size)
@@ -71,6 +120,24 @@ class Camera:
         if np.max(np.abs(R @ R.T - np.eye(3))) > 1e-6 or np.linalg.det(R) < 0:
             raise ValueError("R must be a rotation matrix (orthonormal, det = +1)")
 
+    def __getstate__(self) -> tuple[dict[str, Any], pyproj.CRS | None]:
+        return dict(self.__dict__), self._crs
+
+    def __setstate__(self, state: tuple[dict[str, Any], pyproj.CRS | None]) -> None:
+        values, parsed = state
+        self.__dict__.update(values)
+        object.__setattr__(self, "_crs", parsed)
+
+    def __repr__(self) -> str:
+        return (f"Camera(image_size={self.image_size}, K={self.K.tolist()}, dist={self.dist.tolist()}, "
+                f"R={self.R.tolist()}, position={self.position.tolist()}, crs={self.crs_text!r})")
+
+    @property
+    def crs_text(self) -> str | None:
+        """The CRS as camera JSON writes it: the text given, else :func:`crs_to_text` of the CRS; None without."""
+        given = self.__dict__["crs"]
+        return given if isinstance(given, str) else crs_to_text(self._crs)
+
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_orientation(
@@ -84,7 +151,7 @@ class Camera:
         *,
         dist: object | None = None,
         principal_point: tuple[float, float] | None = None,
-        crs: str | None = None,
+        crs: CRSInput = None,
     ) -> Camera:
         """A camera with square pixels and zero skew, posed by heading/tilt/roll (degrees).
 
@@ -98,7 +165,7 @@ class Camera:
 
     @classmethod
     def from_rvec_tvec(cls, image_size: tuple[int, int], K: object, dist: object, rvec: object, tvec: object,
-                       *, origin: object = (0.0, 0.0, 0.0), crs: str | None = None) -> Camera:
+                       *, origin: object = (0.0, 0.0, 0.0), crs: CRSInput = None) -> Camera:
         """From OpenCV ``rvec``/``tvec`` that map ``Xw - origin`` to camera coordinates."""
         R, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))
         t = np.asarray(tvec, dtype=np.float64).reshape(3)
@@ -107,8 +174,9 @@ class Camera:
                    crs=crs)
 
     def replace(self, **changes: object) -> Camera:
-        """A copy with some attributes replaced."""
-        values = {k: getattr(self, k) for k in ("image_size", "K", "dist", "R", "position", "crs")}
+        """A copy with some attributes replaced (``crs`` as given, so the copy writes the same text)."""
+        values = {k: getattr(self, k) for k in ("image_size", "K", "dist", "R", "position")}
+        values["crs"] = self.__dict__["crs"]
         values.update(changes)
         return Camera(**values)  # type: ignore[arg-type]
 

@@ -15,7 +15,7 @@ import numpy as np
 import pyproj
 
 from trafficgeo.camera.model import Camera
-from trafficgeo.crs import is_geographic, metres_per_unit, parse_crs, projected_to_lonlat
+from trafficgeo.crs import is_geographic, metres_per_unit, projected_to_lonlat
 from trafficgeo.geo.surface import (
     DEFAULT_MIN_INCIDENCE_DEG,
     OK,
@@ -85,8 +85,8 @@ class ImagePoints:
 
 
 def camera_crs(camera: Camera) -> pyproj.CRS | None:
-    """The camera's CRS as a pyproj CRS (None if it has none)."""
-    return parse_crs(camera.crs) if camera.crs else None
+    """The camera's CRS as a pyproj CRS (None if it has none); the camera parsed it when it was made."""
+    return camera.crs
 
 
 def lonlat_of(x: np.ndarray, y: np.ndarray, crs: pyproj.CRS | None) -> tuple[np.ndarray | None, np.ndarray | None]:

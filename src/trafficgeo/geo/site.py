@@ -55,14 +55,14 @@ def footprint_layer(footprint: Any, area_m2: float | None = None) -> Layer:
 
 def site_layers(camera: Camera, doc: dict[str, Any], footprint: Any | None = None) -> list[Layer]:
     """Camera, GCP and (when given) footprint layers for :func:`trafficgeo.io.gis.write_gis`."""
-    from trafficgeo.crs import metres_per_unit, parse_crs
+    from trafficgeo.crs import metres_per_unit
 
     layers = [camera_layer(camera, doc)]
     gcps = gcp_layer(doc, camera.crs)
     if gcps is not None:
         layers.append(gcps)
     if footprint is not None and not footprint.is_empty:
-        m = metres_per_unit(parse_crs(camera.crs)) if camera.crs else 1.0
+        m = metres_per_unit(camera.crs)
         layers.append(footprint_layer(footprint, footprint.area * m * m))
     return layers
 
