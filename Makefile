@@ -19,7 +19,7 @@ demo: $(VENV)/.installed
 	$(BIN)/trafficgeo demo --out demo-out
 
 lint: $(VENV)/.installed
-	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/ruff check src tests benchmarks examples tools
 
 # The browser tests drive Debian's Chromium through Playwright (no browser download).
 CHROMIUM ?= /usr/bin/chromium

@@ -51,8 +51,9 @@ from trafficgeo.traffic.lanes import read_lanes
 from trafficgeo.traffic.lines import read_count_lines
 from trafficgeo.traffic.tracks import tracks_from_table
 from trafficgeo.video.detect import box_iou
-from trafficgeo.video.pipeline import TRACK_COLUMNS, ProcessOptions, detect_and_track, settled_options
+from trafficgeo.video.pipeline import TRACK_COLUMNS, ProcessOptions, settled_options
 from trafficgeo.video.reader import iter_frames, video_info
+from trafficgeo.video.run import process_video
 from trafficgeo.video.track import VehicleTracker
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -153,9 +154,9 @@ def main() -> None:
     ap.add_argument("--checkpoint", type=float, default=30.0,
                     help="s of video per checkpoint segment (each starts a fresh background model)")
     ap.add_argument("--parts", default="real,world", help="comma-separated: real (labelled frames), world")
-    ap.add_argument("--detectors", default="background,nanodet-full,nanodet",
-                    help="comma-separated runs: background, nanodet-full (no tiles), nanodet (tiles); '@N' detects "
-                    "every N-th frame (e.g. nanodet@3)")
+    ap.add_argument("--detectors", default="background,nanodet-full,nanodet@3,nanodet-bands@3",
+                    help="comma-separated runs: background, nanodet-full (no tiles), nanodet (square tiles), "
+                    "nanodet-bands (zoom bands); '@N' detects every N-th frame (e.g. nanodet@3)")
     ap.add_argument("--camera-height", type=float, default=None,
                     help="build the world with the camera this high (m; default 8) - use with another --world")
     args = ap.parse_args()
@@ -191,15 +192,15 @@ def main() -> None:
     runs = {}
     for spec in args.detectors.split(","):
         name, _, every = spec.partition("@")
-        detector, tiles = {"background": ("background", False), "nanodet-full": ("nanodet", False),
-                           "nanodet": ("nanodet", True)}[name]
+        detector, tiles, tiling = {"background": ("background", False, "squares"),
+                                   "nanodet-full": ("nanodet", False, "squares"),
+                                   "nanodet": ("nanodet", True, "squares"),
+                                   "nanodet-bands": ("nanodet", True, "bands")}[name]
         options = ProcessOptions(detector=detector, end_s=end, checkpoint_s=args.checkpoint, tiles=tiles,
-                                 every=int(every or 1))
+                                 tiling=tiling, every=int(every or 1))
         out = ROOT / "out" / f"bench-video-run-{spec.replace('@', '-')}"
-        t = time.perf_counter()
-        detections, tracks = detect_and_track(video, camera, surface, out, options, restart=True, lanes=lanes)
-        t_pipe = time.perf_counter() - t
-        result = analyze(camera, surface, tracks_from_table(tracks), lanes=lanes, lines=lines)
+        run = process_video(video, camera, surface, out, lanes, lines, options=options, restart=True)
+        detections, result, t_pipe = run.detections, run.traffic, run.seconds  # t_pipe: decode + detect + track
         step = int(every or 1)  # detection ran on frames 0, step, 2 step, ...: scored there
         precision, recall, n_true = detection_scores(detections, truth[(truth["time"] < end)
                                                                        & (truth["frame"] % step == 0)])
@@ -208,7 +209,8 @@ def main() -> None:
         frames = n / max(int(every or 1), 1)
         suffix = {"2": "nd", "3": "rd"}.get(every, "th")
         label = {"background": "background subtraction", "nanodet-full": "learned (NanoDet), full frame",
-                 "nanodet": "learned (NanoDet) + camera-aware tiles"}[name] + (f", every {every}{suffix} frame"
+                 "nanodet": "learned (NanoDet) + camera-aware tiles",
+                 "nanodet-bands": "learned (NanoDet) + zoom bands"}[name] + (f", every {every}{suffix} frame"
                                                                               if every else "")
         print(f"| {label} | {n / t_pipe:.1f} | {n / t_pipe / info.fps:.2f} | {t_decode / t_pipe:.2f} | "
               f"{precision:.1%} | {recall:.1%} ({n_true}) | {score.accuracy:.1%} | {np.mean(np.abs(errs)):.2f} km/h "

@@ -8,9 +8,11 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 import shapely
 
 from trafficgeo.camera.model import Camera
+from trafficgeo.errors import InputError
 from trafficgeo.geo.surface import ConstantSurface
 from trafficgeo.traffic.boxes import cuboid_boxes
 from trafficgeo.traffic.lanes import Lanes
@@ -51,12 +53,18 @@ def test_the_builtin_detector_is_tiled_over_the_counted_road_and_classes_by_size
     assert isinstance(det, SizeClasses) and isinstance(det.base, TiledDetector)
     plan = detector_plan(det)
     assert plan is not None and len(plan.tiles) >= 1 and plan.input_size == 416
-    # the shipped model takes any input size: each tile has its own, zooming beyond the full frame, over the far
-    # road (the road's near half needs no tile: its bottom rows are left to the full frame)
-    assert plan.tile_input_hw is not None and np.all(plan.tile_input_hw % 32 == 0)
-    assert plan.full_input_hw == (256, 416)  # 1920 x 1080 at 416 / 1920, rounded up to 32 px
-    assert np.all(plan.tile_scales > plan.full_scale * 1.2)
-    assert np.all(plan.tiles[:, 3] < cam.height * 0.9)
+    # the default: square tiles at the model's 416 px input, over the far road (their tops above the middle)
+    assert plan.tile_input_hw is None and plan.full_input_hw is None
+    assert np.all(plan.tiles[:, 1] < cam.height / 2)
+    # zoom bands: the shipped model takes any input size, so each tile has its own, zooming beyond the full frame
+    bands = detector_plan(make_detector("nanodet", camera=cam, surface=FLAT, road=lanes_along_y(), tiling="bands"))
+    assert bands.tile_input_hw is not None and np.all(bands.tile_input_hw % 32 == 0)
+    assert bands.full_input_hw == (256, 416)  # 1920 x 1080 at 416 / 1920, rounded up to 32 px
+    assert np.all(bands.tile_scales > bands.full_scale * 1.2)
+    assert bands.full_input_pixels + bands.added_input_pixels < 0.8 * (plan.full_input_pixels
+                                                                       + plan.added_input_pixels)
+    with pytest.raises(InputError, match="tiling 'round'"):
+        make_detector("nanodet", camera=cam, surface=FLAT, road=lanes_along_y(), tiling="round")
     untiled = make_detector("nanodet", camera=cam, surface=FLAT, road=lanes_along_y(), tiles=False)
     assert isinstance(untiled, SizeClasses) and detector_plan(untiled) is None
     assert isinstance(make_detector("nanodet"), OnnxDetector)  # no camera: the model alone, on the full frame

@@ -15,7 +15,6 @@ analyze). Every result is printed next to the truth, and ``report.html`` shows t
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -201,51 +200,25 @@ def _report(out: Path, wdir: Path, con: Console) -> None:
 def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     """Step 6: the whole chain on the video itself - decode, detect (the built-in learned detector, tiled over the
     far road), track, analyze."""
-    import time
-
     from rich.progress import BarColumn, Progress, TimeRemainingColumn
 
-    from trafficgeo.io.run_manifest import publish_outputs
     from trafficgeo.report.traffic import print_analysis
     from trafficgeo.synth.scoring import count_scores, detection_scores
-    from trafficgeo.traffic.analyze import analyze, write_analysis
-    from trafficgeo.traffic.lanes import read_lanes
-    from trafficgeo.traffic.lines import read_count_lines
-    from trafficgeo.traffic.tracks import tracks_from_table
-    from trafficgeo.video.pipeline import (
-        ProcessOptions,
-        detect_and_track,
-        finish_run,
-        settled_options,
-        write_run_info,
-    )
     from trafficgeo.video.reader import video_info
+    from trafficgeo.video.run import process_video
 
-    run = out / "video"
+    folder = out / "video"
     con.print(f"\n$ trafficgeo process {wdir / 'video.mp4'} --camera {out / 'camera.json'} --surface "
-              f"{out / 'dem.tif'} --lanes {wdir / 'lanes.gpkg'} --lines {wdir / 'count_lines.gpkg'} --out {run}")
+              f"{out / 'dem.tif'} --lanes {wdir / 'lanes.gpkg'} --lines {wdir / 'count_lines.gpkg'} --out {folder}")
     info = video_info(wdir / "video.mp4")
-    lanes = read_lanes(wdir / "lanes.gpkg", crs=surf.crs)
-    lines = read_count_lines(wdir / "count_lines.gpkg", crs=surf.crs)
-    options = settled_options(ProcessOptions(), info.fps)  # the defaults: NanoDet, tiles, ~10 detections a second
-    plan: dict = {}
-    t0 = time.perf_counter()
     with Progress("detect + track", BarColumn(), "{task.completed}/{task.total} frames", TimeRemainingColumn(),
                   console=con, transient=True) as bar:
         task = bar.add_task("video", total=info.frame_count)
-        detections, tracks = detect_and_track(wdir / "video.mp4", cam, surf, run, options, restart=True, lanes=lanes,
-                                              progress=lambda d, n, t: bar.update(task, completed=d, total=n),
-                                              notice=lambda text: con.print(text, markup=False),
-                                              detector_info=plan.update)
-    elapsed = time.perf_counter() - t0
-    result = analyze(cam, surf, tracks_from_table(tracks), lanes=lanes, lines=lines)
-    written = write_analysis(run, result, cam, publish=False)
-    # as 'process' writes it; paths relative to the run folder, so the report finds the video and the camera
-    write_run_info(run, video=os.path.relpath(wdir / "video.mp4", run),
-                   camera=os.path.relpath(out / "camera.json", run), options=options, seconds=elapsed,
-                   detections=len(detections), track_rows=len(tracks), detector=plan or None)
-    finish_run(run)
-    publish_outputs(run, ["detections.csv", "tracks.csv", *written, "process.json"], command="process")
+        run = process_video(wdir / "video.mp4", out / "camera.json", surf, folder, wdir / "lanes.gpkg",
+                            wdir / "count_lines.gpkg", restart=True,  # the defaults: NanoDet, tiles, ~10 Hz
+                            progress=lambda d, n, t: bar.update(task, completed=d, total=n),
+                            notice=lambda text: con.print(text, markup=False))
+    result, detections, options, elapsed = run.traffic, run.detections, run.options, run.seconds
     print_analysis(result, con)
     truth = pd.read_csv(wdir / "truth_tracks.csv")
     truth = truth[truth["frame"] % options.every == 0]  # the frames it detected on
@@ -283,16 +256,9 @@ def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console)
     from trafficgeo.synth.scoring import count_scores
     from trafficgeo.synth.sumo_world import WARMUP_S
     from trafficgeo.synth.world import truth_lane_name
-    from trafficgeo.traffic.analyze import analyze, write_analysis
-    from trafficgeo.traffic.lanes import read_lanes
-    from trafficgeo.traffic.lines import read_count_lines
-    from trafficgeo.traffic.tracks import read_tracks
-    from trafficgeo.traffic.validation import (
-        compare_with_simulation,
-        read_observed_run,
-        simulated_points,
-        write_comparison,
-    )
+    from trafficgeo.traffic.analyze import analyze_tracks
+    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.traffic.validation import compare_with_sumo
 
     truth = pd.read_csv(wdir / "truth_tracks.csv")
     noisy = noisy_tracks(truth, cam.image_size, seed=opts.seed)
@@ -300,10 +266,9 @@ def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console)
     con.print(f"\n$ trafficgeo analyze {out / 'camera.json'} {out / 'tracks.csv'} --fps {opts.fps:g} --surface "
               f"{out / 'dem.tif'} --lanes {wdir / 'lanes.gpkg'} --lines {wdir / 'count_lines.gpkg'} "
               f"--out {out / 'traffic'}")
-    lanes = read_lanes(wdir / "lanes.gpkg", crs=surf.crs)
-    lines = read_count_lines(wdir / "count_lines.gpkg", crs=surf.crs)
-    result = analyze(cam, surf, read_tracks(out / "tracks.csv", fps=opts.fps), lanes=lanes, lines=lines)
-    write_analysis(out / "traffic", result, cam)
+    result = analyze_tracks(cam, surf, out / "tracks.csv", wdir / "lanes.gpkg", wdir / "count_lines.gpkg",
+                            fps=opts.fps)
+    RunFolder(out / "traffic").write_traffic(result, cam)
     print_analysis(result, con)
     # against the truth
     vehicle_of = noisy.set_index(["track_id", "frame"])["vehicle"]
@@ -336,11 +301,8 @@ def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console)
     net = wdir / "sumo" / "road.net.xml"
     con.print(f"$ trafficgeo compare-sumo {out / 'traffic'} {wdir / 'sumo' / 'fcd.xml'} --net {net} --net-crs "
               f"{opts.crs} --time-offset {WARMUP_S:g}")
-    run = read_observed_run(out / "traffic")
-    sim = simulated_points(wdir / "sumo" / "fcd.xml", run.crs, net=net, net_crs=opts.crs,
-                           time_offset_s=WARMUP_S)
-    comparison = compare_with_simulation(run, sim)
-    write_comparison(out / "traffic", comparison, run.crs)
+    comparison = compare_with_sumo(out / "traffic", wdir / "sumo" / "fcd.xml", net=net, net_crs=opts.crs,
+                                   time_offset_s=WARMUP_S, out_dir=out / "traffic")
     print_comparison(comparison, con)
     m["share_geh_below_5"] = float(comparison.count_summary["share_geh_below_5"])
     return m

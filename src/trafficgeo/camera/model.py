@@ -15,15 +15,13 @@ The world CRS: ``Camera(..., crs=...)`` and every constructor take text ("EPSG:2
 OpenDroneMap forms of :func:`trafficgeo.crs.parse_crs`), a :class:`pyproj.CRS` or ``None`` (local coordinates).
 It is parsed once, when the camera is made (an unknown CRS raises the one-line
 :class:`~trafficgeo.errors.InputError` of ``parse_crs``), and ``camera.crs`` is that ``pyproj.CRS`` (or None).
-``camera.crs_text`` is the text written to camera JSON: the text given, else ``"AUTH:CODE"`` when that is the same
-CRS, else WKT. The instance dict keeps ``crs`` as given, so ``vars(camera)`` (which run keys hash) is what it was
-when cameras held text.
+``camera.crs_text`` is the text written to camera JSON: ``"AUTH:CODE"`` (e.g. "EPSG:2949") when that is the same
+CRS, else the CRS's WKT (:func:`crs_to_text`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import cv2
 import numpy as np
@@ -52,24 +50,6 @@ def crs_to_text(crs: pyproj.CRS | None) -> str | None:
     return crs.to_wkt()
 
 
-class _CameraCRS:
-    """``Camera.crs``: set with text, a pyproj CRS or None; reads as the ``pyproj.CRS`` parsed once (or None).
-
-    The value as given stays in the instance dict under ``crs`` (so ``vars(camera)`` is unchanged from when cameras
-    held text) and the parsed CRS in the ``_crs`` slot. A data descriptor, so it is also the dataclass default.
-    """
-
-    def __get__(self, obj: Camera | None, owner: type | None = None) -> pyproj.CRS | None:
-        if obj is None:
-            return None  # the dataclass default
-        return obj._crs
-
-    def __set__(self, obj: Camera, value: CRSInput) -> None:
-        parsed = None if isinstance(value, str) and not value else parse_crs(value)  # "" meant local, as None
-        obj.__dict__["crs"] = value
-        object.__setattr__(obj, "_crs", parsed)
-
-
 def _as_points(a: object, dim: int, name: str) -> np.ndarray:
     arr = np.asarray(a, dtype=np.float64)
     if arr.ndim == 1 and arr.shape[0] == dim:
@@ -92,18 +72,18 @@ class Camera:
         crs: the world CRS as a ``pyproj.CRS`` (given as text, a CRS or None), or None for local coordinates.
     """
 
-    __slots__ = ("__dict__", "__weakref__", "_crs")
-
     image_size: tuple[int, int]
     K: np.ndarray
     dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
     R: np.ndarray = field(default_factory=lambda: np.eye(3))
     position: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    crs: _CameraCRS = _CameraCRS()
+    crs: pyproj.CRS | None = None  # given as text, a pyproj CRS or None; held parsed
 
     def __post_init__(self) -> None:
         w, h = (int(x) for x in self.image_size)
         object.__setattr__(self, "image_size", (w, h))
+        given = self.crs
+        object.__setattr__(self, "crs", None if given is None or given == "" else parse_crs(given))  # "" = local
         K = np.array(self.K, dtype=np.float64).reshape(3, 3)
         R = np.array(self.R, dtype=np.float64).reshape(3, 3)
         pos = np.array(self.position, dtype=np.float64).reshape(3)
@@ -120,23 +100,14 @@ class Camera:
         if np.max(np.abs(R @ R.T - np.eye(3))) > 1e-6 or np.linalg.det(R) < 0:
             raise ValueError("R must be a rotation matrix (orthonormal, det = +1)")
 
-    def __getstate__(self) -> tuple[dict[str, Any], pyproj.CRS | None]:
-        return dict(self.__dict__), self._crs
-
-    def __setstate__(self, state: tuple[dict[str, Any], pyproj.CRS | None]) -> None:
-        values, parsed = state
-        self.__dict__.update(values)
-        object.__setattr__(self, "_crs", parsed)
-
     def __repr__(self) -> str:
         return (f"Camera(image_size={self.image_size}, K={self.K.tolist()}, dist={self.dist.tolist()}, "
                 f"R={self.R.tolist()}, position={self.position.tolist()}, crs={self.crs_text!r})")
 
     @property
     def crs_text(self) -> str | None:
-        """The CRS as camera JSON writes it: the text given, else :func:`crs_to_text` of the CRS; None without."""
-        given = self.__dict__["crs"]
-        return given if isinstance(given, str) else crs_to_text(self._crs)
+        """The CRS as camera JSON writes it (:func:`crs_to_text`); None without one."""
+        return crs_to_text(self.crs)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -174,9 +145,8 @@ class Camera:
                    crs=crs)
 
     def replace(self, **changes: object) -> Camera:
-        """A copy with some attributes replaced (``crs`` as given, so the copy writes the same text)."""
-        values = {k: getattr(self, k) for k in ("image_size", "K", "dist", "R", "position")}
-        values["crs"] = self.__dict__["crs"]
+        """A copy with some attributes replaced."""
+        values = {k: getattr(self, k) for k in ("image_size", "K", "dist", "R", "position", "crs")}
         values.update(changes)
         return Camera(**values)  # type: ignore[arg-type]
 

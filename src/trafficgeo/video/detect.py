@@ -97,7 +97,8 @@ def make_detector(spec: str = "background", *, camera: Camera | None = None, sur
                   roi: np.ndarray | None = None, scale: float = 0.5, warmup_s: float = WARMUP_S,
                   learning_rate: float | None = None, rules: SizeRules | None = None, conf: float | None = None,
                   iou: float = 0.5, input_size: int | None = None, class_map: Mapping[int, str] | None = None,
-                  detector_format: str | None = None, road: Lanes | None = None, tiles: bool = True) -> Detector:
+                  detector_format: str | None = None, road: Lanes | None = None, tiles: bool = True,
+                  tiling: str = "squares") -> Detector:
     """A detector from a short spec (:func:`detector_kind`): a background subtraction name
     (:class:`BackgroundDetector` with MOG2 for "background", "bg" or "mog2", with KNN for "knn") or the path of a
     ``.onnx`` model (:class:`OnnxDetector` of layout ``detector_format``, default recognised from the model;
@@ -112,7 +113,7 @@ def make_detector(spec: str = "background", *, camera: Camera | None = None, sur
         from trafficgeo.video.learned import make_learned_detector
 
         return make_learned_detector(camera=camera, surface=surface, road=road, roi=roi, tiles=tiles, conf=conf,
-                                     iou=iou)
+                                     iou=iou, tiling=tiling)
     if kind == "onnx":
         return OnnxDetector(str(spec).strip(), format=fmt, input_size=input_size, conf=conf, iou=iou,
                             class_map=class_map, roi=roi)

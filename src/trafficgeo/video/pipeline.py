@@ -79,6 +79,7 @@ class ProcessOptions:
     end_s: float | None = None
     every: int | None = None  # detect on every n-th frame; None: auto (settled_options)
     tiles: bool = True  # the built-in learned detector: camera-aware tiles over the far road (video.tiling)
+    tiling: str = "squares"  # how they are planned: "squares" or "bands" (video.learned.TILINGS)
     checkpoint_s: float = 30.0
     tracker: TrackerOptions | None = None  # None: the detector's (settled_options)
 
@@ -88,6 +89,10 @@ class ProcessOptions:
             raise InputError(f"--start {self.start_s} / --end {self.end_s}: need 0 <= start < end (seconds)")
         if not (self.every is None or (isinstance(self.every, int) and self.every >= 1)):
             raise InputError(f"--every {self.every}: must be a whole number >= 1")
+        from trafficgeo.video.learned import TILINGS
+
+        if self.tiling not in TILINGS:
+            raise InputError(f"--tiling {self.tiling}: use one of {', '.join(TILINGS)}")
         if not self.checkpoint_s > 0:
             raise InputError(f"--checkpoint {self.checkpoint_s}: must be a positive number of seconds")
 
@@ -205,7 +210,8 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
 
     def new_detector():
         return make_detector(opts.detector, camera=cam, surface=surface, roi=roi,
-                             detector_format=opts.detector_format, road=lanes, tiles=opts.tiles)
+                             detector_format=opts.detector_format, road=lanes, tiles=opts.tiles,
+                             tiling=opts.tiling)
 
     detector = new_detector()  # before anything is written: a bad --detector leaves nothing behind
     learns = isinstance(detector, BackgroundDetector)
@@ -333,6 +339,6 @@ def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: Pro
     doc = {"video": video, "camera": camera,
            "options": {"detector": options.detector, "detector_format": options.detector_format,
                        "start_s": options.start_s, "end_s": options.end_s, "every": options.every,
-                       "tiles": options.tiles},
+                       "tiles": options.tiles, "tiling": options.tiling},
            "detector": detector, "read": read, "seconds": seconds, "detections": detections, "track_rows": track_rows}
     write_json_atomic(Path(out_dir) / "process.json", doc)
