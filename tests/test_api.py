@@ -110,3 +110,21 @@ def test_run_folder_reads_back_what_was_written_with_the_schema(world: Path, tmp
         tg.RunFolder(tmp_path / "run").counts()  # the manifest catches a changed output
     with pytest.raises(tg.InputError, match="not a table"):
         run.table("nope.csv")
+
+
+def test_library_errors_name_parameters_and_the_cli_names_flags(tmp_path: Path, capsys) -> None:
+    from trafficgeo.cli import FLAGS, main
+
+    with pytest.raises(tg.InputError, match=r"^start_s 5.0 / end_s 2.0: need 0 <= start_s < end_s") as info:
+        tg.ProcessOptions(start_s=5.0, end_s=2.0)
+    assert info.value.parameters == ("start_s", "end_s")
+    assert info.value.in_terms_of(FLAGS).startswith("--start 5.0 / --end 2.0: need 0 <= --start < --end")
+    with pytest.raises(tg.InputError, match="^every 0: must be a whole number"):
+        tg.ProcessOptions(every=0)
+    video = tmp_path / "v.mp4"
+    video.write_bytes(b"")
+    with pytest.raises(SystemExit) as done:
+        main(["process", str(video), "--camera", "c.json", "--surface", "0", "--out", str(tmp_path / "o"),
+              "--start", "5", "--end", "2"])
+    assert done.value.code == 2
+    assert "error: --start 5.0 / --end 2.0: need 0 <= --start < --end" in capsys.readouterr().err

@@ -13,7 +13,25 @@ class TrafficgeoError(Exception):
 
 
 class InputError(TrafficgeoError, ValueError):
-    """Bad user input: a one-line message naming what, where and how to fix it (CLI exit code 2)."""
+    """Bad user input: a one-line message naming what, where and how to fix it (CLI exit code 2).
+
+    Library code names the function's parameters (``"start_s 5 / end_s 2: need 0 <= start_s < end_s"``) and lists
+    them in ``parameters``; the command line rewrites those names to its flags (``--start``, ``--end``), so each
+    layer speaks its own terms."""
+
+    def __init__(self, message: str, *, parameters: tuple[str, ...] = ()) -> None:
+        super().__init__(message)
+        self.parameters = tuple(parameters)
+
+    def in_terms_of(self, names: dict[str, str]) -> str:
+        """The message with each of its ``parameters`` renamed by ``names`` (parameter -> e.g. a CLI flag)."""
+        import re
+
+        text = str(self)
+        for p in self.parameters:
+            if p in names:
+                text = re.sub(rf"(?<![\w-]){re.escape(p)}(?!\w)", names[p], text)
+        return text
 
 
 class CalibrationError(TrafficgeoError, RuntimeError):

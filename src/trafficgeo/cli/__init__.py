@@ -207,12 +207,19 @@ from trafficgeo.cli import ui as _ui  # noqa: E402, F401  (registers the gcp-ui 
 from trafficgeo.cli import video as _video  # noqa: E402, F401  (registers the frame command)
 
 
+# Library parameter -> command-line flag, for InputError messages (the library names its parameters).
+FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint_s": "--checkpoint",
+         "tiling": "--tiling", "out_dir": "--out", "interval_s": "--interval", "resolution_m": "--resolution",
+         "time_offset_s": "--time-offset", "output": "--output", "annotate": "--annotate", "surface": "--surface",
+         "lanes": "--lanes", "lines": "--lines"}
+
+
 def main(argv: list[str] | None = None) -> Any:
     """Entry point of the ``trafficgeo`` console script."""
     try:
         return app(args=argv, standalone_mode=False)
     except InputError as exc:
-        print(f"trafficgeo: error: {exc}", file=sys.stderr)
+        print(f"trafficgeo: error: {exc.in_terms_of(FLAGS)}", file=sys.stderr)
         sys.exit(2)
     except CalibrationError as exc:
         print(f"trafficgeo: calibration failed: {exc}", file=sys.stderr)

@@ -86,15 +86,17 @@ class ProcessOptions:
     def __post_init__(self) -> None:
         check_detector(self.detector, self.detector_format)  # a bad name or model fails here, before writing
         if not (self.start_s >= 0 and (self.end_s is None or self.end_s > self.start_s)):
-            raise InputError(f"--start {self.start_s} / --end {self.end_s}: need 0 <= start < end (seconds)")
+            raise InputError(f"start_s {self.start_s} / end_s {self.end_s}: need 0 <= start_s < end_s (seconds)",
+                             parameters=("start_s", "end_s"))
         if not (self.every is None or (isinstance(self.every, int) and self.every >= 1)):
-            raise InputError(f"--every {self.every}: must be a whole number >= 1")
+            raise InputError(f"every {self.every}: must be a whole number >= 1", parameters=("every",))
         from trafficgeo.video.learned import TILINGS
 
         if self.tiling not in TILINGS:
-            raise InputError(f"--tiling {self.tiling}: use one of {', '.join(TILINGS)}")
+            raise InputError(f"tiling {self.tiling}: use one of {', '.join(TILINGS)}", parameters=("tiling",))
         if not self.checkpoint_s > 0:
-            raise InputError(f"--checkpoint {self.checkpoint_s}: must be a positive number of seconds")
+            raise InputError(f"checkpoint_s {self.checkpoint_s}: must be a positive number of seconds",
+                             parameters=("checkpoint_s",))
 
 
 def settled_options(options: ProcessOptions, fps: float) -> ProcessOptions:
@@ -205,7 +207,8 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
                          "(trafficgeo frame)")
     end_s = min(opts.end_s, info.duration_s) if opts.end_s is not None else info.duration_s
     if opts.start_s >= end_s:
-        raise InputError(f"--start {opts.start_s:g} s is past the end of {video} ({info.duration_s:.2f} s)")
+        raise InputError(f"start_s {opts.start_s:g} s is past the end of {video} ({info.duration_s:.2f} s)",
+                         parameters=("start_s",))
     cam = camera if surface is not None else None
 
     def new_detector():
