@@ -206,7 +206,6 @@ from trafficgeo.cli import traffic as _traffic  # noqa: E402, F401  (registers a
 from trafficgeo.cli import ui as _ui  # noqa: E402, F401  (registers the gcp-ui command)
 from trafficgeo.cli import video as _video  # noqa: E402, F401  (registers the frame command)
 
-
 # Library parameter -> command-line flag, for InputError messages (the library names its parameters).
 FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint_s": "--checkpoint",
          "tiling": "--tiling", "out_dir": "--out", "interval_s": "--interval", "resolution_m": "--resolution",
