@@ -119,7 +119,7 @@ def test_library_errors_name_parameters_and_the_cli_names_flags(tmp_path: Path, 
         tg.ProcessOptions(start_s=5.0, end_s=2.0)
     assert info.value.parameters == ("start_s", "end_s")
     assert info.value.in_terms_of(FLAGS).startswith("--start 5.0 / --end 2.0: need 0 <= --start < --end")
-    with pytest.raises(tg.InputError, match="^every 0: must be a whole number"):
+    with pytest.raises(tg.InputError, match=r"^every 0: must be a whole number"):
         tg.ProcessOptions(every=0)
     video = tmp_path / "v.mp4"
     video.write_bytes(b"")
