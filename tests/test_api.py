@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import doctest
 import importlib
+import json
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyproj
 import pytest
 
 import trafficgeo as tg
@@ -128,3 +130,27 @@ def test_library_errors_name_parameters_and_the_cli_names_flags(tmp_path: Path, 
               "--start", "5", "--end", "2"])
     assert done.value.code == 2
     assert "error: --start 5.0 / --end 2.0: need 0 <= --start < --end" in capsys.readouterr().err
+
+
+def test_analyze_outputs_equal_those_of_the_release_before_the_api(tmp_path: Path) -> None:
+    # tests/data/api-reference: outputs written by the code before the Python API (see its SOURCE.txt), from the
+    # same deterministic input; the API and RunFolder must give the same values.
+    import importlib.util
+
+    ref = Path(__file__).parent / "data" / "api-reference"
+    spec = importlib.util.spec_from_file_location("make_reference", ref / "make_reference.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    cam, surface, _table, lines = module.scene()
+    result = tg.analyze_tracks(cam, surface, ref / "input_tracks.csv", lines=lines, interval_s=10.0)
+    run = tg.RunFolder(tmp_path / "run")
+    run.write_traffic(result, cam)
+    for name in ("vehicles.csv", "crossings.csv", "counts.csv", "trajectories.csv"):
+        new, old = pd.read_csv(tmp_path / "run" / name), pd.read_csv(ref / name)
+        pd.testing.assert_frame_equal(new, old, check_exact=False, rtol=1e-9, atol=1e-9, obj=name)
+    assert len(result.vehicles) == 10 and len(result.crossings) == 3
+    old_summary = json.loads((ref / "summary.json").read_text())
+    new_summary = run.summary()
+    for key in ("period_s", "vehicles", "points", "dropped_points", "crossings", "options", "classes"):
+        assert new_summary[key] == old_summary[key], key
+    assert pyproj.CRS.from_wkt(new_summary["crs"]) == pyproj.CRS.from_wkt(old_summary["crs"])
