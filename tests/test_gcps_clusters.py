@@ -1,10 +1,10 @@
-"""Coincident-GCP grouping (calibration.gcps._clusters, scipy connected components) against a plain search."""
+"""Coincident-GCP grouping (calibration.gcp_checks._clusters, scipy connected components) against a plain search."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from trafficgeo.calibration.gcps import _clusters
+from trafficgeo.calibration.gcp_checks import _clusters
 
 
 def _groups_by_search(points: np.ndarray, tol: float) -> list[list[int]]:

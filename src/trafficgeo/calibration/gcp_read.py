@@ -1,0 +1,421 @@
+"""Reading GCP files: CSV (``id,x,y,z,u,v[,role,sigma_px]``) and OpenDroneMap ``gcp_list.txt``, with their CRS
+(:func:`read_gcps`). See :mod:`trafficgeo.calibration.gcps` for the conventions."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyproj
+
+from trafficgeo.calibration.gcp_table import (
+    _HINTS,
+    _ODM_COLUMNS,
+    CSV_COLUMNS,
+    REQUIRED_COLUMNS,
+    ROLE_CONTROL,
+    ROLES,
+    GCPTable,
+    _first,
+    _fmt,
+    _q,
+)
+from trafficgeo.crs import (
+    crs_label,
+    is_geographic,
+    looks_like_lonlat,
+    parse_crs,
+    transform_xy,
+    utm_crs_for,
+)
+from trafficgeo.errors import InputError
+
+# --------------------------------------------------------------------------------------------- reading
+
+
+@dataclass
+class _Rows:
+    """Parsed rows of a GCP file before CRS handling."""
+
+    ids: list[str]
+    values: list[tuple[float, float, float, float, float]]
+    roles: list[str]
+    sigma: list[float]
+    lines: list[int]
+    images: list[str]
+
+
+def _number(text: str, column: str, where: str, hint: str) -> float:
+    raw = text.strip()
+    if not raw:
+        raise InputError(f'{where}: column "{column}" is empty; {hint}')
+    try:
+        value = float(raw)
+    except ValueError:
+        extra = "; use a dot as the decimal separator" if "," in raw else ""
+        raise InputError(f'{where}: column "{column}" is {_q(raw)}, not a number; {hint}{extra}') from None
+    if not math.isfinite(value):
+        raise InputError(f'{where}: column "{column}" is {_q(raw)}, not a finite number; {hint}')
+    return value
+
+
+def _read_text(path: Path, source: str) -> str:
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(f"GCP file {source} does not exist; check the path") from None
+    except IsADirectoryError:
+        raise InputError(
+            f"GCP file {source} is a folder, not a file; give the path of the GCP file"
+        ) from None
+    except OSError as exc:
+        raise InputError(
+            f"GCP file {source} cannot be read ({exc.strerror}); check its permissions"
+        ) from None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise InputError(
+            f"{source} line {line}: the file is not UTF-8 text; save it as UTF-8 (plain CSV or text)"
+        ) from None
+
+
+def _split_header(line: str) -> tuple[str, list[str]]:
+    """Best delimiter for a CSV header line and its lower-cased column names."""
+    best: tuple[int, str, list[str]] | None = None
+    for delim in (",", ";", "\t"):
+        names = [c.strip().lower() for c in next(csv.reader([line], delimiter=delim))]
+        score = len(set(names) & set(CSV_COLUMNS))
+        if best is None or score > best[0]:
+            best = (score, delim, names)
+    assert best is not None
+    return best[1], best[2]
+
+
+def _parse_csv(text: str, source: str, delim: str) -> _Rows:
+    reader = csv.reader(io.StringIO(text, newline=""), delimiter=delim)
+    header: list[str] | None = None
+    col: dict[str, int] = {}
+    rows = _Rows([], [], [], [], [], [])
+    for row in reader:
+        line = reader.line_num
+        if all(not c.strip() for c in row):
+            continue
+        if header is None:
+            header = [c.strip().lower() for c in row]
+            for name in CSV_COLUMNS:
+                hits = [k for k, h in enumerate(header) if h == name]
+                if len(hits) > 1:
+                    raise InputError(
+                        f'{source} line {line}: column "{name}" appears {len(hits)} times in the '
+                        "header; keep one"
+                    )
+                if hits:
+                    col[name] = hits[0]
+            continue
+        ncols = len(header)
+        if len(row) < ncols or any(c.strip() for c in row[ncols:]):
+            raise InputError(
+                f"{source} line {line}: {len(row)} values but the header has {ncols} columns; "
+                "check for missing or extra delimiters (quote text that contains them)"
+            )
+        gcp_id = row[col["id"]].strip()
+        if not gcp_id:
+            raise InputError(f'{source} line {line}: column "id" is empty; give every GCP a unique id')
+        where = f"{source} line {line} (id {_q(gcp_id)})"
+        vals = tuple(_number(row[col[c]], c, where, _HINTS[c]) for c in ("x", "y", "z", "u", "v"))
+        role = row[col["role"]].strip().lower() if "role" in col else ""
+        role = role or ROLE_CONTROL
+        if role not in ROLES:
+            raise InputError(
+                f'{where}: column "role" is {_q(row[col["role"]].strip())}; use "control" (used in the fit) '
+                'or "check" (independent check point), or leave it empty for "control"'
+            )
+        sigma = 1.0
+        if "sigma_px" in col and row[col["sigma_px"]].strip():
+            sigma = _number(row[col["sigma_px"]], "sigma_px", where, _HINTS["sigma_px"])
+            if sigma <= 0:
+                raise InputError(
+                    f'{where}: column "sigma_px" is {_fmt(sigma)}, not > 0; {_HINTS["sigma_px"]}'
+                )
+        rows.ids.append(gcp_id)
+        rows.values.append(vals)  # type: ignore[arg-type]
+        rows.roles.append(role)
+        rows.sigma.append(sigma)
+        rows.lines.append(line)
+        rows.images.append("")
+    if not rows.ids:
+        raise InputError(f"{source} has a header but no GCP rows; add one row per point: id,x,y,z,u,v")
+    return rows
+
+
+def _parse_odm(lines: list[str], first: int, source: str) -> _Rows:
+    rows = _Rows([], [], [], [], [], [])
+    for k in range(first + 1, len(lines)):
+        line = k + 1
+        text = lines[k].strip()
+        if not text or text.startswith("#"):
+            continue
+        parts = text.split()
+        if len(parts) < 6:
+            raise InputError(
+                f"{source} line {line}: {len(parts)} values, but an OpenDroneMap GCP row needs at least 6: "
+                "geo_x geo_y geo_z im_x im_y image_name [gcp_name]; fix or delete the line"
+            )
+        gcp_id = parts[6] if len(parts) > 6 else f"row{line}"
+        where = f"{source} line {line} (id {_q(gcp_id)})"
+        hints = ("x", "y", "z", "u", "v")
+        vals = tuple(_number(parts[j], _ODM_COLUMNS[j], where, _HINTS[hints[j]]) for j in range(5))
+        rows.ids.append(gcp_id)
+        rows.values.append(vals)  # type: ignore[arg-type]
+        rows.roles.append(ROLE_CONTROL)
+        rows.sigma.append(1.0)
+        rows.lines.append(line)
+        rows.images.append(parts[5])
+    if not rows.ids:
+        raise InputError(
+            f"{source} has a CRS line but no GCP rows; "
+            "add rows: geo_x geo_y geo_z im_x im_y image_name [gcp_name]"
+        )
+    return rows
+
+
+def _list_names(names: list[str], limit: int = 10) -> str:
+    shown = ", ".join(names[:limit])
+    return shown + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
+def _select_image(rows: _Rows, odm_image: str | None, source: str) -> np.ndarray:
+    """Indices of the rows of the requested image (all rows when the file has a single image)."""
+    keys: dict[str, str] = {}
+    for name in rows.images:
+        keys.setdefault(name.lower(), name)
+    names = list(keys.values())
+    if odm_image is None:
+        if len(keys) > 1:
+            raise InputError(
+                f"{source}: the GCPs belong to {len(keys)} images ({_list_names(names)}); "
+                f"say which image the camera sees with --odm-image NAME (e.g. --odm-image {names[0]})"
+            )
+        return np.arange(len(rows.ids))
+    wanted = odm_image.strip().lower()
+    wanted_base = os.path.basename(wanted.replace("\\", "/"))
+    sel = [
+        i
+        for i, name in enumerate(rows.images)
+        if name.lower() == wanted or os.path.basename(name.lower().replace("\\", "/")) == wanted_base
+    ]
+    if not sel:
+        raise InputError(
+            f"{source}: no GCP rows for image {_q(odm_image)}; the file has images {_list_names(names)}; "
+            "pass one of them with --odm-image"
+        )
+    return np.asarray(sel, dtype=np.intp)
+
+
+def _check_unique_ids(rows: _Rows, idx: np.ndarray, source: str) -> None:
+    seen: dict[str, int] = {}
+    for i in idx:
+        gcp_id = rows.ids[i]
+        if gcp_id in seen:
+            raise InputError(
+                f"{source} line {rows.lines[i]} (id {_q(gcp_id)}): id {_q(gcp_id)} is also used on line "
+                f"{seen[gcp_id]}; give every GCP a unique id"
+            )
+        seen[gcp_id] = rows.lines[i]
+
+
+def _parse_option_crs(value: str | pyproj.CRS | None, option: str) -> pyproj.CRS | None:
+    try:
+        return parse_crs(value)
+    except InputError as exc:
+        raise InputError(f"{option}: {exc}") from None
+
+
+
+
+def _resolve_crs(
+    x: np.ndarray,
+    y: np.ndarray,
+    gcp_crs: pyproj.CRS | None,
+    crs: pyproj.CRS | None,
+    *,
+    source: str,
+    lines: list[int],
+    names: tuple[str, str],
+    declared_by: str,
+) -> tuple[np.ndarray, np.ndarray, pyproj.CRS | None]:
+    """Check x, y against the GCP CRS and transform them to the working CRS."""
+    xn, yn = names
+
+    def at(i: int) -> str:
+        return f"line {lines[i]}: {xn}={_fmt(x[i])}, {yn}={_fmt(y[i])}"
+
+    if crs is not None and not (crs.is_projected and not is_geographic(crs)):
+        hint = " (to read longitude/latitude GCPs give --gcp-crs EPSG:4326)" if is_geographic(crs) else ""
+        raise InputError(
+            f"working CRS (--crs) {crs_label(crs)} is not a projected CRS{hint}; "
+            "give a projected CRS for --crs such as a UTM zone (e.g. EPSG:32616) or leave it out"
+        )
+    if gcp_crs is None:
+        gcp_crs = crs
+        declared_by = "given with --crs"
+    if gcp_crs is None:
+        if looks_like_lonlat(x, y) or looks_like_lonlat(y, x):
+            raise InputError(
+                f"{source}: the GCP coordinates look like longitude/latitude degrees ({at(0)}) "
+                "but no CRS was given; pass --gcp-crs EPSG:4326 (longitude in x, latitude in y)"
+            )
+        return x, y, None
+    if is_geographic(gcp_crs):
+        lat_first = (np.abs(y) > 90) & (np.abs(x) <= 90)
+        if np.any(lat_first) and np.all(np.abs(x) <= 90):
+            i = _first(lat_first)
+            raise InputError(
+                f"{source}: {yn} should be latitude but reaches {_fmt(y[i])} ({at(i)}) while {xn} stays "
+                f"within ±90: the file seems to list latitude first; swap the {xn} and {yn} columns so "
+                "longitude comes first"
+            )
+        bad = (np.abs(x) > 180) | (np.abs(y) > 90)
+        if np.any(bad):
+            i = _first(bad)
+            raise InputError(
+                f"{source} {at(i)} is not longitude/latitude in degrees, but the GCP CRS "
+                f"{crs_label(gcp_crs)} ({declared_by}) is geographic; "
+                "give the file's projected CRS with --gcp-crs (e.g. EPSG:32616)"
+            )
+        target = crs
+        if target is None:
+            lat = float(np.mean(y))
+            if not -80.0 <= lat <= 84.0:
+                raise InputError(
+                    f"{source}: the mean latitude ({yn}) of the points is {lat:.6g}, outside the UTM range "
+                    f"(-80 to 84), so no UTM zone fits ({at(0)}); if the file lists latitude first, swap the "
+                    f"{xn} and {yn} columns, otherwise give a polar projected CRS with --crs"
+                )
+            target = utm_crs_for(float(np.mean(x)), lat)
+    else:
+        if not gcp_crs.is_projected:
+            raise InputError(
+                f"GCP CRS {crs_label(gcp_crs)} ({declared_by}) is neither geographic nor projected; give "
+                "--gcp-crs as longitude/latitude (EPSG:4326) or a projected CRS (e.g. EPSG:32616)"
+            )
+        if looks_like_lonlat(x, y) or looks_like_lonlat(y, x):
+            order = "" if looks_like_lonlat(x, y) else ", after swapping the columns so longitude comes first"
+            raise InputError(
+                f"{source}: the GCP coordinates look like longitude/latitude degrees ({at(0)}) "
+                f"but the GCP CRS {crs_label(gcp_crs)} ({declared_by}) is projected; "
+                f"pass --gcp-crs EPSG:4326{order}"
+            )
+        target = crs if crs is not None else gcp_crs
+        if target == gcp_crs:
+            return x, y, gcp_crs
+    tx, ty = transform_xy(x, y, gcp_crs, target)
+    bad = ~(np.isfinite(tx) & np.isfinite(ty))
+    if np.any(bad):
+        i = _first(bad)
+        raise InputError(
+            f"{source} {at(i)} cannot be transformed from {crs_label(gcp_crs)} to {crs_label(target)}; "
+            "check the point and the CRSs (--gcp-crs, --crs)"
+        )
+    return tx, ty, target
+
+
+def read_gcps(
+    path: str | os.PathLike[str],
+    *,
+    gcp_crs: str | pyproj.CRS | None = None,
+    crs: str | pyproj.CRS | None = None,
+    odm_image: str | None = None,
+) -> GCPTable:
+    """Read a GCP file (CSV or OpenDroneMap ``gcp_list.txt``, see the module docstring) as a GCPTable.
+
+    Args:
+        path: the file.
+        gcp_crs: CRS of the file's x, y. For CSV it comes only from here; for OpenDroneMap files it overrides
+            the CRS line of the file. Geographic CRSs take x = longitude, y = latitude (degrees).
+        crs: working projected CRS of the result. Geographic points go to ``crs``, or, when it is ``None``,
+            to the WGS 84 UTM zone of their mean position. Projected points are transformed to ``crs`` when
+            it differs from ``gcp_crs``. Given alone, ``crs`` is also the CRS of the file. Neither given:
+            local coordinates, ``table.crs is None``.
+        odm_image: for OpenDroneMap files, keep the rows of this image (case-insensitive). Required when the
+            file lists several images. Ignored for CSV.
+
+    Z is passed through unchanged. Raises :class:`~trafficgeo.errors.InputError` (one line, naming the file,
+    line and id) for a missing or empty file, missing columns, non-numeric or non-finite values, duplicate
+    ids, unknown roles, sigma_px <= 0, latitude-first longitude/latitude files, longitude/latitude values in
+    a file declared projected, and bad CRSs.
+    """
+    p = Path(path)
+    source = os.fspath(path)
+    text = _read_text(p, source)
+    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    first = next((k for k, line in enumerate(lines) if line.strip()), None)
+    if first is None:
+        raise InputError(
+            f"GCP file {source} is empty; give a CSV with header id,x,y,z,u,v or an OpenDroneMap gcp_list.txt"
+        )
+    header = lines[first].strip()
+    delim, names = _split_header(header)
+    gcp_crs_obj = _parse_option_crs(gcp_crs, "--gcp-crs")
+    crs_obj = _parse_option_crs(crs, "--crs")
+    declared_by = "given with --gcp-crs"
+    if set(REQUIRED_COLUMNS) <= set(names):
+        rows = _parse_csv(text, source, delim)
+        xy_names = ("x", "y")
+    elif len(set(names) & set(CSV_COLUMNS)) >= 2:
+        missing = [c for c in REQUIRED_COLUMNS if c not in names]
+        raise InputError(
+            f"{source} line {first + 1}: the header lacks the column(s) "
+            f"{', '.join(repr(c) for c in missing)}; "
+            f"a GCP CSV needs the columns id,x,y,z,u,v (any order, any case; found {_q(header, 60)})"
+        )
+    else:
+        try:
+            # A CSV-like line (commas but no WKT/PROJJSON brackets) or a comment is no CRS: skip pyproj's slow
+            # name search and report the first line directly.
+            if header.startswith("#") or ("," in header and not any(ch in header for ch in "[({")):
+                raise InputError(header)
+            header_crs = parse_crs(header)
+        except InputError:
+            raise InputError(
+                f"{source} line {first + 1}: {_q(header, 60)} is neither a CSV header with columns "
+                'id,x,y,z,u,v nor an OpenDroneMap CRS line such as "WGS84 UTM 10N" or "EPSG:32610"; '
+                "fix the first line"
+            ) from None
+        rows = _parse_odm(lines, first, source)
+        xy_names = ("geo_x", "geo_y")
+        if gcp_crs_obj is None:
+            gcp_crs_obj = header_crs
+            declared_by = f"from line {first + 1} of the file"
+    values = np.asarray(rows.values, dtype=np.float64).reshape(-1, 5)
+    # CRS checks and the UTM zone use every row, so all images of an ODM file share one CRS.
+    x, y, wcrs = _resolve_crs(
+        values[:, 0],
+        values[:, 1],
+        gcp_crs_obj,
+        crs_obj,
+        source=source,
+        lines=rows.lines,
+        names=xy_names,
+        declared_by=declared_by,
+    )
+    idx = _select_image(rows, odm_image, source) if xy_names[0] == "geo_x" else np.arange(len(rows.ids))
+    _check_unique_ids(rows, idx, source)
+    world = np.column_stack([x[idx], y[idx], values[idx, 2]])
+    return GCPTable(
+        ids=tuple(rows.ids[i] for i in idx),
+        world=world,
+        pixels=values[idx, 3:5],
+        roles=tuple(rows.roles[i] for i in idx),
+        sigma_px=np.asarray(rows.sigma, dtype=np.float64)[idx],
+        crs=wcrs,
+        source=source,
+        lines=tuple(rows.lines[i] for i in idx),
+    )
