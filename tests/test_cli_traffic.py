@@ -16,7 +16,7 @@ from trafficgeo.camera.io import write_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.traffic.boxes import cuboid_boxes
 
-E0, N0, Z0 = 500000.0, 5000000.0, 100.0
+E0, N0, Z0 = 500000.0, 5000000.0, 100.0  # where conftest's roadside_camera stands (ROADSIDE_ORIGIN)
 CRS = "EPSG:32633"
 FPS = 25.0
 # (track, lane centre x offset from E0, start y, speed m/s, class, dims); lanes: x in [-7, -3.5] and [-3.5, 0]
@@ -25,14 +25,10 @@ VEHICLES = [("1", -1.75, 10.0, 50 / 3.6, "car", (4.5, 1.8, 1.5)),
             ("3", -1.75, -10.0, 40 / 3.6, "truck", (12.0, 2.55, 3.8))]
 
 
-def _camera() -> Camera:
-    return Camera.from_orientation((1920, 1080), 1700.0, [E0 + 5.0, N0 - 10.0, Z0 + 8.0], 350.0, 10.0, crs=CRS)
-
-
 @pytest.fixture(scope="module")
-def scene(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+def scene(tmp_path_factory: pytest.TempPathFactory, roadside_camera: Camera) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("traffic_scene")
-    cam = _camera()
+    cam = roadside_camera
     write_camera_json(root / "camera.json", cam)
     rng = np.random.default_rng(0)
     rows = []

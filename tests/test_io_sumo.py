@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -437,9 +436,9 @@ def test_read_meandata_errors(tmp_path: Path) -> None:
         read_meandata(f)
 
 
-# ---------------------------------------------------------------------------------------------------- speed
-def test_read_fcd_speed(tmp_path: Path) -> None:
-    """About 1e5 vehicle rows: the vectorised reader takes well under a second (about 3 s per million rows)."""
+# ---------------------------------------------------------------------------------------------------- large files
+def test_read_fcd_large_file(tmp_path: Path) -> None:
+    """1e5 vehicle rows come back complete and in place (its speed: benchmarks/bench_fcd.py)."""
     rng = np.random.default_rng(1)
     n_veh, n_steps = 100, 1000
     pts = pd.DataFrame({
@@ -449,11 +448,9 @@ def test_read_fcd_speed(tmp_path: Path) -> None:
         "speed_kmh": 50.0, "heading_deg": 30.0, "class": "car", "sumo_lane": "d1_0"})
     f = tmp_path / "big.xml"
     write_fcd(f, pts, crs="EPSG:32616", decimals=3)
-    t0 = time.perf_counter()
     df = read_fcd(f, crs="EPSG:32616")
-    elapsed = time.perf_counter() - t0
     assert len(df) == n_veh * n_steps
     df = df.sort_values(["time", "track_id"]).reset_index(drop=True)
     pts = pts.sort_values(["time", "track_id"]).reset_index(drop=True)
-    np.testing.assert_allclose(df["x"], pts["x"], atol=5e-4)
-    assert elapsed < 5.0, f"read_fcd took {elapsed:.2f} s for {len(df)} rows"
+    np.testing.assert_allclose(df[["time", "x", "y"]], pts[["time", "x", "y"]], atol=5e-4)
+    assert (df["track_id"] == pts["track_id"]).all()
