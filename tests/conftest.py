@@ -4,8 +4,9 @@ Nothing built here may be changed by a test: :func:`small_world` is a folder the
 hashed when built and checked again at the end of the session), :func:`roadside_camera` a camera whose arrays are
 read-only. A test that needs to change one works on its own copy (``shutil.copytree``, ``dataclasses.replace``).
 
-The ``slow`` marker (registered in pyproject.toml) marks tests and modules that take seconds each; ``make test-fast``
-runs ``pytest -m "not slow"``, ``make test`` everything.
+The ``slow`` marker (registered in pyproject.toml) marks the tests and modules too slow for a quick loop: each took
+0.4 s or more on the shared 2-core machine, or the module builds a costly fixture (a world, a SUMO run, the browser).
+``make test-fast`` runs ``pytest -m "not slow"``, ``make test`` everything.
 """
 
 from __future__ import annotations

@@ -52,6 +52,7 @@ def scene(tmp_path_factory: pytest.TempPathFactory, roadside_camera: Camera) -> 
             "lanes": root / "lanes.geojson", "lines": root / "lines.csv"}
 
 
+@pytest.mark.slow
 def test_analyze_writes_vehicles_counts_and_trajectories(scene: dict[str, Path], tmp_path: Path) -> None:
     out = tmp_path / "out"
     code, stdout, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
@@ -87,6 +88,7 @@ def test_analyze_writes_vehicles_counts_and_trajectories(scene: dict[str, Path],
     assert summary["hidden_crossings"] == 0 and summary["options"]["coast_hidden_s"] == 3.0  # nothing hidden here
 
 
+@pytest.mark.slow
 def test_box_correction_moves_points_to_the_footprint_centre(scene: dict[str, Path], tmp_path: Path) -> None:
     """Without the cuboid fit the ground point is the box's bottom: ~half a car length short of the centre."""
     on, off = tmp_path / "on", tmp_path / "off"
@@ -103,6 +105,7 @@ def test_box_correction_moves_points_to_the_footprint_centre(scene: dict[str, Pa
     assert err["on"] < 0.25 and err["off"] > 1.0, err
 
 
+@pytest.mark.slow
 def test_boundary_lines_and_mot_input(scene: dict[str, Path], tmp_path: Path) -> None:
     bounds = gpd.GeoDataFrame(geometry=[shapely.LineString([(E0 + x, N0 - 50), (E0 + x, N0 + 300)])
                                         for x in (0.0, -7.0, -3.5)], crs=CRS)
@@ -154,6 +157,7 @@ def test_bad_input_exits_2_with_one_line_and_nothing_written(case: str, scene: d
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_export_fcd_and_compare_sumo_round_trip(scene: dict[str, Path], tmp_path: Path) -> None:
     """The observed trajectories exported as SUMO FCD and compared with themselves: every GEH is 0, speeds agree;
     a simulation shifted by 30 s in time no longer matches."""
@@ -189,6 +193,7 @@ def test_export_fcd_and_compare_sumo_round_trip(scene: dict[str, Path], tmp_path
     assert pd.read_csv(tmp_path / "cmp2" / "compare_counts.csv")["simulated"].sum() == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["not_a_run", "bad_suffix", "missing_fcd"])
 def test_sumo_commands_bad_input(case: str, scene: dict[str, Path], tmp_path: Path) -> None:
     run = tmp_path / "run"
@@ -206,6 +211,7 @@ def test_sumo_commands_bad_input(case: str, scene: dict[str, Path], tmp_path: Pa
     assert not (tmp_path / "out.csv").exists() and not (tmp_path / "cmp").exists()
 
 
+@pytest.mark.slow
 def test_a_counting_line_beyond_the_usable_range_is_warned_about(scene: dict[str, Path], tmp_path: Path) -> None:
     """A line 260 m away, where one pixel spans ~5 m of road, counts nobody: analyze says so and why."""
     far = gpd.GeoDataFrame({"name": ["far"]}, geometry=[shapely.LineString([(E0 - 8, N0 + 250), (E0 + 1, N0 + 250)])],

@@ -228,6 +228,7 @@ def _matched(df: pd.DataFrame, run: SumoRun, warmup: float = 30.0) -> pd.DataFra
     return m
 
 
+@pytest.mark.slow
 def test_real_sumo_fcd_matches_world_reader(world: tuple[RoadSpec, SumoRun]) -> None:
     road, run = world
     loc = read_net_location(run.net)
@@ -241,6 +242,7 @@ def test_real_sumo_fcd_matches_world_reader(world: tuple[RoadSpec, SumoRun]) -> 
     assert read_fcd(run.fcd, net=run.net)["x"].equals(df["x"])  # default CRS: the network's
 
 
+@pytest.mark.slow
 def test_real_sumo_fcd_in_feet(world: tuple[RoadSpec, SumoRun]) -> None:
     """The same FCD in US survey feet (EPSG:2240) with the net's true CRS given: pyproj's transform of the metre
     positions (with the NAD83(CSRS) -> NAD83 datum step), headings rotated to the new grid north."""
@@ -282,6 +284,7 @@ def meandata(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return {k: d / f"{k}.xml" for k in ("edges", "lanes", "fcd")} | {"net": d / "n.net.xml"}
 
 
+@pytest.mark.slow
 def test_read_meandata_edges_and_lanes(meandata: dict[str, Path]) -> None:
     edges, lanes = read_meandata(meandata["edges"]), read_meandata(meandata["lanes"])
     for t in (edges, lanes):
@@ -437,6 +440,7 @@ def test_read_meandata_errors(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------- large files
+@pytest.mark.slow
 def test_read_fcd_large_file(tmp_path: Path) -> None:
     """1e5 vehicle rows come back complete and in place (its speed: benchmarks/bench_fcd.py)."""
     rng = np.random.default_rng(1)

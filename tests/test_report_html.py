@@ -26,6 +26,8 @@ from trafficgeo.report import figures as F
 from trafficgeo.report.html import build_page, build_report
 from trafficgeo.traffic.boxes import cuboid_boxes
 
+pytestmark = pytest.mark.slow  # its site fixture runs calibrate and analyze and renders full report pages
+
 E0, N0, Z0 = 500000.0, 5000000.0, 100.0  # where conftest's roadside_camera stands (ROADSIDE_ORIGIN)
 CRS = "EPSG:32633"
 FPS = 25.0

@@ -23,6 +23,8 @@ from trafficgeo.synth.sumo_world import (
     sumo_binary,
 )
 
+pytestmark = pytest.mark.slow  # runs SUMO several times (one run of 120 s of busy traffic)
+
 ROAD = RoadSpec()
 DEMAND = Demand()
 BUSY = Demand(1000.0)  # enough vehicles in 120 s for flow and mix statistics

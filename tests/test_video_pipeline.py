@@ -13,6 +13,8 @@ import pytest
 from cli_support import invoke
 from trafficgeo.video.pipeline import CHECKPOINT_DIR, ProcessOptions, detect_and_track
 
+pytestmark = pytest.mark.slow  # processes an 8 s world video several times with the learned detector (minutes)
+
 INTEL = Path(__file__).parent / "data" / "intel-sample-video" / "car-detection.mp4"
 
 
