@@ -1,11 +1,12 @@
 # Two entry points do all set-up on a fresh machine (Python 3.11, pip, make, git):
 #   make demo   -> create .venv, install trafficgeo, run the demo on a generated scene with known truth
 #   make test   -> create .venv, install trafficgeo with test tools, run ruff and the test suite
+#   make test-fast -> ruff and the tests not marked slow (under a minute; no browser needed)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test test-fast lint bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -31,6 +32,9 @@ $(CHROMIUM):
 
 test: $(VENV)/.installed lint $(CHROMIUM)
 	TRAFFICGEO_CHROMIUM=$(CHROMIUM) $(BIN)/python -m pytest -q
+
+test-fast: $(VENV)/.installed lint
+	$(BIN)/python -m pytest -q -m "not slow"
 
 bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_calibration.py

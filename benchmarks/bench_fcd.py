@@ -18,8 +18,12 @@ Readers:
 * ``sumolib parse`` -- ``sumolib.xml.parse(path, "timestep")``: one object tree per timestep (SAX);
 * ``ElementTree iterparse`` -- ``xml.etree.ElementTree.iterparse`` with ``clear()`` after each timestep.
 
+Also (part ``world``): the wall time of ``trafficgeo.synth.sumo_world.run_sumo_world`` for a 60 s scene at 25 fps
+(net, routes, simulation, reading the trajectories) next to the bare ``sumo`` binary run on the same net and routes
+with the same simulation options, as a ratio.
+
 Run ``python benchmarks/bench_fcd.py [--vehicles 1000] [--steps 1000] [--repeat 1] [--skip sumolib-parse]
-[--keep DIR]`` (``sumolib parse`` alone takes ~3 min for 1e6 rows).
+[--keep DIR] [--parts readers,world]`` (``sumolib parse`` alone takes ~3 min for 1e6 rows).
 """
 
 from __future__ import annotations
@@ -179,30 +183,51 @@ def run_child(name: str, path: Path) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--vehicles", type=int, default=1000)
-    ap.add_argument("--steps", type=int, default=1000)
-    ap.add_argument("--skip", default="", help="comma-separated readers to leave out, e.g. 'sumolib parse'")
-    ap.add_argument("--repeat", type=int, default=1, help="runs per reader (fresh processes); the fastest is shown")
-    ap.add_argument("--keep", type=Path, default=None, help="write the FCD file into this directory and keep it")
-    ap.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
-    args = ap.parse_args()
-    if args.child:
-        child(*args.child)
-        return
+def sumo_world_times(folder: Path, repeat: int) -> None:
+    """Wall time of ``run_sumo_world`` (a 60 s scene at 25 fps after its 60 s warm-up, the default 2 x 2 lane road
+    and demand: netconvert, routes, sumo, the FCD copy and ``read_fcd``) against the bare ``sumo`` binary run on
+    its net and routes with the same simulation options and FCD output (the baseline), in the same run."""
+    from trafficgeo.synth.sumo_world import (
+        LANE_CHANGE_DURATION_S,
+        WARMUP_S,
+        Demand,
+        RoadSpec,
+        run_sumo_world,
+        sumo_binary,
+    )
+
+    ours, bare = [], []
+    for k in range(max(repeat, 1)):
+        out = folder / f"sumo-world-{k}"
+        t = time.perf_counter()
+        run = run_sumo_world(out, RoadSpec(), Demand(), seed=0)
+        ours.append(time.perf_counter() - t)
+        cmd = [sumo_binary("sumo"), "--net-file", str(run.net), "--route-files", str(run.routes), "--begin", "0",
+               "--end", repr(WARMUP_S + 60.0), "--step-length", "0.04", "--seed", "0", "--no-step-log",
+               "--time-to-teleport", "-1", "--lanechange.duration", repr(LANE_CHANGE_DURATION_S),
+               "--fcd-output", str(out / "bare.fcd.xml"), "--device.fcd.begin", repr(WARMUP_S)]
+        t = time.perf_counter()
+        subprocess.run(cmd, capture_output=True, check=True)
+        bare.append(time.perf_counter() - t)
+    rows = len(run.trajectories.time)
+    print(f"\nSUMO world (60 s at 25 fps after a {WARMUP_S:g} s warm-up, default road and demand, {rows:,} trajectory "
+          f"rows), fastest of {len(ours)}:")
+    print(f"{'step':28s} {'time s':>7s} {'x sumo':>7s}")
+    print(f"{'sumo alone (baseline)':28s} {min(bare):7.2f} {1.0:7.2f}")
+    print(f"{'run_sumo_world':28s} {min(ours):7.2f} {min(ours) / min(bare):7.2f}")
+
+
+def readers(args: argparse.Namespace, folder: Path) -> None:
+    """The FCD readers, each in a fresh process, on one generated file in ``folder``."""
     skip = {s.strip().replace("-", " ") for s in args.skip.split(",") if s.strip()}
-    with tempfile.TemporaryDirectory() as tmp:
-        folder = args.keep or Path(tmp)
-        folder.mkdir(parents=True, exist_ok=True)
-        path = folder / "bench.fcd.xml"
-        t0 = time.perf_counter()
-        rows = write_sumo_fcd(path, args.vehicles, args.steps)
-        size_mb = path.stat().st_size / 1e6
-        print(f"{platform.python_version()} on {platform.machine()}, {os.cpu_count()} cores; FCD {rows:,} vehicle "
-              f"rows, {size_mb:.0f} MB, written in {time.perf_counter() - t0:.1f} s")
-        results = [min((run_child(name, path) for _ in range(max(args.repeat, 1))), key=lambda r: r["seconds"])
-                   for name in READERS if name not in skip]
+    path = folder / "bench.fcd.xml"
+    t0 = time.perf_counter()
+    rows = write_sumo_fcd(path, args.vehicles, args.steps)
+    size_mb = path.stat().st_size / 1e6
+    print(f"{platform.python_version()} on {platform.machine()}, {os.cpu_count()} cores; FCD {rows:,} vehicle "
+          f"rows, {size_mb:.0f} MB, written in {time.perf_counter() - t0:.1f} s")
+    results = [min((run_child(name, path) for _ in range(max(args.repeat, 1))), key=lambda r: r["seconds"])
+               for name in READERS if name not in skip]
     ours = next((r for r in results if r["name"] == "read_fcd"), results[0])
     print(f"\n{'reader':28s} {'time s':>7s} {'x ours':>7s} {'peak RSS MB':>12s} {'above start MB':>15s} "
           f"{'x ours':>7s} {'table MB':>9s} {'rows':>9s}")
@@ -215,6 +240,30 @@ def main() -> None:
                 and r["ids"] == args.vehicles for r in results)
     print(f"\nall readers return {rows:,} rows, the same x sum and {args.vehicles} ids: {agree}")
     print(f"file {size_mb:.0f} MB; 'above start' = peak RSS minus RSS after imports, before the read")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--vehicles", type=int, default=1000)
+    ap.add_argument("--steps", type=int, default=1000)
+    ap.add_argument("--skip", default="", help="comma-separated readers to leave out, e.g. 'sumolib parse'")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per reader (fresh processes); the fastest is shown")
+    ap.add_argument("--keep", type=Path, default=None, help="write the FCD file into this directory and keep it")
+    ap.add_argument("--parts", default="readers,world",
+                    help="comma-separated: readers (the FCD readers), world (run_sumo_world against sumo alone)")
+    ap.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        child(*args.child)
+        return
+    parts = {p.strip() for p in args.parts.split(",")}
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = args.keep or Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        if "readers" in parts:
+            readers(args, folder)
+        if "world" in parts:
+            sumo_world_times(folder, args.repeat)
 
 
 if __name__ == "__main__":

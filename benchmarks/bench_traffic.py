@@ -28,11 +28,14 @@ smooths them. Speeds against NGSIM's own ``v_Vel`` (ft/s), per track point and p
 naive baseline (raw displacement over 1 s; first-to-last displacement per vehicle). Per vehicle part also against
 the distance the part's NGSIM positions travel over its time (the two truths disagree on short parts).
 
+Part 3, lengths: the wall time of one vehicle's length estimate from 40 boxes (``estimate_length_refit``, as
+``analyze`` runs it per vehicle) against ``estimate_length`` at the true centres and headings, as ratios.
+
 Memory: ``analyze`` on the demo world's tracker output repeated 20 times, in a fresh process: peak RSS above the
 loaded inputs per track point.
 
 Run ``python benchmarks/bench_traffic.py [--world DIR] [--seed N] [--ngsim-seeds K]
-[--parts synthetic,ngsim,world,memory]`` (the world is built into DIR once, ~90 s).
+[--parts synthetic,ngsim,world,memory,lengths]`` (the world is built into DIR once, ~90 s).
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from __future__ import annotations
 import argparse
 import platform
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -49,12 +53,13 @@ from trafficgeo.camera.io import read_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.load import load_surface
 from trafficgeo.geo.mapping import pixels_to_world
-from trafficgeo.geo.surface import ConstantSurface
+from trafficgeo.geo.surface import ConstantSurface, PlaneSurface
 from trafficgeo.synth.detections import DetectionNoise, noisy_tracks
 from trafficgeo.synth.noisy_paths import PathNoise, metres_per_px, noisy_road_tracks
 from trafficgeo.synth.scoring import count_scores
 from trafficgeo.synth.world import WorldOptions, build_world, truth_lane_name
 from trafficgeo.traffic.analyze import analyze
+from trafficgeo.traffic.boxes import cuboid_boxes, dimensions_for, estimate_length, estimate_length_refit
 from trafficgeo.traffic.lanes import read_lanes
 from trafficgeo.traffic.lines import find_crossings, read_count_lines
 from trafficgeo.traffic.tracks import ImageTracks, tracks_from_table
@@ -366,6 +371,50 @@ def part_synthetic(seed: int, vehicles: int = 30) -> None:
     print(f"largest |bias| of speed_kmh over the rows: {worst:.3f} km/h (target <= 0.1)")
 
 
+def part_lengths(seed: int, repeat: int = 20) -> None:
+    """Time per vehicle of the length estimate from 40 boxes (a car and a truck driving past a 1080p camera 8 m up
+    from 20 to 120 m, 0.3 px box noise): ``estimate_length_refit`` (centres and headings fitted, what ``analyze``
+    runs per vehicle) and with ``refine_heading=False``, against ``estimate_length`` at the true centres and
+    headings (the baseline: the same box model with nothing but the size fitted), in the same run."""
+    azimuth = 30.0
+    ahead = np.array([np.sin(np.radians(azimuth)), np.cos(np.radians(azimuth))])
+    right = np.array([ahead[1], -ahead[0]])
+    cam = Camera.from_orientation((1920, 1080), 1728.0, [0.0, 0.0, 8.0], 22.0, 5.2, 0.0,
+                                  dist=[-0.06, 0.012, 0, 0, 0])
+    surface = PlaneSurface(point=np.zeros(3), gx=0.02 * right[0], gy=0.02 * right[1])
+    rng = np.random.default_rng(seed)
+    print(f"\nPart 3: length of one vehicle from 40 boxes, median wall time of {repeat} runs per row "
+          "(ratio: to estimate_length at the true centres and headings)")
+    print("\n| vehicle | method | ms | x baseline | length error |\n|---|---|---|---|---|")
+    for vclass, offset_m in (("car", -13.75), ("truck", -17.25)):
+        dims = dimensions_for([vclass])[0]
+        xy = cam.position[:2] + np.linspace(20.0, 120.0, 40)[:, None] * ahead + offset_m * right
+        centres = np.column_stack([xy, surface.elevation(xy[:, 0], xy[:, 1])])
+        heading = np.full(len(xy), azimuth)
+        boxes = cuboid_boxes(cam, centres, heading, *dims) + rng.normal(0.0, 0.3, (len(xy), 4))
+        boxes = np.clip(boxes, 0.0, [1919, 1079, 1919, 1079])
+        common = dict(length0_m=dims[0], pixel_sigma=2.0, use_top=False)
+        refit_args = (cam, surface, heading, boxes, dims[1], dims[2])
+        runs = {
+            "estimate_length (true centres, baseline)": partial(
+                estimate_length, cam, centres, heading, boxes, dims[1], dims[2], **common),
+            "estimate_length_refit, refine_heading=False": partial(
+                estimate_length_refit, *refit_args, refine_heading=False, **common),
+            "estimate_length_refit (default)": partial(estimate_length_refit, *refit_args, **common),
+        }
+        base_ms = None
+        for label, run in runs.items():
+            run()  # first-call costs (imports, compilation) not counted
+            times = []
+            for _ in range(repeat):
+                t = time.perf_counter()
+                length, _std = run()
+                times.append(time.perf_counter() - t)
+            ms = 1000.0 * float(np.median(times))
+            base_ms = base_ms or ms
+            print(f"| {vclass} | {label} | {ms:.1f} | {ms / base_ms:.2f} | {100 * (length / dims[0] - 1):+.1f} % |")
+
+
 def _memory_child(world_dir: Path, copies: int, seed: int) -> None:
     """In a fresh process: peak RSS of ``analyze`` on the demo world's tracker output repeated ``copies`` times
     (distinct track ids), above the RSS after loading the inputs and a warm-up run; prints one JSON line."""
@@ -415,8 +464,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--world", type=Path, default=ROOT / "out" / "bench-traffic-world")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--parts", default="synthetic,ngsim,world,memory",
-                    help="comma-separated: synthetic, ngsim, world, memory")
+    ap.add_argument("--parts", default="synthetic,ngsim,world,memory,lengths",
+                    help="comma-separated: synthetic, ngsim, world, memory, lengths")
     ap.add_argument("--ngsim-seeds", type=int, default=5, help="pixel-noise draws pooled in the NGSIM part")
     ap.add_argument("--memory-child", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -433,6 +482,8 @@ def main() -> None:
         part_world(args.world, args.seed)
     if "memory" in parts:
         part_memory(args.world, args.seed)
+    if "lengths" in parts:
+        part_lengths(args.seed)
 
 
 if __name__ == "__main__":

@@ -61,6 +61,7 @@ def test_near_coplanar_road_skips_dlt_and_says_why():
 
 
 # ------------------------------------------------------------------ recovery
+@pytest.mark.slow
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 10_000), four_k=st.booleans(), n=st.integers(8, 20))
 def test_noise_free_gcps_recover_a_random_camera(seed, four_k, n):
@@ -89,6 +90,7 @@ def test_very_large_coordinates_lose_nothing():
     np.testing.assert_allclose(cal.camera.position, sc.camera.position, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_feet_crs_keeps_feet_and_reports_metres():
     ft = 0.3048
     sc = make_gcp_scene(8, n_control=14, n_check=3, pixel_sigma=1.0)
@@ -125,6 +127,7 @@ def test_planted_blunders_are_found_and_explained():
     assert any(sc.gcps.ids[i] in rec for rec in report["recommendations"] for i in np.nonzero(sc.outlier)[0])
 
 
+@pytest.mark.slow
 def test_outlier_detection_over_many_scenes():
     """Recall and false positives on 24 random scenes (the benchmark runs more): recall >= 90 %, FP <= 2 %."""
     tp = fn = fp = n_good = 0

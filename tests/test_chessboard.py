@@ -116,6 +116,7 @@ def test_large_images_are_searched_reduced_and_refined_at_full_size(tmp_path: Pa
     assert np.median(err) < 0.3 and err.max() < 1.0
 
 
+@pytest.mark.slow
 def test_detection_on_the_board_edge_is_rejected() -> None:
     # findChessboardCornersSB "finds" a 7x7 grid on the 9x6 board of left03 whose last row is the board's
     # outer edge (L-shaped corners); the X-junction check must reject it.
@@ -146,6 +147,7 @@ def test_checkerboard_check_tolerates_one_washed_out_square() -> None:
 
 
 # ---------------------------------------------------------------------------------------------- errors
+@pytest.mark.slow
 @pytest.mark.parametrize("pattern", [(7, 7), (10, 7)])
 def test_wrong_pattern(pattern: tuple[int, int]) -> None:
     with pytest.raises(InputError) as info:

@@ -350,6 +350,7 @@ def test_intrinsics_bad_options_exit_2(args: list[str], word: str, tmp_path: Pat
 # ------------------------------------------------------------------------------------------------ 3. paper
 
 
+@pytest.mark.slow
 def test_paper_table2_runs_and_warns(tmp_path: Path) -> None:
     out, report = tmp_path / "camera.json", tmp_path / "report.json"
     code, _stdout, stderr = invoke(*calibrate_args(PAPER, out, PAPER_SIZE, "--crs", "EPSG:2949", report=report))
@@ -408,6 +409,7 @@ def test_i24_four_points_no_numpy_warnings(tmp_path: Path) -> None:
     assert "nan" not in stdout.lower()
 
 
+@pytest.mark.slow
 def test_i24_inconsistent_camera_exits_1(tmp_path: Path) -> None:
     """P1C2's 4 points fit no pinhole camera with a central principal point (best PnP ~ 300 px RMSE): exit 1."""
     gcps = i24_camera_csv(tmp_path, "P1C2")
@@ -451,6 +453,7 @@ def test_calibrate_with_chessboard_intrinsics(board_yaml: Path, tmp_path: Path) 
 # ------------------------------------------------------------------------------------------------ 6. demo
 
 
+@pytest.mark.slow
 def test_demo_writes_its_files(tmp_path: Path) -> None:
     out = tmp_path / "demo"
     code, stdout, stderr = invoke("demo", "--out", out, "--quick", "--duration", "2")
@@ -503,6 +506,7 @@ def test_intrinsics_yaml_is_readable_by_others(board_yaml: Path) -> None:
 # ------------------------------------------------------------------------------------------------ console script
 
 
+@pytest.mark.slow
 def test_console_script_help_and_bad_input(tmp_path: Path) -> None:
     exe = Path(sys.executable).with_name("trafficgeo")
     assert exe.exists(), exe

@@ -339,6 +339,7 @@ def test_georef_plane_ignores_elevated_gcps(cal_cam: Path, road_pixels, tmp_path
     assert np.median(err) < 0.5, np.median(err)
 
 
+@pytest.mark.slow
 def test_plane_error_grows_on_a_crest_but_dem_does_not(tmp_path: Path) -> None:
     sc = make_gcp_scene(SCENE_SEED, image_size=SIZE, n_control=14, n_check=4, crest_radius=500.0)
     sc.gcps.to_csv(tmp_path / "gcps.csv")
@@ -367,6 +368,7 @@ def test_plane_error_grows_on_a_crest_but_dem_does_not(tmp_path: Path) -> None:
 # ------------------------------------------------------------------------------------------------ 3. GIS output
 
 
+@pytest.mark.slow
 def test_georef_gpkg_geojson_parquet(true_cam: Path, road_pixels, road_dem: Path, georef_true_dem,
                                      tmp_path: Path) -> None:
     base = pd.read_csv(georef_true_dem[0])
@@ -426,6 +428,7 @@ def test_georef_height_lifts_the_surface(true_cam: Path, road_pixels, road_dem: 
     assert (res.loc[good, "distance_m"] < base.loc[good, "distance_m"] - 1.5).all()
 
 
+@pytest.mark.slow
 def test_georef_height_is_in_metres_for_a_feet_camera(feet_cam, feet_pixels: Path, autzen_dem: Path,
                                                       tmp_path: Path) -> None:
     cam_path, _cam = feet_cam
@@ -494,6 +497,7 @@ def test_project_statuses_and_occlusion(true_cam: Path, scene, wall_dem: Path, t
 # ------------------------------------------------------------------------------------------------ 6. dem, feet
 
 
+@pytest.mark.slow
 def test_dem_from_autzen_in_feet(autzen_dem: Path) -> None:
     las = laspy.read(AUTZEN)
     z = np.asarray(las.z)
@@ -523,6 +527,7 @@ def test_dem_from_autzen_in_feet(autzen_dem: Path) -> None:
     assert np.median(np.abs(diff)) < 0.1 and np.max(np.abs(diff)) < 1.0  # feet
 
 
+@pytest.mark.slow
 def test_georef_on_laz_in_feet(feet_cam, feet_pixels: Path, autzen_dem: Path, tmp_path: Path) -> None:
     cam_path, cam = feet_cam
     # the header's Oregon Lambert WKT is accepted as the camera's EPSG:2994; --surface-crs overrides it
@@ -549,6 +554,7 @@ def test_georef_on_laz_in_feet(feet_cam, feet_pixels: Path, autzen_dem: Path, tm
     assert -123.08 < lon.mean() < -123.06 and 44.04 < lat.mean() < 44.06
 
 
+@pytest.mark.slow
 def test_georef_on_crs_less_las_needs_surface_crs(true_cam: Path, road_pixels, scene, tmp_path: Path) -> None:
     pts = road_points_in_view(scene)
     lo, hi = pts[:, :2].min(axis=0) - 5, pts[:, :2].max(axis=0) + 5
@@ -603,6 +609,7 @@ def autzen_gcps(work: Path) -> tuple[Path, dict[str, float]]:
     return path, truth
 
 
+@pytest.mark.slow
 def test_gcp_z_with_cloud(autzen_gcps, tmp_path: Path) -> None:
     path, truth = autzen_gcps
     out = tmp_path / "gcps_z.csv"
@@ -635,6 +642,7 @@ def test_gcp_z_with_cloud(autzen_gcps, tmp_path: Path) -> None:
     assert rep.loc["D", "z"] == pytest.approx(truth["D"], abs=1e-4)  # replaced by the ground
 
 
+@pytest.mark.slow
 def test_gcp_z_with_dem(autzen_gcps, autzen_dem: Path, tmp_path: Path) -> None:
     path, truth = autzen_gcps
     out = tmp_path / "gcps_dem.csv"
@@ -664,6 +672,7 @@ def accuracy_run(cal_cam: Path, road_dem: Path, work: Path) -> tuple[Path, Path,
     return tif, gpkg, stdout
 
 
+@pytest.mark.slow
 def test_accuracy_geotiff(accuracy_run, cal_cam: Path, scene) -> None:
     tif, _gpkg, stdout = accuracy_run
     assert "expected error" in stdout
@@ -706,6 +715,7 @@ def test_accuracy_geotiff(accuracy_run, cal_cam: Path, scene) -> None:
     assert np.median(pix[far]) > 3 * np.median(pix[near])
 
 
+@pytest.mark.slow
 def test_accuracy_pixel_sigma_scales_pixel_noise_only(cal_cam: Path, road_dem: Path, tmp_path: Path) -> None:
     for s in ("1", "2"):
         ok("accuracy", cal_cam, "--surface", road_dem, "-o", tmp_path / f"s{s}.tif", "--cell", "2",
@@ -977,6 +987,7 @@ def test_project_to_gpkg_does_not_blame_the_camera_crs(true_cam: Path, georef_tr
     assert gpd.read_file(out).crs.to_epsg() == 2949
 
 
+@pytest.mark.slow
 def test_gcp_z_to_gpkg_uses_the_data_crs_and_rejects_a_non_numeric_z(autzen_gcps, tmp_path: Path) -> None:
     path, _ = autzen_gcps
     out = tmp_path / "g.gpkg"

@@ -16,7 +16,7 @@ from trafficgeo.camera.io import write_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.traffic.boxes import cuboid_boxes
 
-E0, N0, Z0 = 500000.0, 5000000.0, 100.0
+E0, N0, Z0 = 500000.0, 5000000.0, 100.0  # where conftest's roadside_camera stands (ROADSIDE_ORIGIN)
 CRS = "EPSG:32633"
 FPS = 25.0
 # (track, lane centre x offset from E0, start y, speed m/s, class, dims); lanes: x in [-7, -3.5] and [-3.5, 0]
@@ -25,14 +25,10 @@ VEHICLES = [("1", -1.75, 10.0, 50 / 3.6, "car", (4.5, 1.8, 1.5)),
             ("3", -1.75, -10.0, 40 / 3.6, "truck", (12.0, 2.55, 3.8))]
 
 
-def _camera() -> Camera:
-    return Camera.from_orientation((1920, 1080), 1700.0, [E0 + 5.0, N0 - 10.0, Z0 + 8.0], 350.0, 10.0, crs=CRS)
-
-
 @pytest.fixture(scope="module")
-def scene(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+def scene(tmp_path_factory: pytest.TempPathFactory, roadside_camera: Camera) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("traffic_scene")
-    cam = _camera()
+    cam = roadside_camera
     write_camera_json(root / "camera.json", cam)
     rng = np.random.default_rng(0)
     rows = []
@@ -56,6 +52,7 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
             "lanes": root / "lanes.geojson", "lines": root / "lines.csv"}
 
 
+@pytest.mark.slow
 def test_analyze_writes_vehicles_counts_and_trajectories(scene: dict[str, Path], tmp_path: Path) -> None:
     out = tmp_path / "out"
     code, stdout, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
@@ -91,6 +88,7 @@ def test_analyze_writes_vehicles_counts_and_trajectories(scene: dict[str, Path],
     assert summary["hidden_crossings"] == 0 and summary["options"]["coast_hidden_s"] == 3.0  # nothing hidden here
 
 
+@pytest.mark.slow
 def test_box_correction_moves_points_to_the_footprint_centre(scene: dict[str, Path], tmp_path: Path) -> None:
     """Without the cuboid fit the ground point is the box's bottom: ~half a car length short of the centre."""
     on, off = tmp_path / "on", tmp_path / "off"
@@ -107,6 +105,7 @@ def test_box_correction_moves_points_to_the_footprint_centre(scene: dict[str, Pa
     assert err["on"] < 0.25 and err["off"] > 1.0, err
 
 
+@pytest.mark.slow
 def test_boundary_lines_and_mot_input(scene: dict[str, Path], tmp_path: Path) -> None:
     bounds = gpd.GeoDataFrame(geometry=[shapely.LineString([(E0 + x, N0 - 50), (E0 + x, N0 + 300)])
                                         for x in (0.0, -7.0, -3.5)], crs=CRS)
@@ -158,6 +157,7 @@ def test_bad_input_exits_2_with_one_line_and_nothing_written(case: str, scene: d
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_export_fcd_and_compare_sumo_round_trip(scene: dict[str, Path], tmp_path: Path) -> None:
     """The observed trajectories exported as SUMO FCD and compared with themselves: every GEH is 0, speeds agree;
     a simulation shifted by 30 s in time no longer matches."""
@@ -193,6 +193,7 @@ def test_export_fcd_and_compare_sumo_round_trip(scene: dict[str, Path], tmp_path
     assert pd.read_csv(tmp_path / "cmp2" / "compare_counts.csv")["simulated"].sum() == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["not_a_run", "bad_suffix", "missing_fcd"])
 def test_sumo_commands_bad_input(case: str, scene: dict[str, Path], tmp_path: Path) -> None:
     run = tmp_path / "run"
@@ -210,6 +211,7 @@ def test_sumo_commands_bad_input(case: str, scene: dict[str, Path], tmp_path: Pa
     assert not (tmp_path / "out.csv").exists() and not (tmp_path / "cmp").exists()
 
 
+@pytest.mark.slow
 def test_a_counting_line_beyond_the_usable_range_is_warned_about(scene: dict[str, Path], tmp_path: Path) -> None:
     """A line 260 m away, where one pixel spans ~5 m of road, counts nobody: analyze says so and why."""
     far = gpd.GeoDataFrame({"name": ["far"]}, geometry=[shapely.LineString([(E0 - 8, N0 + 250), (E0 + 1, N0 + 250)])],

@@ -58,6 +58,7 @@ def _one_line_error(code: int, out: str, err: str) -> str:
     return lines[0]
 
 
+@pytest.mark.slow
 def test_serves_the_session_and_prints_the_address(scene, tmp_path, served):
     gcps = tmp_path / "gcps.csv"
     code, out, err = invoke("gcp-ui", "--frame", scene.frame, "--ortho", scene.ortho, "--dem", scene.dem,

@@ -28,6 +28,7 @@ DAMAGED = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", list(DAMAGED))
 @pytest.mark.parametrize("with_gcps", [False, True])
 def test_a_damaged_autosave_says_to_move_it_aside(tmp_path_factory, tmp_path, served, kind, with_gcps):

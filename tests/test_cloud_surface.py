@@ -15,6 +15,8 @@ from trafficgeo.geo.surface import DEMSurface
 from trafficgeo.synth.gcp_scene import RoadSurface, make_gcp_scene
 from trafficgeo.synth.terrain import road_point_cloud
 
+pytestmark = pytest.mark.slow  # maps pixels through dense lidar clouds
+
 
 def grazing_scene(seed: int, n_pixels: int = 3000, max_distance_m: float = 60.0):
     """A 4K camera with a wide lens (f = 0.5 W, 90 deg across) 3 m above the road edge, airborne-like lidar of the

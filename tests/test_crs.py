@@ -188,6 +188,7 @@ def test_looks_like_lonlat() -> None:
     assert not looks_like_lonlat([float("nan")], [0.0])
 
 
+@pytest.mark.slow
 @settings(max_examples=50, deadline=None)
 @given(
     lon=st.floats(min_value=-179.9, max_value=179.9),

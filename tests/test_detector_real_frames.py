@@ -18,6 +18,8 @@ from trafficgeo.errors import InputError
 from trafficgeo.video.detect import make_detector
 from trafficgeo.video.tiling import TiledDetector, grid_plan
 
+pytestmark = pytest.mark.slow  # the learned detector on real labelled frames
+
 
 @pytest.fixture(scope="module")
 def nanodet():

@@ -15,6 +15,8 @@ from trafficgeo.video.detect import make_detector
 from trafficgeo.video.detections import box_iou
 from trafficgeo.video.reader import iter_frames
 
+pytestmark = pytest.mark.slow  # builds a 1280x720 world and runs the learned detector on it
+
 
 @pytest.fixture(scope="module")
 def world(tmp_path_factory: pytest.TempPathFactory) -> Path:

@@ -93,6 +93,7 @@ def test_pieces_with_other_attributes_fall_back(monkeypatch: pytest.MonkeyPatch,
     np.testing.assert_allclose(got.loc[~early, "z"], pts.loc[pts["time"] >= 2.0, "z"], atol=1e-4)
 
 
+@pytest.mark.slow
 def test_memory_bounded_by_pieces_not_file(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     """Python-traced peak memory of parsing a ~12 MB FCD: below 1.5 x the file size with 256 KiB pieces, while the
     whole file in one piece takes over 5 x (the byte-level parser's index arrays are 8 bytes per quote)."""

@@ -247,6 +247,7 @@ def test_geographic_working_crs_refused(tmp_path: Path) -> None:
     raises_input(path, "--crs", "not a projected CRS", gcp_crs="EPSG:4326", crs="EPSG:4326")
 
 
+@pytest.mark.slow
 def test_bad_crs_text(tmp_path: Path) -> None:
     path = write(tmp_path, HEADER + "A,500000,3985000,0,1,1\n")
     raises_input(path, "--gcp-crs", '"EPSG:12"', gcp_crs="EPSG:12")
@@ -426,6 +427,7 @@ def tables(draw: st.DrawFn) -> GCPTable:
     return GCPTable.from_arrays(ids, world, pixels, roles=roles, sigma_px=sigma)
 
 
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(table=tables())
 def test_to_csv_read_gcps_round_trip_property(table: GCPTable) -> None:

@@ -56,6 +56,7 @@ def _signed_area(ring: list[list[float]]) -> float:
 # ---------------------------------------------------------------------------------------------------- GeoPackage
 
 
+@pytest.mark.slow
 def test_gpkg_three_layers_roundtrip(tmp_path: Path) -> None:
     path = tmp_path / "scene.gpkg"
     write_gis(path, _layers(), OREGON_FT)

@@ -99,6 +99,7 @@ def test_ngsim_frames_are_the_unchanged_originals() -> None:
     assert views == {"seq2", "seq4"}
 
 
+@pytest.mark.slow
 def test_intel_frames_are_the_decoded_video_frames() -> None:
     """Each PNG is the frame of car-detection.mp4 at the index frames.csv gives (12.5 fps: time = index x 0.08 s)."""
     frames = pd.read_csv(INTEL_LABELS / "frames.csv")

@@ -357,6 +357,7 @@ def test_yolox_raw_or_decoded(tmp_path: Path) -> None:
     assert_truth(as_v5)
 
 
+@pytest.mark.slow
 def test_recognition_from_metadata(tmp_path: Path) -> None:
     """Names map classes (a custom model's 'van'), tasks other than detection are refused, a model that fits no
     layout or the named one gives one line naming its outputs."""
@@ -431,6 +432,7 @@ def test_suppression_across_classes_and_inside() -> None:
     assert len(suppress(np.zeros((0, 4)), np.zeros(0))) == 0
 
 
+@pytest.mark.slow
 def test_detector_format_reaches_the_run(tmp_path: Path) -> None:
     """--detector-format goes from the command line through ProcessOptions (checked before anything is written,
     part of the run key) to the detector: a decoded YOLOX model that auto refuses runs as named."""

@@ -132,6 +132,7 @@ _dist_value = st.floats(min_value=-1e3, max_value=1e3, allow_nan=False) | st.sam
 )  # subnormals, signed zero
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None)
 @given(
     fx=_positive,

@@ -29,6 +29,7 @@ def _analyze(scene: dict[str, Path], out: Path, *extra: object) -> tuple[int, st
     return invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--out", out, *extra)
 
 
+@pytest.mark.slow
 def test_a_dem_in_feet_read_as_metres_is_named(scene: dict[str, Path], tmp_path: Path) -> None:  # noqa: F811
     code, _, stderr = _analyze(scene, tmp_path / "ok", "--surface", _dem(tmp_path / "m.tif", Z0))
     assert code == 0, stderr
@@ -51,6 +52,7 @@ def test_a_surface_on_another_datum_is_named_without_feet(scene: dict[str, Path]
     assert "feet" not in str(err.value)
 
 
+@pytest.mark.slow
 def test_lanes_with_a_wrong_crs_label_are_named(scene: dict[str, Path], tmp_path: Path) -> None:  # noqa: F811
     lanes = gpd.read_file(scene["lanes"]).to_crs(CRS).set_crs("EPSG:32634", allow_override=True)  # next UTM zone
     lanes.to_file(tmp_path / "lanes.gpkg")
@@ -64,6 +66,7 @@ def test_lanes_with_a_wrong_crs_label_are_named(scene: dict[str, Path], tmp_path
     assert code == 0 and "no lane" not in stdout, stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("where", "expect"), [
     ("behind", "counting line x lies behind the camera (50 m away towards 190 deg, while the camera looks towards "
                "350 deg)"),

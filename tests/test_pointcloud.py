@@ -253,6 +253,7 @@ def autzen_dem(autzen: PointCloud):
     return cloud_to_dem(autzen, resolution_m=2.0)
 
 
+@pytest.mark.slow
 def test_dem_from_autzen_grid(autzen: PointCloud, autzen_dem) -> None:
     dem = autzen_dem
     res = 2.0 / FT  # 6.5617 ft
@@ -274,6 +275,7 @@ def test_dem_from_autzen_grid(autzen: PointCloud, autzen_dem) -> None:
     assert 0.75 < np.isfinite(z).mean() < 0.95  # NaN outside the convex hull of the ground points
 
 
+@pytest.mark.slow
 def test_dem_cells_follow_their_points(autzen: PointCloud, autzen_dem) -> None:
     """Cells hold a local plane's value (tests/test_cloud_surface.py), close to the median of their own points."""
     ground = autzen.xyz[autzen.classification == 2]
@@ -289,6 +291,7 @@ def test_dem_cells_follow_their_points(autzen: PointCloud, autzen_dem) -> None:
     assert np.isfinite(diff).all() and np.median(diff) < 0.1 and np.percentile(diff, 90) < 0.5  # feet
 
 
+@pytest.mark.slow
 def test_dem_one_metre_cells_are_feet() -> None:
     cloud = _synthetic(crs="EPSG:2994")  # the same numbers read as feet
     dem = cloud_to_dem(cloud, resolution_m=1.0)
@@ -296,6 +299,7 @@ def test_dem_one_metre_cells_are_feet() -> None:
     assert dem.descriptions == ("ground elevation (foot)",)
 
 
+@pytest.mark.slow
 def test_dem_agrees_with_ground_index(autzen: PointCloud, autzen_index: GroundIndex, autzen_dem) -> None:
     rng = np.random.default_rng(7)
     pick = rng.choice(len(autzen_index), 1000, replace=False)
@@ -309,6 +313,7 @@ def test_dem_agrees_with_ground_index(autzen: PointCloud, autzen_index: GroundIn
     assert np.median(np.abs(diff)) < 0.15 and np.percentile(np.abs(diff), 90) < 0.4  # feet
 
 
+@pytest.mark.slow
 def test_dem_fills_holes_by_tin_and_keeps_nan_outside() -> None:
     cloud = _synthetic(hole=True)
     pad = 20.0
@@ -331,6 +336,7 @@ def test_dem_fills_holes_by_tin_and_keeps_nan_outside() -> None:
     assert np.max(np.abs(z[ok] - _plane(x[ok], y[ok]))) < 0.15  # the trees (class 5) are not in the DEM
 
 
+@pytest.mark.slow
 def test_dem_explicit_ground_mask_and_errors() -> None:
     cloud = _synthetic()
     everything = cloud_to_dem(cloud, resolution_m=4.0, ground=np.ones(len(cloud), bool))
@@ -343,6 +349,7 @@ def test_dem_explicit_ground_mask_and_errors() -> None:
         cloud_to_dem(cloud, 0.0)
 
 
+@pytest.mark.slow
 def test_dem_write_read_round_trip(tmp_path: Path, autzen_dem) -> None:
     path = tmp_path / "autzen_dem.tif"
     write_geotiff(path, autzen_dem.data, autzen_dem.transform, autzen_dem.crs, nodata=-9999.0,

@@ -171,6 +171,7 @@ def test_read_raster_errors(tmp_path: Path) -> None:
 finite = {"allow_nan": False, "allow_infinity": False}
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(
     res=st.floats(0.01, 20.0, **finite),

@@ -12,8 +12,11 @@ import pandas as pd
 import pytest
 
 from cli_support import invoke
-from test_report_html import BAD_ID, SIZE, _camera, _gcps, _synthetic_run
+from test_report_html import BAD_ID, SIZE, _gcps, _synthetic_run
+from trafficgeo.camera.model import Camera
 from trafficgeo.report.html import build_page
+
+pytestmark = pytest.mark.slow  # renders full report pages with figures
 
 # _synthetic_run's vehicles: (lane, speed m/s, start s), points every 1 s for 8 s, a line at y = 50 m crossed by all
 LANES = [("a", 10.0, 0.0), ("a", 12.0, 3.0), ("a", 8.0, 6.0), ("b", -11.0, 1.0), ("b", -9.0, 4.0)]
@@ -149,8 +152,8 @@ def test_counts_per_interval_and_run_summary(feet_page: Page) -> None:
     assert summary["counting interval"] == ["5.00", "s"]
 
 
-def test_calibration_page_gcp_table_and_camera(tmp_path: Path) -> None:
-    cam = _camera()
+def test_calibration_page_gcp_table_and_camera(tmp_path: Path, roadside_camera: Camera) -> None:
+    cam = roadside_camera
     gcps = _gcps(cam)
     gcps.to_csv(tmp_path / "gcps.csv", index=False)
     (tmp_path / "cal").mkdir()

@@ -26,7 +26,9 @@ from trafficgeo.report import figures as F
 from trafficgeo.report.html import build_page, build_report
 from trafficgeo.traffic.boxes import cuboid_boxes
 
-E0, N0, Z0 = 500000.0, 5000000.0, 100.0
+pytestmark = pytest.mark.slow  # its site fixture runs calibrate and analyze and renders full report pages
+
+E0, N0, Z0 = 500000.0, 5000000.0, 100.0  # where conftest's roadside_camera stands (ROADSIDE_ORIGIN)
 CRS = "EPSG:32633"
 FPS = 25.0
 SIZE = (1920, 1080)
@@ -35,10 +37,6 @@ VEHICLES = [("1", -1.75, 10.0, 50 / 3.6, "car"), ("2", -5.25, 5.0, 70 / 3.6, "ca
             ("3", -1.75, -10.0, 40 / 3.6, "truck"), ("4", -5.25, 110.0, -45 / 3.6, "car")]
 DIMS = {"car": (4.5, 1.8, 1.5), "truck": (12.0, 2.55, 3.8)}
 BAD_ID = "C<0>&"  # a check point whose id must be escaped in the page
-
-
-def _camera() -> Camera:
-    return Camera.from_orientation(SIZE, 1700.0, [E0 + 5.0, N0 - 10.0, Z0 + 8.0], 350.0, 10.0, crs=CRS)
 
 
 def _gcps(cam: Camera) -> pd.DataFrame:
@@ -87,13 +85,13 @@ def _ortho(path: Path, crs: str = CRS) -> None:
 
 
 @pytest.fixture(scope="module")
-def site(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+def site(tmp_path_factory: pytest.TempPathFactory, roadside_camera: Camera) -> dict[str, Path]:
     """project/: camera.json, report.json and calibration.html (calibrate --report-html), frame.png, ortho.tif,
     lanes and lines, and run/ (analyze --report-html run/report.html)."""
     root = tmp_path_factory.mktemp("report_site")
     proj = root / "project"
     proj.mkdir()
-    cam = _camera()
+    cam = roadside_camera
     _gcps(cam).to_csv(root / "gcps.csv", index=False)
     frame = np.full((SIZE[1], SIZE[0], 3), 90, dtype=np.uint8)
     frame[SIZE[1] // 2:] = (60, 120, 60)

@@ -32,6 +32,7 @@ def _one_line(stderr: str) -> bool:
 
 
 # ------------------------------------------------------------------------------------------------ manifest
+@pytest.mark.slow
 def test_a_killed_rerun_leaves_a_folder_every_reader_refuses(scene: dict[str, Path], tmp_path: Path,  # noqa: F811
                                                              monkeypatch: pytest.MonkeyPatch) -> None:
     run = tmp_path / "run"
@@ -68,6 +69,7 @@ def test_a_killed_rerun_leaves_a_folder_every_reader_refuses(scene: dict[str, Pa
     assert invoke("export-fcd", run, "-o", tmp_path / "c.fcd.xml")[0] == 0
 
 
+@pytest.mark.slow
 def test_a_file_changed_after_the_run_or_a_legacy_folder_is_refused(scene: dict[str, Path],  # noqa: F811
                                                                     tmp_path: Path) -> None:
     run = tmp_path / "run"
@@ -82,6 +84,7 @@ def test_a_file_changed_after_the_run_or_a_legacy_folder_is_refused(scene: dict[
     assert code == 2 and _one_line(stderr) and f"no {MANIFEST}" in stderr, stderr
 
 
+@pytest.mark.slow
 def test_compare_results_from_an_earlier_run_are_left_out_of_the_report(scene: dict[str, Path],  # noqa: F811
                                                                         tmp_path: Path) -> None:
     run = tmp_path / "run"
@@ -113,6 +116,7 @@ def test_manifest_unit(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ full disk
+@pytest.mark.slow
 def test_a_full_disk_while_writing_the_geopackage_is_one_line_exit_1(scene: dict[str, Path],  # noqa: F811
                                                                      tmp_path: Path,
                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
@@ -233,6 +237,7 @@ def test_range_checks_in_the_library(scene: dict[str, Path]) -> None:  # noqa: F
     assert read_tracks(scene["tracks"], fps=0.1).time.max() > 100  # a time-lapse camera's rate is fine
 
 
+@pytest.mark.slow
 def test_compare_sumo_time_offset_must_be_finite(scene: dict[str, Path], tmp_path: Path) -> None:  # noqa: F811
     run = tmp_path / "run"
     assert _analyze(scene, run)[0] == 0
@@ -287,6 +292,7 @@ def _stitch(scene: dict[str, Path], out: Path, *folders: Path) -> tuple[int, str
                   "--out", out)
 
 
+@pytest.mark.slow
 def test_stitch_in_any_order_gives_the_same_crossings(scene: dict[str, Path], chunks: dict[str, Path],  # noqa: F811
                                                       tmp_path: Path) -> None:
     for name, order in (("ab", ("a", "b")), ("ba", ("b", "a"))):
@@ -337,6 +343,7 @@ def test_stitch_refuses_chunks_that_would_count_twice(case: str, expect: str, sc
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_stitch_warns_about_a_gap(scene: dict[str, Path], chunks: dict[str, Path], tmp_path: Path) -> None:  # noqa: F811
     from trafficgeo.video.stitch import plan_chunks
 

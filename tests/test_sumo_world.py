@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import time
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +23,8 @@ from trafficgeo.synth.sumo_world import (
     sumo_binary,
 )
 
+pytestmark = pytest.mark.slow  # runs SUMO several times (one run of 120 s of busy traffic)
+
 ROAD = RoadSpec()
 DEMAND = Demand()
 BUSY = Demand(1000.0)  # enough vehicles in 120 s for flow and mix statistics
@@ -33,13 +34,11 @@ FIELDS = list(Trajectories.__dataclass_fields__)
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, SumoRun]:
     base = tmp_path_factory.mktemp("sumo")
-    t = time.perf_counter()
     a = run_sumo_world(base / "a", ROAD, DEMAND, seed=0)
-    elapsed = time.perf_counter() - t
     b = run_sumo_world(base / "b", ROAD, DEMAND, seed=0)
     c = run_sumo_world(base / "c", ROAD, DEMAND, seed=1)
     long = run_sumo_world(base / "long", ROAD, BUSY, duration_s=120.0, seed=3)
-    return {"a": a, "b": b, "c": c, "long": long, "elapsed": elapsed}  # type: ignore[dict-item]
+    return {"a": a, "b": b, "c": c, "long": long}
 
 
 def _same(t1: Trajectories, t2: Trajectories) -> bool:
@@ -59,8 +58,7 @@ def test_run_writes_files_and_finds_binaries(runs: dict[str, SumoRun]) -> None:
     assert run.sumo_version.count(".") >= 2 and run.sumo_version[0].isdigit()
     head = run.fcd.read_text(encoding="utf-8")[:2000]
     assert "generated on" not in head and "sumoConfiguration" not in head
-    assert len(run.trajectories) > 10000
-    assert runs["elapsed"] < 20.0  # a 60 s scene at 25 fps on 2 x 2 lanes runs in a few seconds
+    assert len(run.trajectories) > 10000  # its wall time: benchmarks/bench_fcd.py --parts world
 
 
 def test_same_seed_identical_different_seed_different(runs: dict[str, SumoRun]) -> None:

@@ -98,6 +98,7 @@ def crowned_road():
     return road, dem
 
 
+@pytest.mark.slow
 def test_dem_maps_check_pixels_to_the_true_ground(crowned_road):
     road, dem = crowned_road
     cam = road_camera()
@@ -142,6 +143,7 @@ def test_dem_hit_equals_surface_and_round_trips(crowned_road):
     np.testing.assert_allclose(cam.project(g.xyz[ok]), uv[ok], atol=1e-4)
 
 
+@pytest.mark.slow
 def test_lifted_surface_equals_a_raised_dem(crowned_road):
     road, dem = crowned_road
     raised = grid_dem(lambda x, y: road.z(x, y) + 1.5, E0 - 120, N0 + 120, 0.1, 2400, 2400)
@@ -213,6 +215,7 @@ def _oracle_first_hit(dem: DEMSurface, o: np.ndarray, d: np.ndarray, t_max: floa
     return t[k - 1] + step * gap[k - 1] / (gap[k - 1] - gap[k])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_dem_first_hit_matches_dense_sampling_on_rough_terrain(seed):
     rng = np.random.default_rng(seed)
@@ -241,6 +244,7 @@ def test_dem_first_hit_matches_dense_sampling_on_rough_terrain(seed):
             assert hits.distance[i] == pytest.approx(t_ref, abs=2 * step)
 
 
+@pytest.mark.slow
 def test_point_cloud_surface_maps_check_pixels_to_the_true_ground(tmp_path):
     """Lidar of a crowned, crested road (ground + trees + poles) -> LAZ -> ground DEM -> pixels on the ground."""
     from trafficgeo.geo.load import load_surface

@@ -32,6 +32,7 @@ def near(c: np.ndarray, ref: np.ndarray, tol: float = 25.0) -> np.ndarray:
     return np.all(np.abs(c - ref) < tol, axis=1)
 
 
+@pytest.mark.slow
 def test_geotiff_is_georeferenced_rgb(ortho):
     assert ortho.count == 3 and ortho.data.dtype == np.uint8
     assert ortho.crs.to_epsg() == 2949
@@ -66,6 +67,7 @@ def test_dash_corners_are_the_corners_of_painted_dashes(ortho):
     assert near(outward, ASPHALT, 30).all()
 
 
+@pytest.mark.slow
 def test_same_seed_same_image_and_one_way_has_no_centre_line():
     a = render_orthophoto(ROAD, MARK, BOUNDS, resolution=0.2, seed=1)
     b = render_orthophoto(ROAD, MARK, BOUNDS, resolution=0.2, seed=1)

@@ -35,6 +35,7 @@ def background():
     return drape_orthophoto(camera(), dem, ortho)
 
 
+@pytest.mark.slow
 def test_draped_orthophoto_shows_the_markings_where_the_camera_projects_them(background):
     cam = camera()
     # Near dashes (a 10 cm line is a few pixels wide there; farther away it blends with the asphalt).

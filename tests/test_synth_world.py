@@ -9,6 +9,8 @@ import pytest
 from trafficgeo.camera.io import read_camera_json
 from trafficgeo.synth.world import WorldOptions, build_world
 
+pytestmark = pytest.mark.slow  # builds generated worlds (SUMO, lidar, orthophoto, H.264 video)
+
 OPTS = WorldOptions(seed=3, duration_s=1.2, fps=10.0, image_size=(480, 270), length_m=200.0, focal_px=430.0,
                     veh_per_hour_per_lane=1200.0, ortho_resolution=0.1, view_half_size=70.0,
                     count_stations=(-20.0, 0.0, 30.0))

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
@@ -341,13 +339,11 @@ def test_length_is_unbiased_with_the_heading_of_the_bottom_centres_track(vclass,
     # the car; the truck's 0.76 m standard deviation makes it NaN.
     biased, _ = estimate_length_refit(*args, refine_heading=False, **kwargs)
     assert not abs(biased / dims[0] - 1) < 0.05
-    t0 = time.perf_counter()
     length, std = estimate_length_refit(*args, **kwargs)
-    elapsed = time.perf_counter() - t0
-    # Measured: car 4.521 +- 0.17 m (+0.5 %), truck 12.06 +- 0.31 m (+0.5 %); 10-20 ms for the 40 frames.
+    # Measured: car 4.521 +- 0.17 m (+0.5 %), truck 12.06 +- 0.31 m (+0.5 %); its wall time for the 40 frames:
+    # benchmarks/bench_traffic.py --parts lengths.
     assert abs(length / dims[0] - 1) < 0.03
     assert std < 0.5
-    assert elapsed < 2.0  # a loose sanity bound: ~10 ms on a laptop
 
 
 @pytest.mark.parametrize("start", [0.8, 1.25])

@@ -203,6 +203,7 @@ def test_aggregate_counts_flow_speeds_headways() -> None:
     assert list(lane2["count"]) == [1, 0] and np.isnan(lane2["mean_headway_s"].iloc[0])
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None)
 @given(st.floats(-80.0, 80.0), st.floats(0.0, 359.0), st.floats(2.0, 40.0))
 def test_every_straight_track_through_the_line_is_counted_once(offset: float, heading: float, speed: float) -> None:

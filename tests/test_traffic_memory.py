@@ -16,6 +16,8 @@ from trafficgeo.traffic.boxes import VEHICLE_DIMENSIONS, cuboid_boxes
 from trafficgeo.traffic.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import world_trajectories
 
+pytestmark = pytest.mark.slow  # measures peak memory in a subprocess
+
 E0, N0, Z0 = 500000.0, 4000000.0, 100.0
 
 

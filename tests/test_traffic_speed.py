@@ -19,6 +19,7 @@ from trafficgeo.traffic.trajectories import TrajectoryOptions, world_trajectorie
 SWAY = PathNoise(sideways_m=0.05, along_m=0.05, sway_m=0.5, sway_hz=1.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("radius_m", [np.inf, 250.0], ids=["straight", "curved"])
 def test_vehicle_and_spot_speeds_unbiased_when_the_path_sways_sideways(radius_m: float) -> None:
     """The ground point sways 0.5 m sideways at 1 Hz (a box edge wandering across the vehicle) and the smoother

@@ -64,6 +64,7 @@ def test_page_and_assets_are_served_locally(client):
     assert (STATIC_DIR / "vendor/leaflet/images/marker-icon.png").is_file()
 
 
+@pytest.mark.slow
 def test_info_and_images(client, scene):
     info = client.get("/api/info").json()
     assert info["frame"]["width"] == 800 and info["frame"]["height"] == 450
@@ -80,6 +81,7 @@ def test_info_and_images(client, scene):
     assert np.array_equal(frame, sent)  # lossless, full resolution
 
 
+@pytest.mark.slow
 def test_happy_path_pairs_calibration_files(client, work, scene):
     for i in range(6):
         r = client.post("/api/pairs", json=_pair(scene, i))
@@ -120,6 +122,7 @@ def test_happy_path_pairs_calibration_files(client, work, scene):
     np.testing.assert_allclose(cam.position, scene.camera.position, atol=0.5)
 
 
+@pytest.mark.slow
 def test_calibration_failure_is_a_normal_answer(client, scene):
     for k in range(4):  # collinear on the ground and in the frame
         t = k / 3.0

@@ -59,6 +59,7 @@ def _length(data: bytes) -> int:
     return 0
 
 
+@pytest.mark.slow
 def test_a_chunked_upload_over_the_limit_is_refused_while_it_streams(server):
     host, port, session = server
     sent = 0
@@ -85,6 +86,7 @@ def test_a_chunked_upload_over_the_limit_is_refused_while_it_streams(server):
     assert session.revision == 0
 
 
+@pytest.mark.slow
 def test_a_chunked_upload_within_the_limit_is_served(server):
     host, port, session = server
     body = json.dumps({"u": 10.0, "v": 20.0, "col": 30.0, "row": 40.0}).encode()

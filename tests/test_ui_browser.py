@@ -23,6 +23,8 @@ from trafficgeo.ui.server import BackgroundServer, create_app
 from trafficgeo.ui.session import open_session
 from ui_support import CRS, ORTHO_RES, Scene, shared_scene
 
+pytestmark = pytest.mark.slow  # drives Chromium
+
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 ZOOM = 3  # 8 screen pixels per image pixel while clicking

@@ -12,6 +12,8 @@ import pytest
 import test_ui_browser
 from test_ui_browser import CLICK_JS, SYNCED_JS, ZOOM, pick
 
+pytestmark = pytest.mark.slow  # drives Chromium (the fixtures of test_ui_browser)
+
 # the browser, scene and page fixtures of test_ui_browser
 browser, scene, app_page = test_ui_browser.browser, test_ui_browser.scene, test_ui_browser.app_page
 

@@ -62,6 +62,7 @@ def test_pairs_take_x_y_from_the_orthophoto_transform_and_z_from_the_dem(work, s
     np.testing.assert_allclose([p["col"], p["row"]], scene.truth_ortho[0], atol=1e-6)
 
 
+@pytest.mark.slow
 def test_cloud_gives_z_from_the_lidar_ground_points_with_their_spread(work, scene):
     s = _session(work, "cloud")
     p = s.add_pair(*scene.truth_pixels[1], *scene.truth_ortho[1])
@@ -75,6 +76,7 @@ def test_cloud_gives_z_from_the_lidar_ground_points_with_their_spread(work, scen
     assert cal["status"] == "ok" and cal["footprint"] and cal["grid"]["frame"] and cal["overlay_error"] is None
 
 
+@pytest.mark.slow
 def test_live_calibration_gives_small_residuals_and_flags_a_wrong_pair(work, scene):
     s = _session(work)
     assert s.calibration()["status"] == "waiting"
@@ -99,6 +101,7 @@ def test_live_calibration_gives_small_residuals_and_flags_a_wrong_pair(work, sce
     assert s.calibration() is cal  # cached for the revision
 
 
+@pytest.mark.slow
 def test_footprint_and_grid_follow_the_camera(work, scene):
     s = _session(work)
     _add_truth(s, scene, range(8))
@@ -140,6 +143,7 @@ def test_footprint_and_grid_follow_the_camera(work, scene):
         np.testing.assert_allclose(x if axis == "x" else y, value, atol=1e-3)
 
 
+@pytest.mark.slow
 def test_edit_rename_role_typed_z_and_delete(work, scene):
     s = _session(work)
     _add_truth(s, scene, range(6))
@@ -196,6 +200,7 @@ def test_bad_pair_values_are_refused_and_change_nothing(work, scene, kwargs, mat
     assert s.add_pair(-0.5, 449.5, 0.0, float(s.ortho.rows))["id"] == "P1"  # the edges themselves are fine
 
 
+@pytest.mark.slow
 def test_autosave_after_every_change_and_resume(work, scene):
     s = _session(work)
     autosave = work / "gcps.autosave.csv"
@@ -259,6 +264,7 @@ def test_file_names_cannot_leave_the_working_folder(work, scene, tmp_path_factor
     assert not list(outside.iterdir())
 
 
+@pytest.mark.slow
 def test_save_and_load_csv_and_save_camera(work, scene):
     s = _session(work)
     _add_truth(s, scene, range(7))

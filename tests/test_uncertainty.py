@@ -59,6 +59,7 @@ def _calibrate(gcps: GCPTable, size: tuple[int, int]):
     return run_calibration(gcps, size, CalibrationOptions(distortion="none"))
 
 
+@pytest.mark.slow
 def test_propagated_calibration_error_matches_monte_carlo():
     """The mean predicted ground sigma over noisy calibrations agrees with the spread of their ground points."""
     sc = make_gcp_scene(3, n_control=12, grade=0.0, crossfall=0.0, dist=[0, 0, 0, 0, 0])

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import cv2
@@ -136,6 +135,7 @@ def synthetic_run() -> dict[str, object]:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["plain", "full", "knn"])
 def test_background_finds_moving_boxes(synthetic_run: dict[str, object], name: str) -> None:
     results = synthetic_run[name]
@@ -243,15 +243,10 @@ def test_merge_candidates() -> None:
 
 # ---------------------------------------------------------------------------------------------------- demo world
 @pytest.fixture(scope="module")
-def demo_world(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from trafficgeo.synth.world import WorldOptions, build_world
-
-    out = tmp_path_factory.mktemp("world")
-    # 600 veh/h/lane on 2 x 2 lanes: at 1200 the road far away is covered most of the time and a 2 s warm-up
-    # cannot see the background there (see the report in the test below).
-    build_world(out, WorldOptions(duration_s=8, image_size=(640, 360), count_stations=(0.0,), seed=3,
-                                  veh_per_hour_per_lane=600, ortho_resolution=0.2))
-    return out
+def demo_world(small_world: Path) -> Path:
+    """conftest's small world: 8 s at 640x360, 600 veh/h/lane on 2 x 2 lanes (at 1200 the road far away is covered
+    most of the time and a 2 s warm-up cannot see the background there; see the report in the test below)."""
+    return small_world
 
 
 def _demo_world_scores(demo_world: Path, **options: object) -> tuple[float, float, float, float]:
@@ -266,13 +261,9 @@ def _demo_world_scores(demo_world: Path, **options: object) -> tuple[float, floa
     truth = pd.read_csv(demo_world / "truth_tracks.csv")
     det = BackgroundDetector(camera=camera, surface=ConstantSurface(90.0), warmup_s=2.0, **options)
     tp = n_good = n_det = n_true_det = same_class = covered = 0
-    times = []
     with av.open(str(demo_world / "video.mp4")) as container:
         for k, frame in enumerate(container.decode(video=0)):
-            img = frame.to_ndarray(format="bgr24")
-            t0 = time.perf_counter()
-            d = det.detect(img, k / 25.0)
-            times.append(time.perf_counter() - t0)
+            d = det.detect(frame.to_ndarray(format="bgr24"), k / 25.0)
             if k < 50:  # the warm-up: 2 s at 25 fps
                 continue
             g = truth[(truth["frame"] == k) & (truth["visible_fraction"] > 0)]
@@ -295,13 +286,12 @@ def _demo_world_scores(demo_world: Path, **options: object) -> tuple[float, floa
     recall = tp / max(n_good, 1)
     precision = n_true_det / max(n_det, 1)
     class_ok = same_class / max(tp, 1)
-    ms = 1000 * float(np.median(times[50:]))
     print(f"\ndemo world 640x360 {options}: recall {recall:.3f} ({tp}/{n_good}), precision {precision:.3f} "
-          f"({n_true_det}/{n_det}), class agreement {class_ok:.3f}, covered {covered / max(n_good, 1):.3f}, "
-          f"{ms:.1f} ms/frame")
+          f"({n_true_det}/{n_det}), class agreement {class_ok:.3f}, covered {covered / max(n_good, 1):.3f}")
     return recall, precision, class_ok, covered / max(n_good, 1)
 
 
+@pytest.mark.slow
 def test_background_on_demo_world(demo_world: Path) -> None:
     # Measured (OpenCV 5.0, 2 cores), without keeping merged blobs: recall 0.63, precision 0.49, class agreement
     # 0.73 (with vehicles drawn as shaded boxes: 0.68, 0.62, 0.81; the vehicle meshes' dark glass, tyres and
@@ -317,6 +307,7 @@ def test_background_on_demo_world(demo_world: Path) -> None:
     assert recall >= strict_recall and covered > strict_covered and precision > 0.45
 
 
+@pytest.mark.slow
 def test_size_rules_classify_truth_boxes(demo_world: Path) -> None:
     from trafficgeo.camera.io import read_camera_json
     from trafficgeo.geo.surface import ConstantSurface
@@ -332,6 +323,7 @@ def test_size_rules_classify_truth_boxes(demo_world: Path) -> None:
     assert np.mean(classes == expected) > 0.95
 
 
+@pytest.mark.slow
 def test_camera_frame_size_mismatch(demo_world: Path) -> None:
     from trafficgeo.camera.io import read_camera_json
     from trafficgeo.geo.surface import ConstantSurface
@@ -342,29 +334,29 @@ def test_camera_frame_size_mismatch(demo_world: Path) -> None:
         det.detect(np.zeros((720, 1280, 3), dtype=np.uint8), 0.0)
 
 
-def test_background_speed_1080p() -> None:
-    """Report the time per 1080p frame (scale 0.5 and 1.0); only a loose bound is asserted."""
+@pytest.mark.slow
+def test_background_at_1080p_finds_the_moving_box() -> None:
+    """At 1080p, detecting at half and at full resolution: after 8 frames of the empty textured scene, a 300 x 140
+    px red box moving 40 px per frame is found where it is, alone, in each of 16 frames (the detector's time per
+    1080p frame: the background row of benchmarks/bench_video.py)."""
     rng = np.random.default_rng(5)
     bg = cv2.resize(_background(rng), (1920, 1080))
-    frames = []
+    frames, truth = [], []
     for k in range(24):
         f = bg.copy()
         x = 100 + 40 * k
-        f[500:640, x:x + 300] = (40, 40, 200)
+        if k >= 8:
+            f[500:640, x:x + 300] = (40, 40, 200)
         frames.append(cv2.add(f, rng.integers(0, 4, f.shape, dtype=np.uint8)))
-    report = []
+        truth.append([x, 500, x + 299, 639])
     for scale in (0.5, 1.0):
         det = BackgroundDetector(scale=scale, warmup_s=8 / 25)
-        for k, f in enumerate(frames[:8]):
-            det.detect(f, k / 25)
-        t0 = time.perf_counter()
-        for k, f in enumerate(frames[8:], 8):
-            det.detect(f, k / 25)
-        ms = 1000 * (time.perf_counter() - t0) / (len(frames) - 8)
-        report.append(f"scale {scale}: {ms:.1f} ms")
-        if scale == 0.5:
-            assert ms < 100
-    print("\n1080p frame: " + ", ".join(report) + f" ({cv2.getNumThreads()} OpenCV threads)")
+        for k, f in enumerate(frames):
+            d = det.detect(f, k / 25)
+            if k < 8:  # nothing moves yet
+                assert len(d) == 0, (scale, k, d.boxes)
+            else:
+                assert len(d) == 1 and iou(d.boxes, np.array([truth[k]], float)).max() > 0.8, (scale, k, d.boxes)
 
 
 # ---------------------------------------------------------------------------------------------------- ONNX

@@ -33,6 +33,7 @@ def _write_video(path: Path, fps: int, seconds: float) -> Path:
 
 
 # ---------------------------------------------------------------------------------------------------- names
+@pytest.mark.slow
 def test_one_table_of_detector_names(tmp_path: Path) -> None:
     assert {detector_kind(n) for n in ("background", "BG", " mog2 ")} == {"mog2"}
     assert detector_kind("knn") == "knn"
@@ -76,6 +77,7 @@ def test_warm_up_is_counted_in_seconds_at_3_fps() -> None:
     assert all(n >= 1 for n in found[6:]), found  # a car is on screen in every frame
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("fps", "detector"), [(3, "background"), (3, "bg"), (25, "bg")])
 def test_process_detects_from_the_first_frame(tmp_path: Path, fps: int, detector: str) -> None:
     """The pipeline learns the background before the first frame for every background detector name, and the
@@ -126,6 +128,7 @@ def test_onnx_outputs_that_cannot_be_decoded_are_refused(tmp_path: Path, shape: 
 
 
 # ---------------------------------------------------------------------------------------------------- CLI
+@pytest.mark.slow
 def test_process_with_a_bad_detector_writes_nothing(tmp_path: Path) -> None:
     from trafficgeo.camera.io import write_camera_json
     from trafficgeo.camera.model import Camera

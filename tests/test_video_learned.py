@@ -47,6 +47,7 @@ class Boxes:
         return Detections(self.boxes, np.full(n, 0.9), np.full(n, "truck", dtype=object))
 
 
+@pytest.mark.slow
 def test_the_builtin_detector_is_tiled_over_the_counted_road_and_classes_by_size() -> None:
     cam = camera_over_road()
     det = make_detector("nanodet", camera=cam, surface=FLAT, road=lanes_along_y())
@@ -81,6 +82,7 @@ def test_classes_come_from_the_size_on_the_ground_not_the_model() -> None:
     assert len(det) == 3  # kept: whether a box is a vehicle is the detector's call
 
 
+@pytest.mark.slow
 def test_process_records_the_tile_plan_and_keys_the_run_on_it(tmp_path: Path) -> None:
     from video_support import write_two_car_video
 

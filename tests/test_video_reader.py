@@ -243,6 +243,7 @@ def test_not_a_video(tmp_path):
 # ------------------------------------------------------------------------------------------------ real clip
 
 
+@pytest.mark.slow
 def test_real_clip_car_detection():
     info = video_info(CAR)
     assert (info.width, info.height, info.frame_count, info.codec) == (768, 432, 377, "h264")

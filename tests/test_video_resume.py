@@ -31,6 +31,8 @@ from trafficgeo.video.detect import Detections
 from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
 from trafficgeo.video.track import VehicleTracker
 
+pytestmark = pytest.mark.slow  # builds a world and kills and resumes runs in subprocesses
+
 SRC = Path(__file__).resolve().parents[1] / "src"
 CHECKPOINT_S = 1.5  # segments start at 0, 1.5, 3 and 4.5 s
 PRIME_S = 3.0  # background learning before a segment, shortened for speed: the last two segments start after it, so

@@ -28,6 +28,8 @@ from trafficgeo.video.detections import Detections, box_iou
 from trafficgeo.video.tile_bands import input_hw_for, plan_bands
 from trafficgeo.video.tiling import LARGE_VEHICLE_M, TiledDetector, box_size_px, plan_tiles
 
+pytestmark = pytest.mark.slow  # plans detector tiles over whole 1080p views
+
 
 def _clip(boxes: np.ndarray) -> np.ndarray:
     out = boxes.copy()

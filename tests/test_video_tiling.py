@@ -143,6 +143,7 @@ def check_plan_reaches_road(plan: TilePlan, camera: Camera, xyz: np.ndarray, lan
 
 
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@pytest.mark.slow
 @given(height=st.floats(4.0, 15.0), tilt=st.floats(1.0, 20.0), focal=st.floats(0.5, 1.5),
        seed=st.integers(0, 2**31 - 1))
 def test_every_road_point_reaches_the_minimum_size_or_is_reported(height: float, tilt: float, focal: float,
@@ -181,6 +182,7 @@ def test_no_tiles_when_the_full_frame_suffices() -> None:
     assert plan.summary_lines()[0].startswith("tiling: not needed")
 
 
+@pytest.mark.slow
 def test_roi_plan_reaches_the_road_like_the_lanes_plan() -> None:
     cam = road_camera(8.0, 4.0, 0.9 * W)
     lanes = road_lanes(2.0, 250.0)
@@ -272,6 +274,7 @@ def spaced_truth(camera: Camera, rng: np.random.Generator) -> tuple[np.ndarray, 
     return boxes[keep], xyz[keep]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("net_class", [FakeNet, FakeBatchNet])
 def test_tiled_detector_recovers_the_far_vehicles_once_and_whole(net_class: type) -> None:
     cam = road_camera(8.0, 4.0, 0.9 * W)

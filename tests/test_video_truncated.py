@@ -40,6 +40,7 @@ def _read(path: Path, **kw: object) -> tuple[list[float], list[str]]:
     return times, [str(w.message) for w in caught if issubclass(w.category, VideoReadWarning)]
 
 
+@pytest.mark.slow
 def test_a_whole_video_reads_without_warning(videos: dict[str, Path]) -> None:
     times, said = _read(videos["whole"])
     assert len(times) == FPS * SECONDS and said == []
@@ -61,6 +62,7 @@ def test_a_cut_or_damaged_video_is_read_up_to_the_damage_with_one_warning(videos
     assert _read(videos[name], end_s=1.0) == ([k / FPS for k in range(10)], [])
 
 
+@pytest.mark.slow
 def test_process_says_what_it_read(videos: dict[str, Path], tmp_path: Path) -> None:
     from trafficgeo.camera.io import write_camera_json
     from trafficgeo.camera.model import Camera

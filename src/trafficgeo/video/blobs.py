@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from trafficgeo.errors import InputError
 from trafficgeo.geo.surface import OK
@@ -226,22 +228,16 @@ def merge_candidates(boxes: np.ndarray, *, min_overlap: float = 0.5, max_gap: fl
 
 
 def group_pairs(n: int, pairs: np.ndarray) -> list[list[int]]:
-    """Groups of ``range(n)`` joined by ``pairs`` (P, 2), transitively (union-find), in order of first member."""
-    parent = list(range(n))
-
-    def find(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for i, j in np.asarray(pairs, dtype=np.int64).reshape(-1, 2):
-        ri, rj = find(int(i)), find(int(j))
-        if ri != rj:
-            parent[max(ri, rj)] = min(ri, rj)
+    """Groups of ``range(n)`` joined by ``pairs`` (P, 2), transitively (connected components), each ascending, in
+    order of first member."""
+    if n == 0:
+        return []
+    p = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(p)), (p[:, 0], p[:, 1])), shape=(n, n))
+    labels = connected_components(graph, directed=False)[1]
     groups: dict[int, list[int]] = {}
-    for i in range(n):
-        groups.setdefault(find(i), []).append(i)
+    for i, label in enumerate(labels.tolist()):
+        groups.setdefault(label, []).append(i)
     return list(groups.values())
 
 

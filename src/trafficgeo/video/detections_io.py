@@ -35,6 +35,7 @@ import pandas as pd
 
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import write_csv_atomic
+from trafficgeo.io.mot import read_mot
 from trafficgeo.video.detect import Detections
 
 COLUMNS = ["frame", "x1", "y1", "x2", "y2", "score", "class"]
@@ -120,21 +121,14 @@ def _read_csv(p: Path) -> pd.DataFrame:
 
 
 def _read_mot(p: Path) -> pd.DataFrame:
-    where = str(p)
-    try:
-        raw = pd.read_csv(p, header=None, skipinitialspace=True, dtype=str, keep_default_na=False)
-    except pd.errors.EmptyDataError:
+    """A MOT Challenge det.txt through :func:`trafficgeo.io.mot.read_mot` (a file without ``conf``: score 1.0)."""
+    mot = read_mot(p, HINT)
+    if mot.empty:
         return _empty()
-    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise InputError(f"{p}: not a readable MOT det.txt ({' '.join(str(exc).split())}); {HINT}") from None
-    if raw.shape[1] < 6:
-        raise InputError(f"{p}: a MOT line needs at least frame,id,left,top,width,height; found {raw.shape[1]} "
-                         f"column(s); {HINT}")
-    frame = _frames(raw[0], where, 1, first_row=1)
-    x1, y1, w, h = (_numbers(raw[k], name, where, 1) for k, name in ((2, "bb_left"), (3, "bb_top"),
-                                                                     (4, "bb_width"), (5, "bb_height")))
-    score = _numbers(raw[6], "conf", where, 1) if raw.shape[1] > 6 else np.ones(len(raw))
-    return _table(frame, x1, y1, x1 + w, y1 + h, score, np.full(len(raw), "", dtype=object), where, first_row=1)
+    x1, y1, x2, y2 = (mot[c].to_numpy(dtype=np.float64) for c in ("x1", "y1", "x2", "y2"))
+    score = mot["score"].fillna(1.0).to_numpy(dtype=np.float64)
+    return _table(mot["frame"].to_numpy(dtype=np.int64), x1, y1, x2, y2, score,
+                  np.full(len(mot), "", dtype=object), str(p), first_row=1)
 
 
 def _read_coco(p: Path) -> pd.DataFrame:
