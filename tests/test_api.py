@@ -19,13 +19,9 @@ import trafficgeo as tg
 
 
 @pytest.fixture(scope="module")
-def world(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from trafficgeo.synth.world import WorldOptions, build_world
-
-    folder = tmp_path_factory.mktemp("api_world")
-    build_world(folder, WorldOptions(seed=3, duration_s=8.0, image_size=(640, 360), count_stations=(20.0,),
-                                     veh_per_hour_per_lane=900.0))
-    return folder
+def world(small_world: Path) -> Path:
+    """The shared small generated world (tests/conftest.py; read only)."""
+    return small_world
 
 
 def test_namespace_is_curated_lazy_and_complete() -> None:
@@ -52,12 +48,14 @@ def _run_examples(func: object, globs: dict) -> None:
     assert runner.failures == 0, f"the example of {func.__name__} failed (see the output above)"
 
 
+@pytest.mark.slow
 def test_every_entry_point_example_runs(world: Path, tmp_path: Path) -> None:
     globs = {"world": world, "out": tmp_path}
     for func in (tg.georeference, tg.analyze_tracks, tg.process_video, tg.compare_with_sumo):  # in this order
         _run_examples(func, dict(globs))
 
 
+@pytest.mark.slow
 def test_loaders_take_paths_or_objects_and_give_the_same_analysis(world: Path) -> None:
     cam = tg.load_camera(world / "camera_truth.json")
     assert tg.load_camera(cam) is cam
@@ -84,6 +82,7 @@ def test_loaders_take_paths_or_objects_and_give_the_same_analysis(world: Path) -
         tg.load_tracks([1, 2])
 
 
+@pytest.mark.slow
 def test_run_folder_reads_back_what_was_written_with_the_schema(world: Path, tmp_path: Path) -> None:
     boxes = pd.read_csv(world / "truth_tracks.csv").dropna(subset=["x1"]).rename(columns={"vehicle": "track_id"})
     result = tg.analyze_tracks(world / "camera_truth.json", world / "cloud.laz",

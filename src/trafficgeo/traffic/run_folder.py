@@ -266,6 +266,7 @@ class RunFolder:
 
     def _require(self, name: str) -> Path:
         if not self.has(name):
+            verify_outputs(self.path, require=(name,))  # "has no NAME (its outputs are from 'analyze'); ..."
             raise InputError(f"{self.path}: no {name}; {RUN_HINT}")
         return self.path / name
 

@@ -1,10 +1,11 @@
 """Write the reference outputs of ``analyze`` on real NGSIM trajectories seen by a fixed synthetic camera.
 
 Run from a trafficgeo checkout:  python tests/data/api-reference/make_reference.py [OUT]  (default: this folder).
-The inputs are deterministic (no noise; written as input_tracks.csv): NGSIM Peachtree positions (tests/data/ngsim-peachtree-subset, US survey
-feet, EPSG:2240) projected through a camera 10 m up, one counting line across the street, no lanes. It uses only
-functions that existed before the Python API (read with the camera, analyze, write_analysis), so a reference
-written by an older trafficgeo can be compared with the outputs of a newer one (tests/test_api.py).
+The inputs are deterministic (no noise; written as input_tracks.csv): NGSIM Peachtree positions
+(tests/data/ngsim-peachtree-subset, US survey feet, EPSG:2240) projected through a camera 10 m up, one counting line
+across the street, no lanes. It uses only functions that existed before the Python API (the camera, analyze,
+write_analysis), so a reference written by an older trafficgeo can be compared with the outputs of a newer one
+(tests/test_api.py).
 """
 
 from __future__ import annotations
