@@ -91,6 +91,7 @@ def test_the_camera_stays_frozen_and_replace_keeps_the_crs() -> None:
     assert content_hash(moved.replace(position=cam.position)) == content_hash(cam)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("given_crs", ["EPSG:2994", WKT_NO_AUTHORITY, None, pyproj.CRS(LOCAL_TM)])
 def test_pickle_and_copies_keep_the_crs_and_the_run_key(given_crs: object) -> None:
     cam = _camera(given_crs)
@@ -157,6 +158,7 @@ def test_camera_json_written_before_reads_back_equal(tmp_path: Path, name: str) 
 _CRS_TEXTS = ["EPSG:2949", "EPSG:2994", "EPSG:32616", "WGS84 UTM 17S", LOCAL_TM, WKT_NO_AUTHORITY, None]
 
 
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None)
 @given(crs_index=st.integers(0, len(_CRS_TEXTS) - 1), as_object=st.booleans(),
        focal=st.floats(300.0, 5000.0), heading=st.floats(-180.0, 180.0), tilt=st.floats(-80.0, 89.0),
