@@ -120,6 +120,12 @@ def test_library_errors_name_parameters_and_the_cli_names_flags(tmp_path: Path, 
         tg.ProcessOptions(start_s=5.0, end_s=2.0)
     assert info.value.parameters == ("start_s", "end_s")
     assert info.value.in_terms_of(FLAGS).startswith("--start 5.0 / --end 2.0: need 0 <= --start < --end")
+    # a plain word is renamed only where it opens the message (elsewhere it may be prose)
+    prose = tg.InputError("lines x.csv: counting lines must be single lines", parameters=("lines",))
+    assert prose.in_terms_of(FLAGS) == "--lines x.csv: counting lines must be single lines"
+    with pytest.raises(tg.InputError, match=r"^lanes .*nope\.gpkg: file not found") as info:
+        tg.load_lanes(tmp_path / "nope.gpkg", tg.Camera.from_orientation((64, 48), 50.0, [0, 0, 5], 0.0, 10.0))
+    assert info.value.in_terms_of(FLAGS).startswith("--lanes ")
     with pytest.raises(tg.InputError, match=r"^every 0: must be a whole number"):
         tg.ProcessOptions(every=0)
     video = tmp_path / "v.mp4"

@@ -24,13 +24,19 @@ class InputError(TrafficgeoError, ValueError):
         self.parameters = tuple(parameters)
 
     def in_terms_of(self, names: dict[str, str]) -> str:
-        """The message with each of its ``parameters`` renamed by ``names`` (parameter -> e.g. a CLI flag)."""
+        """The message with each of its ``parameters`` renamed by ``names`` (parameter -> e.g. a CLI flag): a name
+        with an underscore (``start_s``) wherever it stands as a word; a plain word (``lanes``) only where it opens
+        the message, since elsewhere it may be prose."""
         import re
 
         text = str(self)
         for p in self.parameters:
-            if p in names:
+            if p not in names:
+                continue
+            if "_" in p:
                 text = re.sub(rf"(?<![\w-]){re.escape(p)}(?!\w)", names[p], text)
+            elif re.match(rf"{re.escape(p)}\b", text):
+                text = names[p] + text[len(p):]
         return text
 
 

@@ -210,6 +210,7 @@ from trafficgeo.cli import video as _video  # noqa: E402, F401  (registers the f
 FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint_s": "--checkpoint",
          "tiling": "--tiling", "out_dir": "--out", "interval_s": "--interval", "resolution_m": "--resolution",
          "time_offset_s": "--time-offset", "output": "--output", "annotate": "--annotate", "surface": "--surface",
+         "surface_crs": "--surface-crs",
          "lanes": "--lanes", "lines": "--lines"}
 
 

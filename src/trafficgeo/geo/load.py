@@ -42,7 +42,8 @@ def plane_from_gcps(doc: dict[str, Any], crs: pyproj.CRS | None, where: str) -> 
 
 def _check_crs(path: Path, file_crs: pyproj.CRS | None, cam_crs: pyproj.CRS | None) -> None:
     if file_crs is None:
-        raise InputError(f"{path}: the file has no CRS; say which it is with --surface-crs (e.g. EPSG:2994)")
+        raise InputError(f"{path}: the file has no CRS; say which it is with surface_crs (e.g. EPSG:2994)",
+                         parameters=("surface_crs",))
     if cam_crs is not None and not same_horizontal_crs(file_crs, cam_crs):
         raise InputError(f"{path}: CRS {crs_label(file_crs)} differs from the camera's {crs_label(cam_crs)}; "
                          "reproject it (gdalwarp -t_srs / pdal translate) or calibrate in its CRS")
@@ -59,7 +60,8 @@ def load_surface(spec: str, camera: Camera, doc: dict[str, Any] | None = None, *
         z = None
     if z is not None:
         if not np.isfinite(z):
-            raise InputError(f"--surface {spec!r}: a constant elevation must be a finite number (CRS units)")
+            raise InputError(f"surface {spec!r}: a constant elevation must be a finite number (CRS units)",
+                             parameters=("surface",))
         return ConstantSurface(z, crs=cam_crs)
     if text.lower() == "plane":
         return plane_from_gcps(doc or {}, cam_crs, where)
@@ -83,5 +85,6 @@ def load_surface(spec: str, camera: Camera, doc: dict[str, Any] | None = None, *
         dem = cloud_to_dem(cloud, resolution_m)
         return DEMSurface.from_raster(dem, name=f"{path.name} (ground DEM {resolution_m:g} m)")
     if not path.exists() and not suffix:
-        raise InputError(f"--surface '{spec}' is not a number, 'plane' or a file; {SURFACE_HINT}")
+        raise InputError(f"surface '{spec}' is not a number, 'plane' or a file; {SURFACE_HINT}",
+                         parameters=("surface",))
     raise InputError(f"{path}: unknown surface type '{suffix or path.name}'; {SURFACE_HINT}")

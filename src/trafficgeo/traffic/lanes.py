@@ -150,7 +150,7 @@ def lanes_from_boundaries(lines: list[shapely.LineString]) -> Lanes:
 def read_lanes(path: str | Path, *, crs: pyproj.CRS | None, camera: Camera | None = None,
                surface: Surface | None = None) -> Lanes:
     """Lanes from a GIS file of polygons or boundary lines, or a CSV of boundary lines drawn in the image."""
-    gdf = read_layout(path, "--lanes", crs=crs, camera=camera, surface=surface)
+    gdf = read_layout(path, "lanes", crs=crs, camera=camera, surface=surface)
     kinds = set(gdf.geometry.geom_type)
     if kinds <= {"Polygon", "MultiPolygon"}:
         return lanes_from_polygons(list(gdf.geometry), feature_names(gdf, ("lane", "name", "id")),
@@ -158,9 +158,10 @@ def read_lanes(path: str | Path, *, crs: pyproj.CRS | None, camera: Camera | Non
     if kinds <= {"LineString"}:
         return lanes_from_boundaries(list(gdf.geometry))
     if kinds <= {"LineString", "MultiLineString"}:
-        raise InputError(f"--lanes {path}: multi-part lines are ambiguous boundaries; draw each boundary as one line")
-    raise InputError(f"--lanes {path}: geometries are {', '.join(sorted(kinds))}; give lane polygons or lane "
-                     "boundary lines")
+        raise InputError(f"lanes {path}: multi-part lines are ambiguous boundaries; draw each boundary as one line",
+                         parameters=("lanes",))
+    raise InputError(f"lanes {path}: geometries are {', '.join(sorted(kinds))}; give lane polygons or lane "
+                     "boundary lines", parameters=("lanes",))
 
 
 def _bearings(gdf, path: str | Path) -> list[float] | None:
@@ -174,8 +175,9 @@ def _bearings(gdf, path: str | Path) -> list[float] | None:
     bad |= np.isinf(values)
     if bad.any():
         k = int(np.flatnonzero(bad)[0])
-        raise InputError(f"--lanes {path}: bearing {raw.iloc[k]!r} of feature {k + 1} is not a number; give each "
-                         "lane's direction of travel in degrees clockwise from north (or leave it empty)")
+        raise InputError(f"lanes {path}: bearing {raw.iloc[k]!r} of feature {k + 1} is not a number; give each "
+                         "lane's direction of travel in degrees clockwise from north (or leave it empty)",
+                         parameters=("lanes",))
     return list(values % 360.0)
 
 

@@ -40,11 +40,11 @@ def read_layout(path: str | Path, what: str, *, crs: pyproj.CRS | None, camera: 
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{what} {p}: file not found; give a GIS file (.gpkg, .geojson, .parquet) or a CSV of "
-                         "image lines")
+                         "image lines", parameters=(what,))
     if p.suffix.lower() == ".csv":
         if camera is None or surface is None:
             raise InputError(f"{what} {p}: lines drawn in the image need the camera and a surface; give the lines "
-                             "in world coordinates (a GIS file)")
+                             "in world coordinates (a GIS file)", parameters=(what,))
         return image_lines_to_world(p, camera, surface, what)
     from trafficgeo.io.gis import read_gis
 
@@ -54,10 +54,10 @@ def read_layout(path: str | Path, what: str, *, crs: pyproj.CRS | None, camera: 
             gdf = gdf.to_crs(crs)
         except Exception as exc:  # pyproj raises several types for impossible transforms
             raise InputError(f"{what} {p}: cannot reproject from {crs_label(gdf.crs)} to the camera's "
-                             f"{crs_label(crs)} ({' '.join(str(exc).split())})") from None
+                             f"{crs_label(crs)} ({' '.join(str(exc).split())})", parameters=(what,)) from None
     gdf = gdf[~(gdf.geometry.isna() | gdf.geometry.is_empty)].reset_index(drop=True)
     if gdf.empty:
-        raise InputError(f"{what} {p}: no features with a geometry; draw at least one")
+        raise InputError(f"{what} {p}: no features with a geometry; draw at least one", parameters=(what,))
     return gdf
 
 
@@ -67,27 +67,30 @@ def image_lines_to_world(path: Path, camera: Camera, surface: Surface, what: str
         df = pd.read_csv(path, skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise InputError(f"{what} {path}: not a readable CSV ({' '.join(str(exc).split())}); "
-                         f"{IMAGE_LINES_HINT}") from None
+                         f"{IMAGE_LINES_HINT}", parameters=(what,)) from None
     df.columns = [str(c).strip().lower() for c in df.columns]
     missing = [c for c in ("line", "u", "v") if c not in df.columns]
     if missing or df.empty:
-        raise InputError(f"{what} {path}: missing column(s) {', '.join(missing) or '(no rows)'}; {IMAGE_LINES_HINT}")
+        raise InputError(f"{what} {path}: missing column(s) {', '.join(missing) or '(no rows)'}; {IMAGE_LINES_HINT}",
+                         parameters=(what,))
     uv = df[["u", "v"]].apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
     bad = ~np.all(np.isfinite(uv), axis=1)
     if bad.any():
         row = int(np.flatnonzero(bad)[0])
-        raise InputError(f"{what} {path}: row {row + 2}: u,v must be numbers (pixels); {IMAGE_LINES_HINT}")
+        raise InputError(f"{what} {path}: row {row + 2}: u,v must be numbers (pixels); {IMAGE_LINES_HINT}",
+                         parameters=(what,))
     ground = pixels_to_world(camera, uv, surface, with_lonlat=False)
     if not ground.ok.all():
         row = int(np.flatnonzero(~ground.ok)[0])
         raise InputError(f"{what} {path}: row {row + 2}: pixel ({uv[row, 0]:g}, {uv[row, 1]:g}) does not map to the "
-                         f"road ({ground.status[row]}); move the vertex onto the road surface")
+                         f"road ({ground.status[row]}); move the vertex onto the road surface", parameters=(what,))
     keys = df["line"].astype(str).str.strip().to_numpy()
     names, geoms = [], []
     for key in pd.unique(keys):
         idx = np.flatnonzero(keys == key)
         if idx.size < 2:
-            raise InputError(f"{what} {path}: line {key} has {idx.size} vertex; a line needs at least 2")
+            raise InputError(f"{what} {path}: line {key} has {idx.size} vertex; a line needs at least 2",
+                             parameters=(what,))
         names.append(str(df["name"].iloc[idx[0]]) if "name" in df.columns else key)
         geoms.append(shapely.LineString(ground.xyz[idx, :2]))
     return gpd.GeoDataFrame({"name": names, "line": pd.unique(keys)}, geometry=geoms, crs=camera_crs(camera))

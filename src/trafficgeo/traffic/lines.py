@@ -45,14 +45,14 @@ class CountLine:
 def read_count_lines(path: str | Path, *, crs: pyproj.CRS | None, camera: Camera | None = None,
                      surface: Surface | None = None) -> list[CountLine]:
     """Counting lines from a GIS file of lines or a CSV of lines drawn in the image."""
-    gdf = read_layout(path, "--lines", crs=crs, camera=camera, surface=surface)
+    gdf = read_layout(path, "lines", crs=crs, camera=camera, surface=surface)
     kinds = set(gdf.geometry.geom_type)
     if not kinds <= {"LineString"}:
-        raise InputError(f"--lines {path}: geometries are {', '.join(sorted(kinds))}; counting lines must be "
-                         "single lines (LineString)")
+        raise InputError(f"lines {path}: geometries are {', '.join(sorted(kinds))}; counting lines must be "
+                         "single lines (LineString)", parameters=("lines",))
     names = feature_names(gdf, ("name", "line", "id"))
     if len(set(names)) != len(names):
-        raise InputError(f"--lines {path}: line names must be unique; got {', '.join(names)}")
+        raise InputError(f"lines {path}: line names must be unique; got {', '.join(names)}", parameters=("lines",))
     lanes = [tuple(s.strip() for s in str(v).split(",") if s.strip()) if isinstance(v, str) else ()
              for v in (gdf["lanes"] if "lanes" in gdf.columns else [None] * len(gdf))]
     return [CountLine(n, g, ln) for n, g, ln in zip(names, gdf.geometry, lanes, strict=True)]
