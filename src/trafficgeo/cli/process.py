@@ -19,7 +19,6 @@ from trafficgeo.video.onnx_formats import FORMAT_HELP
 
 @app.command()
 def process(
-    ctx: typer.Context,
     video: Annotated[Path, typer.Argument(help="video file (mp4/mov/...) from a fixed camera")],
     camera: Annotated[Path, typer.Option(help="camera JSON from 'trafficgeo calibrate' (on a frame of this "
                                          "video)")],

@@ -28,19 +28,6 @@ def _check_out_dir(out: Path) -> None:
     check_writable_folder(out, "--out")
 
 
-def _layout(cam, surf, lanes: Path | None, lines: Path | None):
-    """The lanes and counting lines given on the command line (GIS files or image CSVs), in the camera's CRS."""
-    from trafficgeo.geo.mapping import camera_crs
-    from trafficgeo.traffic.lanes import read_lanes
-    from trafficgeo.traffic.lines import read_count_lines
-    from trafficgeo.traffic.plausibility import check_camera_above_surface
-
-    check_camera_above_surface(cam, surf)  # before any work: a surface in feet read as metres maps nothing
-    crs = camera_crs(cam)
-    return (read_lanes(lanes, crs=crs, camera=cam, surface=surf) if lanes is not None else None,
-            read_count_lines(lines, crs=crs, camera=cam, surface=surf) if lines is not None else None)
-
-
 @app.command()
 def analyze(
     camera: Annotated[Path, typer.Argument(help="camera JSON from 'trafficgeo calibrate'")],
