@@ -33,10 +33,14 @@ def write(tmp_path: Path, text: str, name: str = "gcps.csv") -> Path:
 
 
 def raises_input(path: Path, *parts: str, **kwargs: object) -> str:
-    """read_gcps must raise a one-line InputError containing every part; returns the message."""
+    """read_gcps must raise a one-line InputError containing every part as the command line shows it (parameter
+    names turned into flags, the library's own message naming no flag); returns that message."""
+    from trafficgeo.cli import FLAGS
+
     with pytest.raises(InputError) as info:
         read_gcps(path, **kwargs)  # type: ignore[arg-type]
-    msg = str(info.value)
+    assert "--" not in str(info.value)
+    msg = info.value.in_terms_of(FLAGS)
     assert "\n" not in msg
     for part in parts:
         assert part in msg, f"{part!r} not in {msg!r}"
@@ -505,7 +509,7 @@ def test_validate_pixel_outside() -> None:
     with pytest.raises(InputError) as info:
         validate_gcps(t, (300, 464))
     assert 'line 2 (id "1")' in str(info.value) and "300x464" in str(info.value)
-    assert "--image-size" in str(info.value)
+    assert "check image_size" in str(info.value) and info.value.parameters == ("image_size",)
 
 
 def test_validate_pixel_edges() -> None:
@@ -520,7 +524,7 @@ def test_validate_pixel_edges() -> None:
 
 @pytest.mark.parametrize("size", [(0, 10), (10.5, 10), ("a", 3), (5,)])
 def test_validate_bad_image_size(size: tuple[int, int]) -> None:
-    with pytest.raises(InputError, match="--image-size"):
+    with pytest.raises(InputError, match="image_size"):
         validate_gcps(grid_table(), size)
 
 

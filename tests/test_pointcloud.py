@@ -220,7 +220,7 @@ def test_z_at_errors_name_the_point_and_file(tmp_path: Path) -> None:
     assert str(path) in str(e.value)
 
     centre = ORIGIN[0] + 50.0, ORIGIN[1] + 50.0  # in the hole: inside the hull, no ground within 1 m
-    with pytest.raises(InputError, match=r"point 0 at .*no ground points within 1 m.*increase --radius") as e:
+    with pytest.raises(InputError, match=r"point 0 at .*no ground points within 1 m.*increase radius_m") as e:
         index.z_at(centre[0], centre[1], radius_m=1.0)
     assert str(path) in str(e.value)
     assert index.z_at(centre[0], centre[1], radius_m=12.0)[0] == pytest.approx(_plane(*map(np.array, centre)), abs=0.05)

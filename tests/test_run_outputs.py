@@ -166,7 +166,10 @@ def test_an_unwritable_out_is_found_before_any_work(command: str, scene: dict[st
     def no_work(*args: object, **kwargs: object) -> None:
         raise AssertionError("the work started before --out was checked")
 
-    for target in ("trafficgeo.traffic.analyze.analyze", "trafficgeo.traffic.tracks.read_tracks",
+    # the modules that bind these names at import are patched first (and so restored to the real functions):
+    # otherwise the first import, made while patched, would keep the stand-in for the rest of the session
+    for target in ("trafficgeo.traffic.loading.read_tracks", "trafficgeo.video.run.analyze",
+                   "trafficgeo.traffic.analyze.analyze", "trafficgeo.traffic.tracks.read_tracks",
                    "trafficgeo.video.pipeline.detect_and_track", "trafficgeo.traffic.validation.read_observed_run"):
         monkeypatch.setattr(target, no_work)
     common = ["--camera", scene["camera"], "--surface", Z0]
@@ -206,12 +209,12 @@ def test_a_folder_that_cannot_take_a_file_is_found_first(tmp_path: Path, monkeyp
 
 # ------------------------------------------------------------------------------------------------ ranges
 @pytest.mark.parametrize(("extra", "expect"), [
-    (["--interval", 0.5], "--interval 0.5 s"),
-    (["--interval", 1e-7], "--interval 1e-07 s"),
-    (["--interval", "inf"], "--interval inf s"),
+    (["--interval", 0.5], "--interval 0.5: the counting interval"),
+    (["--interval", 1e-7], "--interval 1e-07: the counting interval"),
+    (["--interval", "inf"], "--interval inf: the counting"),
     (["--fps", 1e-300], "--fps 1e-300 is not a video frame rate"),
     (["--fps", 5000], "--fps 5000 is not a video frame rate"),
-    (["--coast-hidden", 1e9], "coast_hidden_s=1e+09 (--coast-hidden) is more than 30 s"),
+    (["--coast-hidden", 1e9], "trajectory option --coast-hidden=1e+09 is more than 30 s"),
     (["--pixel-sigma", "inf"], "pixel_sigma=inf must be a finite number"),
     (["--resolution", "inf"], "--resolution inf"),
 ])
@@ -232,8 +235,9 @@ def test_range_checks_in_the_library(scene: dict[str, Path]) -> None:  # noqa: F
     with pytest.raises(InputError, match="at least 1"):
         interval_edges(0.0, 6.0, 1e-7)
     assert check_interval(60) == 60.0
-    with pytest.raises(InputError, match="--fps"):
+    with pytest.raises(InputError, match=r"^fps 1e-300 is not a video frame rate") as info:
         read_tracks(scene["tracks"], fps=1e-300)
+    assert info.value.parameters == ("fps",)
     assert read_tracks(scene["tracks"], fps=0.1).time.max() > 100  # a time-lapse camera's rate is fine
 
 

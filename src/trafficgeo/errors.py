@@ -17,7 +17,8 @@ class InputError(TrafficgeoError, ValueError):
 
     Library code names the function's parameters (``"start_s 5 / end_s 2: need 0 <= start_s < end_s"``) and lists
     them in ``parameters``; the command line rewrites those names to its flags (``--start``, ``--end``), so each
-    layer speaks its own terms."""
+    layer speaks its own terms. A one-word parameter that could be read as prose (``crs``) is written in backticks
+    where it does not open the message (``"check the CRSs (`gcp_crs`, `crs`)"``)."""
 
     def __init__(self, message: str, *, parameters: tuple[str, ...] = ()) -> None:
         super().__init__(message)
@@ -25,14 +26,15 @@ class InputError(TrafficgeoError, ValueError):
 
     def in_terms_of(self, names: dict[str, str]) -> str:
         """The message with each of its ``parameters`` renamed by ``names`` (parameter -> e.g. a CLI flag): a name
-        with an underscore (``start_s``) wherever it stands as a word; a plain word (``lanes``) only where it opens
-        the message, since elsewhere it may be prose."""
+        with an underscore (``start_s``) wherever it stands as a word; a plain word (``lanes``) where it opens
+        the message or stands in backticks, since elsewhere it may be prose."""
         import re
 
         text = str(self)
         for p in self.parameters:
             if p not in names:
                 continue
+            text = text.replace(f"`{p}`", names[p])
             if "_" in p:
                 text = re.sub(rf"(?<![\w-]){re.escape(p)}(?!\w)", names[p], text)
             elif re.match(rf"{re.escape(p)}\b", text):

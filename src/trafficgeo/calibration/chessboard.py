@@ -247,7 +247,8 @@ def calibrate_chessboard(
             f"the {cols}x{rows} chessboard was found in {len(used)} of {n} images, at least "
             f"{MIN_VIEWS} are needed; the whole board must be visible and sharp, and the pattern must "
             f"count INNER corners (a board of {cols + 1} x {rows + 1} squares has {cols}x{rows}): "
-            f"check --pattern"
+            f"check `pattern`",
+            parameters=("pattern",),
         )
     assert image_size is not None
 

@@ -30,7 +30,8 @@ def _image_size(image_size: tuple[int, int]) -> tuple[int, int]:
         ok = False
     if not ok:
         raise InputError(
-            f"image size {image_size!r} is not two positive whole numbers; give --image-size W H"
+            f"image_size {image_size!r} is not two positive whole numbers; give the width and height in pixels",
+            parameters=("image_size",),
         )
     return w, h
 
@@ -95,7 +96,8 @@ def validate_gcps(table: GCPTable, image_size: tuple[int, int], *, min_control: 
         raise InputError(
             f"{table.where(i)}: pixel (u={_fmt(px[i, 0])}, v={_fmt(px[i, 1])}) is outside the {w}x{h} image "
             f"(u from -0.5 to {w - 0.5}, v from -0.5 to {h - 0.5}, (0, 0) = centre of the top-left pixel); "
-            "check --image-size or the pixel"
+            "check image_size or the pixel",
+            parameters=("image_size",),
         )
     if table.n >= 2:
         dup = _closest_pair(px, 0.5)

@@ -201,7 +201,8 @@ def _select_image(rows: _Rows, odm_image: str | None, source: str) -> np.ndarray
         if len(keys) > 1:
             raise InputError(
                 f"{source}: the GCPs belong to {len(keys)} images ({_list_names(names)}); "
-                f"say which image the camera sees with --odm-image NAME (e.g. --odm-image {names[0]})"
+                f"say which image the camera sees with odm_image (e.g. odm_image {names[0]})",
+                parameters=("odm_image",),
             )
         return np.arange(len(rows.ids))
     wanted = odm_image.strip().lower()
@@ -214,7 +215,8 @@ def _select_image(rows: _Rows, odm_image: str | None, source: str) -> np.ndarray
     if not sel:
         raise InputError(
             f"{source}: no GCP rows for image {_q(odm_image)}; the file has images {_list_names(names)}; "
-            "pass one of them with --odm-image"
+            "pass one of them as odm_image",
+            parameters=("odm_image",),
         )
     return np.asarray(sel, dtype=np.intp)
 
@@ -235,7 +237,7 @@ def _parse_option_crs(value: str | pyproj.CRS | None, option: str) -> pyproj.CRS
     try:
         return parse_crs(value)
     except InputError as exc:
-        raise InputError(f"{option}: {exc}") from None
+        raise InputError(f"{option}: {exc}", parameters=(option,)) from None
 
 
 
@@ -258,19 +260,21 @@ def _resolve_crs(
         return f"line {lines[i]}: {xn}={_fmt(x[i])}, {yn}={_fmt(y[i])}"
 
     if crs is not None and not (crs.is_projected and not is_geographic(crs)):
-        hint = " (to read longitude/latitude GCPs give --gcp-crs EPSG:4326)" if is_geographic(crs) else ""
+        hint = " (to read longitude/latitude GCPs give gcp_crs EPSG:4326)" if is_geographic(crs) else ""
         raise InputError(
-            f"working CRS (--crs) {crs_label(crs)} is not a projected CRS{hint}; "
-            "give a projected CRS for --crs such as a UTM zone (e.g. EPSG:32616) or leave it out"
+            f"working CRS (`crs`) {crs_label(crs)} is not a projected CRS{hint}; "
+            "give a projected CRS for `crs` such as a UTM zone (e.g. EPSG:32616) or leave it out",
+            parameters=("crs", "gcp_crs"),
         )
     if gcp_crs is None:
         gcp_crs = crs
-        declared_by = "given with --crs"
+        declared_by = "given with `crs`"
     if gcp_crs is None:
         if looks_like_lonlat(x, y) or looks_like_lonlat(y, x):
             raise InputError(
                 f"{source}: the GCP coordinates look like longitude/latitude degrees ({at(0)}) "
-                "but no CRS was given; pass --gcp-crs EPSG:4326 (longitude in x, latitude in y)"
+                "but no CRS was given; pass gcp_crs EPSG:4326 (longitude in x, latitude in y)",
+                parameters=("gcp_crs",),
             )
         return x, y, None
     if is_geographic(gcp_crs):
@@ -288,7 +292,8 @@ def _resolve_crs(
             raise InputError(
                 f"{source} {at(i)} is not longitude/latitude in degrees, but the GCP CRS "
                 f"{crs_label(gcp_crs)} ({declared_by}) is geographic; "
-                "give the file's projected CRS with --gcp-crs (e.g. EPSG:32616)"
+                "give the file's projected CRS with gcp_crs (e.g. EPSG:32616)",
+                parameters=("gcp_crs", "crs"),
             )
         target = crs
         if target is None:
@@ -297,21 +302,24 @@ def _resolve_crs(
                 raise InputError(
                     f"{source}: the mean latitude ({yn}) of the points is {lat:.6g}, outside the UTM range "
                     f"(-80 to 84), so no UTM zone fits ({at(0)}); if the file lists latitude first, swap the "
-                    f"{xn} and {yn} columns, otherwise give a polar projected CRS with --crs"
+                    f"{xn} and {yn} columns, otherwise give a polar projected CRS with `crs`",
+                    parameters=("crs",),
                 )
             target = utm_crs_for(float(np.mean(x)), lat)
     else:
         if not gcp_crs.is_projected:
             raise InputError(
                 f"GCP CRS {crs_label(gcp_crs)} ({declared_by}) is neither geographic nor projected; give "
-                "--gcp-crs as longitude/latitude (EPSG:4326) or a projected CRS (e.g. EPSG:32616)"
+                "gcp_crs as longitude/latitude (EPSG:4326) or a projected CRS (e.g. EPSG:32616)",
+                parameters=("gcp_crs", "crs"),
             )
         if looks_like_lonlat(x, y) or looks_like_lonlat(y, x):
             order = "" if looks_like_lonlat(x, y) else ", after swapping the columns so longitude comes first"
             raise InputError(
                 f"{source}: the GCP coordinates look like longitude/latitude degrees ({at(0)}) "
                 f"but the GCP CRS {crs_label(gcp_crs)} ({declared_by}) is projected; "
-                f"pass --gcp-crs EPSG:4326{order}"
+                f"pass gcp_crs EPSG:4326{order}",
+                parameters=("gcp_crs", "crs"),
             )
         target = crs if crs is not None else gcp_crs
         if target == gcp_crs:
@@ -322,7 +330,8 @@ def _resolve_crs(
         i = _first(bad)
         raise InputError(
             f"{source} {at(i)} cannot be transformed from {crs_label(gcp_crs)} to {crs_label(target)}; "
-            "check the point and the CRSs (--gcp-crs, --crs)"
+            "check the point and the CRSs (gcp_crs, `crs`)",
+            parameters=("gcp_crs", "crs"),
         )
     return tx, ty, target
 
@@ -363,9 +372,9 @@ def read_gcps(
         )
     header = lines[first].strip()
     delim, names = _split_header(header)
-    gcp_crs_obj = _parse_option_crs(gcp_crs, "--gcp-crs")
-    crs_obj = _parse_option_crs(crs, "--crs")
-    declared_by = "given with --gcp-crs"
+    gcp_crs_obj = _parse_option_crs(gcp_crs, "gcp_crs")
+    crs_obj = _parse_option_crs(crs, "crs")
+    declared_by = "given with gcp_crs"
     if set(REQUIRED_COLUMNS) <= set(names):
         rows = _parse_csv(text, source, delim)
         xy_names = ("x", "y")

@@ -96,11 +96,12 @@ class CalibrationOptions:
         if self.loss not in LOSSES:
             raise InputError(f"loss '{self.loss}' is unknown; use one of {', '.join(LOSSES)}")
         if (self.fix_intrinsics or self.focal == "fixed") and self.intrinsics is None:
-            raise InputError("fixed intrinsics need --intrinsics FILE (OpenCV YAML or a trafficgeo camera JSON)")
+            raise InputError("fixed intrinsics need `intrinsics` (OpenCV YAML or a trafficgeo camera JSON)",
+                             parameters=("intrinsics",))
         if self.focal_px is not None and not (np.isfinite(self.focal_px) and self.focal_px > 0):
             raise InputError(f"focal length {self.focal_px} px is not a positive number")
         if self.focal_px is not None and self.intrinsics is not None:
-            raise InputError("give either --focal-px or --intrinsics, not both")
+            raise InputError("give either focal_px or `intrinsics`, not both", parameters=("focal_px", "intrinsics"))
         if not (np.isfinite(self.survey_sigma_m) and self.survey_sigma_m >= 0):
             raise InputError(f"survey sigma {self.survey_sigma_m} m must be a number >= 0 (e.g. 0.03)")
         if not 0.5 < self.confidence < 1.0:

@@ -32,8 +32,9 @@ def plane_from_gcps(doc: dict[str, Any], crs: pyproj.CRS | None, where: str) -> 
     use = [r for r in rows if isinstance(r, dict) and r.get("inlier", True) and r.get("role", "control") == "control"]
     pts = [(r["x"], r["y"], r["z"]) for r in use]
     if len(pts) < 3:
-        raise InputError(f"{where}: --surface plane needs the GCPs that 'trafficgeo calibrate' stores in the camera "
-                         f"JSON (found {len(pts)} inliers); use a number, a DEM or a point cloud instead")
+        raise InputError(f"surface plane needs the GCPs that 'trafficgeo calibrate' stores in the camera JSON; {where} "
+                         f"has {len(pts)} inliers: use a number, a DEM or a point cloud instead",
+                         parameters=("surface",))
     try:
         return PlaneSurface.fit(np.asarray(pts, dtype=np.float64), crs=crs)
     except ValueError as exc:

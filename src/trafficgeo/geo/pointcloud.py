@@ -382,7 +382,7 @@ class GroundIndex:
                 )
             raise InputError(
                 f"{where}: no ground points within {_metres_text(radius_m, self.crs)} in the point cloud "
-                f"{self.source}; increase --radius"
+                f"{self.source}; increase radius_m", parameters=("radius_m",)
             )
         return res.z
 

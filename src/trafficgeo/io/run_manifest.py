@@ -53,13 +53,14 @@ class RunManifest:
         return name in self.files
 
 
-def check_writable_folder(folder: str | Path, option: str = "--out") -> None:
+def check_writable_folder(folder: str | Path, option: str = "out_dir") -> None:
     """Fail before any work when ``folder`` could not be written: it is a file, a part of its path is a file, or
     a probe file cannot be created in it (or, when it does not exist yet, in the nearest folder above it).
     Nothing is left behind."""
     d = Path(folder)
     if d.exists() and not d.is_dir():
-        raise InputError(f"{option} {d}: exists and is not a folder; give a folder for the outputs")
+        raise InputError(f"{option} {d}: exists and is not a folder; give a folder for the outputs",
+                         parameters=(option,))
     probe_in = d
     while not probe_in.exists():
         if probe_in.parent == probe_in:
@@ -67,25 +68,26 @@ def check_writable_folder(folder: str | Path, option: str = "--out") -> None:
         probe_in = probe_in.parent
     if not probe_in.is_dir():
         raise InputError(f"{option} {d}: {probe_in} is a file, so no folder can be made there; give another "
-                         "output folder")
+                         "output folder", parameters=(option,))
     try:
         fd, name = tempfile.mkstemp(prefix=".write-probe.", dir=probe_in)
         os.close(fd)
         os.unlink(name)
     except OSError as exc:
         raise InputError(f"{option} {d}: cannot write in {probe_in} ({exc.strerror or exc}); give a folder you can "
-                         "write to") from None
+                         "write to", parameters=(option,)) from None
 
 
-def check_writable_file(path: str | Path, option: str = "--output") -> None:
+def check_writable_file(path: str | Path, option: str = "output") -> None:
     """Fail before any work when the file ``path`` could not be written: it is a folder, or its folder could not
-    be made or written in (:func:`check_writable_folder`)."""
+    be made or written in (:func:`check_writable_folder`). ``option`` names the input in messages (a parameter
+    name, which the command line turns into its flag)."""
     p = Path(path)
     if p.is_dir():
-        raise InputError(f"{option} {p}: is a folder; give the file to write")
+        raise InputError(f"{option} {p}: is a folder; give the file to write", parameters=(option,))
     if p.parent.exists() and not p.parent.is_dir():
         raise InputError(f"{option} {p}: {p.parent} is a file, so nothing can be written under it; give another "
-                         "path")
+                         "path", parameters=(option,))
     check_writable_folder(p.parent, option)
 
 

@@ -170,8 +170,8 @@ MIN_INTERVAL_S = 1.0  # s, the shortest counting interval: shorter ones count fr
 def check_interval(interval_s: float) -> float:
     """``interval_s`` (s) if it is a usable counting interval (finite, at least :data:`MIN_INTERVAL_S`)."""
     if not (np.isfinite(interval_s) and interval_s >= MIN_INTERVAL_S):
-        raise InputError(f"--interval {float(interval_s):g} s: the counting interval must be a finite number of "
-                         f"seconds, at least {MIN_INTERVAL_S:g}, e.g. 60 or 900")
+        raise InputError(f"interval_s {float(interval_s):g}: the counting interval must be a finite number of "
+                         f"seconds, at least {MIN_INTERVAL_S:g}, e.g. 60 or 900", parameters=("interval_s",))
     return float(interval_s)
 
 

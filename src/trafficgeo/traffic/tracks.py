@@ -76,8 +76,8 @@ def read_tracks(path: str | Path, *, fps: float | None = None) -> ImageTracks:
     if not p.is_file():
         raise InputError(f"{p}: tracks file not found; {CSV_HINT}")
     if fps is not None and not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
-        raise InputError(f"--fps {fps:g} is not a video frame rate; give one from {MIN_FPS:g} to {MAX_FPS:g} "
-                         "frames per second, e.g. 25")
+        raise InputError(f"fps {fps:g} is not a video frame rate; give one from {MIN_FPS:g} to {MAX_FPS:g} "
+                         "frames per second, e.g. 25", parameters=("fps",))
     mot = p.suffix.lower() == ".txt"
     if mot:
         df = read_mot(p, CSV_HINT)
@@ -116,7 +116,8 @@ def read_tracks(path: str | Path, *, fps: float | None = None) -> ImageTracks:
     elif fps is not None:
         time = (frame - (1 if mot else 0)) / fps
     else:
-        raise InputError(f"{p}: the file has no time column; give the frame rate with --fps (e.g. --fps 25)")
+        raise InputError(f"{p}: the file has no time column; give the frame rate as `fps` (e.g. 25)",
+                         parameters=("fps",))
     dup = pd.Series(list(zip(track, frame, strict=True))).duplicated()
     if dup.any():
         row = int(np.flatnonzero(dup.to_numpy())[0])

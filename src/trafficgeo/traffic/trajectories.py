@@ -80,8 +80,9 @@ class TrajectoryOptions:
             if not np.isfinite(value):
                 raise InputError(f"trajectory option {name}={float(value):g} must be a finite number")
         if self.coast_hidden_s > MAX_COAST_HIDDEN_S:
-            raise InputError(f"trajectory option coast_hidden_s={self.coast_hidden_s:g} (--coast-hidden) is more than "
-                             f"{MAX_COAST_HIDDEN_S:g} s: nobody stays hidden that long; give e.g. 3 (0: off)")
+            raise InputError(f"trajectory option coast_hidden_s={self.coast_hidden_s:g} is more than "
+                             f"{MAX_COAST_HIDDEN_S:g} s: nobody stays hidden that long; give e.g. 3 (0: off)",
+                             parameters=("coast_hidden_s",))
         checks = {"pixel_sigma": self.pixel_sigma > 0, "accel_sigma": self.accel_sigma > 0, "gate": self.gate > 0,
                   "split_outliers": self.split_outliers >= 1, "max_gap_s": self.max_gap_s > 0,
                   "check_gap_s": self.check_gap_s > 0, "rejoin_gap_s": self.rejoin_gap_s > 0,

@@ -32,7 +32,7 @@ from trafficgeo.traffic.compare import (
 from trafficgeo.traffic.lanes import Lanes, lanes_from_polygons
 from trafficgeo.traffic.lines import CountLine, aggregate_counts, find_crossings
 
-RUN_HINT = "give the --out folder of 'trafficgeo analyze'"
+RUN_HINT = "give the output folder of 'trafficgeo analyze' or 'process' (a run folder)"
 
 
 @dataclass(frozen=True)
