@@ -538,14 +538,15 @@ class Session:
             return {**base, "status": "failed",
                     "message": f"the calibration failed ({type(exc).__name__}: {exc}); check the pairs"}, None
         rep = run.report
-        points = [{k: r[k] for k in ("id", "role", "status", "inlier", "u_proj", "v_proj", "du", "dv", "error_px",
-                                     "loo_error_px", "ground_error_m", "loo_ground_error_m", "reason")}
-                  for r in rep["gcps"]]
+        points = [{"id": r.id, "role": r.role, "status": r.status, "inlier": r.inlier, "u_proj": r.u_proj,
+                   "v_proj": r.v_proj, "du": r.du, "dv": r.dv, "error_px": r.error_px, "loo_error_px": r.loo_error_px,
+                   "ground_error_m": r.ground_error_m, "loo_ground_error_m": r.loo_ground_error_m,
+                   "reason": r.reason} for r in rep.gcps]
         payload: dict[str, Any] = {
-            **base, "status": "ok", "message": rep["summary"], "summary": rep["summary"], "stats": rep["stats"],
-            "check": rep["check"], "camera": rep["camera"], "model": rep["model"]["description"],
-            "warnings": rep["warnings"], "recommendations": rep["recommendations"], "points": points,
-            "outliers": [o["id"] for o in rep["outliers"]], "footprint": [], "grid": None, "overlay_error": None,
+            **base, "status": "ok", "message": rep.summary, "summary": rep.summary, "stats": rep.stats.to_dict(),
+            "check": rep.check.to_dict(), "camera": rep.camera.to_dict(), "model": rep.model.description,
+            "warnings": list(rep.warnings), "recommendations": list(rep.recommendations), "points": points,
+            "outliers": [o.id for o in rep.outliers], "footprint": [], "grid": None, "overlay_error": None,
         }
         try:
             surface = self._draw_surface(run)
