@@ -29,6 +29,7 @@ from trafficgeo.io.atomic import to_json_safe
 REPORT_FORMAT = "trafficgeo.calibration-report/1"
 NAN = float("nan")
 
+
 class _Malformed(Exception):
     """A key of the document is missing or has the wrong type (the message names it)."""
 
@@ -66,7 +67,7 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
             return value
         raise _Malformed(f"'{key}' is not {'true or false' if tp is bool else 'text'}")
     if origin is tuple:
-        if not isinstance(value, list):
+        if not isinstance(value, list | tuple):
             raise _Malformed(f"'{key}' is not a list")
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_convert(args[0], v, f"{key}[{k}]") for k, v in enumerate(value))
@@ -74,7 +75,7 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
             raise _Malformed(f"'{key}' has {len(value)} values, expected {len(args)}")
         return tuple(_convert(a, v, f"{key}[{k}]") for k, (a, v) in enumerate(zip(args, value, strict=True)))
     if origin is Mapping:
-        if not isinstance(value, dict):
+        if not isinstance(value, Mapping):
             raise _Malformed(f"'{key}' is not an object")
         return types.MappingProxyType({k: _convert(args[1], v, f"{key}.{k}") for k, v in value.items()})
     if isinstance(tp, type) and is_dataclass(tp):
@@ -84,7 +85,7 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
 
 def _read_fields(cls: type[Any], doc: Any, where: str) -> Any:
     """An instance of the dataclass ``cls`` from the JSON object ``doc``; fields with defaults may be absent."""
-    if not isinstance(doc, dict):
+    if not isinstance(doc, Mapping):
         raise _Malformed(f"'{where}' is not an object" if where else "the document is not a JSON object")
     hints = typing.get_type_hints(cls)
     kwargs = {}
@@ -111,7 +112,7 @@ class _Record:
             return NotImplemented
         return to_json_safe(self.to_dict()) == to_json_safe(other.to_dict())  # type: ignore[attr-defined]
 
-    __hash__ = None  # type: ignore[assignment]  (mutable-looking mappings inside; equality is by value)
+    __hash__ = None  # type: ignore[assignment]  (equal by JSON value, which a hash of the fields would not follow)
 
 
 @dataclass(frozen=True, eq=False)
@@ -350,7 +351,7 @@ class CalibrationReport(_Record):
         Raises:
             InputError: ``doc`` is not a calibration report (another format, a missing key or a wrong type).
         """
-        fmt = doc.get("format") if isinstance(doc, dict) else None
+        fmt = doc.get("format") if isinstance(doc, Mapping) else None
         if fmt != REPORT_FORMAT:
             got = f"format {fmt!r}" if isinstance(fmt, str) else "no 'format' key"
             raise InputError(f"{where}: not a calibration report ({got}, expected {REPORT_FORMAT}); give the "
