@@ -101,10 +101,9 @@ def test_feet_crs_keeps_feet_and_reports_metres():
     feet = calibrate(feet_table, sc.camera.image_size)
     np.testing.assert_allclose(feet.camera.position * ft, metre.camera.position, atol=1e-4)
     r_m, r_ft = build_report(metre), build_report(feet)
-    assert r_ft["metres_per_crs_unit"] == pytest.approx(ft)
-    assert r_ft["check"]["ground_rmse_m"] == pytest.approx(r_m["check"]["ground_rmse_m"], rel=1e-4)
-    assert r_ft["uncertainty"]["position_std_m"][0] == pytest.approx(r_m["uncertainty"]["position_std_m"][0],
-                                                                     rel=1e-3)
+    assert r_ft.metres_per_crs_unit == pytest.approx(ft)
+    assert r_ft.check.ground_rmse_m == pytest.approx(r_m.check.ground_rmse_m, rel=1e-4)
+    assert r_ft.uncertainty.position_std_m[0] == pytest.approx(r_m.uncertainty.position_std_m[0], rel=1e-3)
 
 
 # ------------------------------------------------------------------ outliers
@@ -115,7 +114,7 @@ def test_planted_blunders_are_found_and_explained():
     flagged = ~cal.inlier & sc.gcps.is_control
     np.testing.assert_array_equal(flagged, sc.outlier)
     report = build_report(cal)
-    reasons = {o["id"]: o["reason"] for o in report["outliers"]}
+    reasons = {o.id: o.reason for o in report.outliers}
     for i in np.nonzero(sc.outlier)[0]:
         kind = sc.outlier_kind[i]
         reason = reasons[sc.gcps.ids[i]]
@@ -124,7 +123,7 @@ def test_planted_blunders_are_found_and_explained():
             assert "elevation inconsistent by +" in reason
         else:
             assert "on the ground the clicked pixel lies" in reason
-    assert any(sc.gcps.ids[i] in rec for rec in report["recommendations"] for i in np.nonzero(sc.outlier)[0])
+    assert any(sc.gcps.ids[i] in rec for rec in report.recommendations for i in np.nonzero(sc.outlier)[0])
 
 
 @pytest.mark.slow
@@ -150,8 +149,8 @@ def test_clean_scene_flags_nothing_and_meets_the_accuracy_of_its_uncertainty():
     assert cal.inlier[sc.gcps.is_control].all()
     report = build_report(cal)
     err = np.abs(cal.camera.position - sc.camera.position)
-    assert np.all(err < 4 * np.array(report["uncertainty"]["position_std_m"]) + 0.02)
-    assert 0.5 < report["stats"]["sigma0"] < 1.6
+    assert np.all(err < 4 * np.array(report.uncertainty.position_std_m) + 0.02)
+    assert 0.5 < report.stats.sigma0 < 1.6
 
 
 # ------------------------------------------------------------------ report consistency
@@ -178,10 +177,10 @@ def test_saved_camera_reproduces_every_reported_residual(tmp_path):
 def test_leave_one_out_pose_spread_and_parameter_uncertainty_are_reported():
     sc = make_gcp_scene(4, n_control=15, n_check=2)
     report = build_report(calibrate(sc.gcps, sc.camera.image_size))
-    assert report["pose_consistency"]["available"] and report["pose_consistency"]["n_fits"] == 15
-    assert all(v > 0 for v in report["uncertainty"]["position_std_m"])
-    assert report["distance_ratios"]["n_pairs"] == 15 * 14 // 2
-    assert report["stats"]["redundancy"] == 2 * 15 - len(report["model"]["free_parameters"])
+    assert report.pose_consistency.available and report.pose_consistency.n_fits == 15
+    assert all(v > 0 for v in report.uncertainty.position_std_m)
+    assert report.distance_ratios.n_pairs == 15 * 14 // 2
+    assert report.stats.redundancy == 2 * 15 - len(report.model.free_parameters)
 
 
 # ------------------------------------------------------------------ options
@@ -219,15 +218,15 @@ def test_too_few_points_for_the_model_is_refused():
 def test_paper_table2_runs_and_is_reported_honestly():
     gcps = read_gcps(DATA / "paper_table2_gcps.csv", crs="EPSG:2949")
     report = build_report(calibrate(gcps, (848, 464)))
-    text = " ".join(report["warnings"])
+    text = " ".join(report.warnings)
     assert "do not fit one pinhole camera" in text
     assert "focal length poorly determined" in text
     assert "implausible pose" in text
     assert "cover only" in text  # 2 % of the frame
     # With the paper's stated focal length the points still do not fit.
     fixed = build_report(calibrate(gcps, (848, 464), CalibrationOptions(focal_px=848.0)))
-    assert fixed["stats"]["rmse_px"] > 20
-    assert any("do not fit one pinhole camera" in w for w in fixed["warnings"])
+    assert fixed.stats.rmse_px > 20
+    assert any("do not fit one pinhole camera" in w for w in fixed.warnings)
 
 
 def _i24_table(camera_name: str, tmp_path: Path) -> GCPTable:

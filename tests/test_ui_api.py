@@ -14,7 +14,7 @@ import pytest
 from trafficgeo.calibration import read_gcps
 from trafficgeo.camera.io import read_camera_json
 from trafficgeo.ui.server import STATIC_DIR, create_app
-from trafficgeo.ui.session import open_session
+from trafficgeo.ui.startup import open_session
 from ui_support import CRS, Scene, shared_scene
 
 with warnings.catch_warnings():

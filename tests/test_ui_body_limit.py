@@ -12,7 +12,7 @@ import time
 import pytest
 
 from trafficgeo.ui.server import MAX_BODY_BYTES, BackgroundServer, create_app
-from trafficgeo.ui.session import open_session
+from trafficgeo.ui.startup import open_session
 from ui_support import shared_scene
 
 CHUNK = 64 * 1024

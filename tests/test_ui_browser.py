@@ -20,7 +20,7 @@ import pytest
 from trafficgeo.calibration import read_gcps
 from trafficgeo.camera.io import read_camera_json
 from trafficgeo.ui.server import BackgroundServer, create_app
-from trafficgeo.ui.session import open_session
+from trafficgeo.ui.startup import open_session
 from ui_support import CRS, ORTHO_RES, Scene, shared_scene
 
 pytestmark = pytest.mark.slow  # drives Chromium

@@ -17,7 +17,8 @@ from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import pixels_to_world
 from trafficgeo.geo.raster import write_geotiff
 from trafficgeo.ui.inputs import MAX_DISPLAY_PX, load_ground, load_ortho
-from trafficgeo.ui.session import ConflictError, NotFoundError, Session, SessionError, open_session
+from trafficgeo.ui.session import ConflictError, NotFoundError, Session, SessionError
+from trafficgeo.ui.startup import open_session
 from ui_support import CRS, Scene, shared_scene
 
 GRADE_SLOPE_DEG = math.degrees(math.atan(math.hypot(0.02, 0.02)))

@@ -30,6 +30,7 @@ _API: dict[str, str] = {
     "calibrate": "trafficgeo.calibration.pipeline",
     "Calibration": "trafficgeo.calibration.pipeline",
     "CalibrationOptions": "trafficgeo.calibration.pipeline",
+    "CalibrationReport": "trafficgeo.calibration.report",
     "read_gcps": "trafficgeo.calibration.gcps",
     "GCPTable": "trafficgeo.calibration.gcps",
     # ground
@@ -68,6 +69,7 @@ __all__ = [
     "Calibration",
     "CalibrationError",
     "CalibrationOptions",
+    "CalibrationReport",
     "Camera",
     "Comparison",
     "ConstantSurface",
@@ -119,6 +121,7 @@ def __dir__() -> list[str]:
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from __getattr__
     from trafficgeo.calibration.gcps import GCPTable, read_gcps
     from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, calibrate
+    from trafficgeo.calibration.report import CalibrationReport
     from trafficgeo.camera.model import Camera
     from trafficgeo.geo.mapping import GroundPoints, georeference
     from trafficgeo.geo.surface import ConstantSurface

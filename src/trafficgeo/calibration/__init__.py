@@ -2,17 +2,21 @@
 
 from trafficgeo.calibration.gcps import GCPTable, read_gcps, validate_gcps
 from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, Finding, calibrate
+from trafficgeo.calibration.report import CalibrationReport, GCPResidual, read_calibration_report
 from trafficgeo.calibration.run import CalibrationRun, run_calibration
 from trafficgeo.calibration.validation import build_report
 
 __all__ = [
     "Calibration",
     "CalibrationOptions",
+    "CalibrationReport",
     "CalibrationRun",
     "Finding",
+    "GCPResidual",
     "GCPTable",
     "build_report",
     "calibrate",
+    "read_calibration_report",
     "read_gcps",
     "run_calibration",
     "validate_gcps",

@@ -12,6 +12,7 @@ from trafficgeo.calibration.gcps import GCPTable
 from trafficgeo.calibration.params import FULL_NAMES, ParameterModel
 from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, calibrate
 from trafficgeo.calibration.refine import fit_camera
+from trafficgeo.calibration.report import CalibrationReport
 from trafficgeo.calibration.validation import build_report, gcp_records, stats_record
 from trafficgeo.camera.io import write_camera_json
 from trafficgeo.io.atomic import write_json_atomic
@@ -22,7 +23,7 @@ class CalibrationRun:
     """A calibration and its validation report (see :func:`trafficgeo.calibration.validation.build_report`)."""
 
     calibration: Calibration
-    report: dict[str, Any]
+    report: CalibrationReport
 
 
 def covariance_record(cal: Calibration) -> dict[str, Any]:
@@ -61,13 +62,15 @@ def covariance_record(cal: Calibration) -> dict[str, Any]:
     }
 
 
-def camera_extras(report: dict[str, Any], cal: Calibration | None = None) -> dict[str, Any]:
+def camera_extras(report: CalibrationReport, cal: Calibration | None = None) -> dict[str, Any]:
     """The calibration keys stored in the camera JSON beside the camera itself."""
+    unc = report.uncertainty
     extras = {
         "gcps": gcp_records(report),
         "stats": stats_record(report),
-        "model": {"free_parameters": report["model"]["free_parameters"], "reasons": report["model"]["reasons"]},
-        "uncertainty": {k: report["uncertainty"][k] for k in ("position_std_m", "orientation_std_deg", "focal_std_px")},
+        "model": {"free_parameters": list(report.model.free_parameters), "reasons": list(report.model.reasons)},
+        "uncertainty": {"position_std_m": list(unc.position_std_m),
+                        "orientation_std_deg": unc.orientation_std_deg.to_dict(), "focal_std_px": unc.focal_std_px},
     }
     if cal is not None:
         extras["covariance"] = covariance_record(cal)
@@ -80,7 +83,7 @@ def run_calibration(gcps: GCPTable, image_size: tuple[int, int], options: Calibr
     cal = calibrate(gcps, image_size, options)
     report = build_report(cal)
     if report_path is not None:
-        write_json_atomic(report_path, report)
+        write_json_atomic(report_path, report.to_dict())
     if camera_path is not None:
         write_camera_json(camera_path, cal.camera, camera_extras(report, cal))
     return CalibrationRun(cal, report)

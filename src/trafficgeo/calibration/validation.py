@@ -10,6 +10,7 @@ are the honest error to expect for a new point. Check points are never used in t
 from __future__ import annotations
 
 from itertools import combinations
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -17,10 +18,28 @@ from scipy import stats
 
 from trafficgeo.calibration.params import full_to_camera
 from trafficgeo.calibration.pipeline import Calibration, focal_bounds
+from trafficgeo.calibration.report import (
+    REPORT_FORMAT,
+    AnglesDeg,
+    CalibrationReport,
+    CameraSummary,
+    CheckStats,
+    Correlation,
+    DistanceRatios,
+    FitStart,
+    FitStats,
+    GCPResidual,
+    ModelSummary,
+    Outlier,
+    PairError,
+    ParameterStd,
+    PoseConsistency,
+    Uncertainty,
+)
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 
-REPORT_FORMAT = "trafficgeo.calibration-report/1"
+__all__ = ["REPORT_FORMAT", "build_report", "explain_outlier", "gcp_records", "ground_points", "stats_record"]
 
 
 def ground_points(camera: Camera, pixels: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -72,7 +91,7 @@ def _derived(full: np.ndarray, origin: np.ndarray, image_size: tuple[int, int]) 
     return np.concatenate([cam.position, _angles(cam), [cam.focal_px]])
 
 
-def _uncertainty(cal: Calibration) -> dict[str, Any]:
+def _uncertainty(cal: Calibration) -> Uncertainty:
     """Standard deviations of the free parameters and of position/orientation/focal, from the fit covariance."""
     fit = cal.fit
     cov = fit.covariance()
@@ -96,26 +115,26 @@ def _uncertainty(cal: Calibration) -> dict[str, Any]:
     high = []
     for i, j in combinations(range(len(names)), 2):
         if abs(corr[i, j]) > 0.98 and (names[i] in ("f", "fx", "fy", "k1", "k2") or names[j] in ("f", "fx", "fy")):
-            high.append({"a": names[i], "b": names[j], "correlation": float(corr[i, j])})
+            high.append(Correlation(names[i], names[j], float(corr[i, j])))
     m = metres_per_unit(cal.gcps.crs) if cal.gcps.crs is not None else 1.0
-    params = {n: {"value": float(M[:, k] @ fit.full) if n not in ("f",) else float(fit.full[6]),
-                  "std": float(std[k])} for k, n in enumerate(names)}
-    return {
-        "scaled_by_variance_factor": True,
-        "parameters": params,
-        "position_std_m": (std_d[0:3] * m).tolist(),
-        "orientation_std_deg": {"heading": float(std_d[3]), "tilt": float(std_d[4]), "roll": float(std_d[5])},
-        "focal_std_px": float(std_d[6]),
-        "high_correlations": high,
-    }
+    params = {n: ParameterStd(float(M[:, k] @ fit.full) if n not in ("f",) else float(fit.full[6]), float(std[k]))
+              for k, n in enumerate(names)}
+    return Uncertainty(
+        scaled_by_variance_factor=True,
+        parameters=MappingProxyType(params),
+        position_std_m=tuple((std_d[0:3] * m).tolist()),
+        orientation_std_deg=AnglesDeg(float(std_d[3]), float(std_d[4]), float(std_d[5])),
+        focal_std_px=float(std_d[6]),
+        high_correlations=tuple(high),
+    )
 
 
-def _pose_consistency(cal: Calibration) -> dict[str, Any]:
+def _pose_consistency(cal: Calibration) -> PoseConsistency:
     """Jackknife spread of the camera position and angles over the leave-one-out refits."""
     fulls = cal.loo_fulls
     ok = np.all(np.isfinite(fulls), axis=1) if fulls.size else np.zeros(0, dtype=bool)
     if ok.sum() < 3:
-        return {"method": "leave-one-out refits", "n_fits": int(ok.sum()), "available": False}
+        return PoseConsistency("leave-one-out refits", int(ok.sum()), False)
     size = cal.camera.image_size
     cams = [full_to_camera(f, cal.origin, size, None) for f in fulls[ok]]
     pos = np.array([c.position for c in cams])
@@ -127,23 +146,23 @@ def _pose_consistency(cal: Calibration) -> dict[str, Any]:
     jack_ang = np.sqrt((n - 1) / n * np.sum((ang_dev - ang_dev.mean(0)) ** 2, axis=0))
     max_dev = np.linalg.norm(pos - cal.camera.position, axis=1) * m
     focal = np.array([c.focal_px for c in cams])
-    return {
-        "method": "leave-one-out refits (jackknife)",
-        "n_fits": n,
-        "available": True,
-        "position_spread_m": jack_pos.tolist(),
-        "max_position_deviation_m": float(max_dev.max()),
-        "most_influential_gcp": cal.gcps.ids[int(np.nonzero(cal.inlier)[0][np.nonzero(ok)[0][int(max_dev.argmax())]])],
-        "angle_spread_deg": {"heading": float(jack_ang[0]), "tilt": float(jack_ang[1]), "roll": float(jack_ang[2])},
-        "focal_spread_px": float(np.sqrt((n - 1) / n * np.sum((focal - focal.mean()) ** 2))),
-    }
+    return PoseConsistency(
+        method="leave-one-out refits (jackknife)",
+        n_fits=n,
+        available=True,
+        position_spread_m=tuple(jack_pos.tolist()),
+        max_position_deviation_m=float(max_dev.max()),
+        most_influential_gcp=cal.gcps.ids[int(np.nonzero(cal.inlier)[0][np.nonzero(ok)[0][int(max_dev.argmax())]])],
+        angle_spread_deg=AnglesDeg(float(jack_ang[0]), float(jack_ang[1]), float(jack_ang[2])),
+        focal_spread_px=float(np.sqrt((n - 1) / n * np.sum((focal - focal.mean()) ** 2))),
+    )
 
 
-def _distance_ratios(camera: Camera, world: np.ndarray, pixels: np.ndarray, ids: list[str]) -> dict[str, Any]:
+def _distance_ratios(camera: Camera, world: np.ndarray, pixels: np.ndarray, ids: list[str]) -> DistanceRatios:
     """Paper eq. 15 over all pairs: |d_world - d_image| / d_world, with image points back-projected to their Z."""
     n = len(ids)
     if n < 2:
-        return {"n_pairs": 0}
+        return DistanceRatios(0)
     g = ground_points(camera, pixels, world[:, 2])
     i, j = np.triu_indices(n, 1)
     d_world = np.linalg.norm(world[i] - world[j], axis=1)
@@ -151,16 +170,16 @@ def _distance_ratios(camera: Camera, world: np.ndarray, pixels: np.ndarray, ids:
     keep = (d_world > 1e-6) & np.isfinite(d_image)
     pct = np.abs(d_world[keep] - d_image[keep]) / d_world[keep] * 100.0
     if pct.size == 0:
-        return {"n_pairs": 0}
+        return DistanceRatios(0)
     order = np.argsort(pct)[::-1][:5]
     ii, jj = i[keep], j[keep]
-    return {
-        "n_pairs": int(pct.size),
-        "mean_pct": float(pct.mean()),
-        "median_pct": float(np.median(pct)),
-        "max_pct": float(pct.max()),
-        "worst_pairs": [{"a": ids[ii[k]], "b": ids[jj[k]], "error_pct": float(pct[k])} for k in order],
-    }
+    return DistanceRatios(
+        n_pairs=int(pct.size),
+        mean_pct=float(pct.mean()),
+        median_pct=float(np.median(pct)),
+        max_pct=float(pct.max()),
+        worst_pairs=tuple(PairError(ids[ii[k]], ids[jj[k]], float(pct[k])) for k in order),
+    )
 
 
 def _grid_gaps(pixels: np.ndarray, image_size: tuple[int, int]) -> list[str]:
@@ -185,8 +204,8 @@ def _median(a: np.ndarray) -> float:
     return float(np.median(a)) if a.size else float("nan")
 
 
-def build_report(cal: Calibration) -> dict[str, Any]:
-    """The validation report as a JSON-ready dictionary (units in the key names)."""
+def build_report(cal: Calibration) -> CalibrationReport:
+    """The validation report of ``cal`` (:meth:`CalibrationReport.to_dict` gives the report.json document)."""
     cam = cal.camera
     g = cal.gcps
     m = metres_per_unit(g.crs) if g.crs is not None else 1.0
@@ -218,40 +237,39 @@ def build_report(cal: Calibration) -> dict[str, Any]:
     rows = []
     for i in range(g.n):
         status = "check" if g.roles[i] == "check" else ("inlier" if cal.inlier[i] else "outlier")
-        rows.append({
-            "id": g.ids[i], "role": g.roles[i], "x": float(g.world[i, 0]), "y": float(g.world[i, 1]),
-            "z": float(g.world[i, 2]), "u": float(g.pixels[i, 0]), "v": float(g.pixels[i, 1]),
-            "u_proj": float(proj[i, 0]), "v_proj": float(proj[i, 1]), "du": float(resid[i, 0]),
-            "dv": float(resid[i, 1]), "error_px": float(err[i]), "inlier": bool(cal.inlier[i]),
-            "loo_error_px": float(loo_err[i]), "ground_error_m": float(ground_err[i]),
-            "loo_ground_error_m": float(loo_ground[i]), "sigma_px": float(g.sigma_px[i]),
-            "sigma_eff_px": float(cal.sigma_eff_px[i]) if cal.sigma_eff_px.size else float("nan"),
-            "status": status, "reason": reasons.get(i, ""),
-        })
+        rows.append(GCPResidual(
+            id=g.ids[i], role=g.roles[i], x=float(g.world[i, 0]), y=float(g.world[i, 1]), z=float(g.world[i, 2]),
+            u=float(g.pixels[i, 0]), v=float(g.pixels[i, 1]), u_proj=float(proj[i, 0]), v_proj=float(proj[i, 1]),
+            du=float(resid[i, 0]), dv=float(resid[i, 1]), error_px=float(err[i]), inlier=bool(cal.inlier[i]),
+            loo_error_px=float(loo_err[i]), ground_error_m=float(ground_err[i]),
+            loo_ground_error_m=float(loo_ground[i]), sigma_px=float(g.sigma_px[i]),
+            sigma_eff_px=float(cal.sigma_eff_px[i]) if cal.sigma_eff_px.size else float("nan"),
+            status=status, reason=reasons.get(i, ""),
+        ))
 
     e_in = err[inl]
     fit = cal.fit
     sigma0 = float(np.sqrt(fit.variance_factor()))
-    stats_block = {
-        "n_control": int(g.is_control.sum()), "n_check": int(check.size), "n_inliers": int(inl.size),
-        "n_outliers": int(ctrl_out.size),
-        "mean_px": float(e_in.mean()), "rmse_px": float(np.sqrt(np.mean(e_in ** 2))), "max_px": float(e_in.max()),
-        "std_px": float(e_in.std()),
-        "loo_rmse_px": _rms(loo_err[inl]),
-        "loo_ground_rmse_m": _rms(loo_ground[inl]),
-        "loo_ground_median_m": _median(loo_ground[inl]),
-        "ground_rmse_m": _rms(ground_err[inl]),
-        "redundancy": int(fit.redundancy), "n_parameters": int(fit.model.n_free),
-        "sigma0": sigma0,
-    }
-    check_block: dict[str, Any] = {"n": int(check.size)}
+    fit_stats = FitStats(
+        n_control=int(g.is_control.sum()), n_check=int(check.size), n_inliers=int(inl.size),
+        n_outliers=int(ctrl_out.size),
+        mean_px=float(e_in.mean()), rmse_px=float(np.sqrt(np.mean(e_in ** 2))), max_px=float(e_in.max()),
+        std_px=float(e_in.std()),
+        loo_rmse_px=_rms(loo_err[inl]),
+        loo_ground_rmse_m=_rms(loo_ground[inl]),
+        loo_ground_median_m=_median(loo_ground[inl]),
+        ground_rmse_m=_rms(ground_err[inl]),
+        redundancy=int(fit.redundancy), n_parameters=int(fit.model.n_free),
+        sigma0=sigma0,
+    )
+    check_stats = CheckStats(int(check.size))
     if check.size:
-        check_block.update({
-            "rmse_px": float(np.sqrt(np.mean(err[check] ** 2))), "mean_px": float(err[check].mean()),
-            "max_px": float(err[check].max()),
-            "ground_rmse_m": _rms(ground_err[check]),
-            "ground_max_m": float(np.max(ground_err[check][np.isfinite(ground_err[check])], initial=np.nan)),
-        })
+        check_stats = CheckStats(
+            n=int(check.size), rmse_px=float(np.sqrt(np.mean(err[check] ** 2))), mean_px=float(err[check].mean()),
+            max_px=float(err[check].max()),
+            ground_rmse_m=_rms(ground_err[check]),
+            ground_max_m=float(np.max(ground_err[check][np.isfinite(ground_err[check])], initial=np.nan)),
+        )
 
     unc = _uncertainty(cal)
     pose = _pose_consistency(cal)
@@ -260,15 +278,15 @@ def build_report(cal: Calibration) -> dict[str, Any]:
     if check.size >= 2:
         ratios_check = _distance_ratios(cam, g.world[check], g.pixels[check], [g.ids[i] for i in check])
     else:
-        ratios_check = {"n_pairs": 0}
+        ratios_check = DistanceRatios(0)
 
     warnings = list(cal.warnings)
     recs: list[str] = []
     f = cam.focal_px
     lo, hi = focal_bounds(cam.image_size)
-    f_rel = unc["focal_std_px"] / f if f > 0 else np.inf
+    f_rel = unc.focal_std_px / f if f > 0 else np.inf
     if fit.model.focal != "fixed" and (f_rel > 0.1 or f <= lo * 1.001 or f >= hi * 0.999):
-        warnings.append(f"focal length poorly determined: {f:.0f} +/- {unc['focal_std_px']:.0f} px "
+        warnings.append(f"focal length poorly determined: {f:.0f} +/- {unc.focal_std_px:.0f} px "
                         f"({f_rel:.0%}): the GCPs cannot separate the focal length from the camera distance")
         recs.append("Fix the focal length (--focal-px from the camera's specifications, or --intrinsics from a "
                     "chessboard calibration), or add GCPs off the road plane (pole tops, building corners) and far "
@@ -281,7 +299,7 @@ def build_report(cal: Calibration) -> dict[str, Any]:
     if fit.redundancy > 0:
         p_chi2 = float(stats.chi2.sf(fit.chi2, fit.redundancy))
         if sigma0 > 2.0 and p_chi2 < 0.001:
-            warnings.append(f"residuals (RMSE {stats_block['rmse_px']:.1f} px) are {sigma0:.1f}x the expected noise "
+            warnings.append(f"residuals (RMSE {fit_stats.rmse_px:.1f} px) are {sigma0:.1f}x the expected noise "
                             f"(pixel sigma {sigma:.1f} px with the survey sigma): these GCPs do not fit one pinhole "
                             f"camera with {fit.model.describe()}")
             recs.append("Re-check the GCP pairs with the largest leave-one-out errors; if all are right, the stated "
@@ -291,8 +309,8 @@ def build_report(cal: Calibration) -> dict[str, Any]:
                         "errors cannot be detected reliably")
         recs.append(f"Add GCPs: with {int(np.ceil((8 - fit.redundancy) / 2))} more, single bad points become "
                     "detectable.")
-    for hc in unc["high_correlations"]:
-        warnings.append(f"parameters {hc['a']} and {hc['b']} are {abs(hc['correlation']):.3f} correlated")
+    for hc in unc.high_correlations:
+        warnings.append(f"parameters {hc.a} and {hc.b} are {abs(hc.correlation):.3f} correlated")
     for i in ctrl_out:
         recs.append(f"Re-measure GCP {g.ids[i]} (excluded): {reasons.get(int(i), '')}.")
     if inl.size >= 5 and np.isfinite(loo_err[inl]).sum() >= 5:
@@ -307,56 +325,65 @@ def build_report(cal: Calibration) -> dict[str, Any]:
                     "positions there are extrapolated.")
     if not recs:
         recs.append("No action needed: the GCPs agree with one camera to the stated pixel noise.")
-    if not np.isfinite(stats_block["loo_rmse_px"]):
-        summary = (f"Fit RMSE {stats_block['rmse_px']:.1f} px; leave-one-out errors are not available (too few points "
+    if not np.isfinite(fit_stats.loo_rmse_px):
+        summary = (f"Fit RMSE {fit_stats.rmse_px:.1f} px; leave-one-out errors are not available (too few points "
                    "to refit without each one), so the accuracy for a new point is unknown: add GCPs.")
     else:
-        summary = (f"Expect about {stats_block['loo_rmse_px']:.1f} px for a new point (leave-one-out RMSE), typically "
-                   f"{stats_block['loo_ground_median_m']:.2f} m on the ground within the GCPs' area (median "
+        summary = (f"Expect about {fit_stats.loo_rmse_px:.1f} px for a new point (leave-one-out RMSE), typically "
+                   f"{fit_stats.loo_ground_median_m:.2f} m on the ground within the GCPs' area (median "
                    "leave-one-out)")
     if check.size:
-        summary = summary.rstrip(".") + f"; check points: {check_block['ground_rmse_m']:.2f} m RMS."
+        summary = summary.rstrip(".") + f"; check points: {check_stats.ground_rmse_m:.2f} m RMS."
     elif not summary.endswith("."):
         summary += "."
 
-    return {
-        "format": REPORT_FORMAT,
-        "summary": summary,
-        "image_size": list(cam.image_size),
-        "crs": cam.crs_text,
-        "metres_per_crs_unit": m,
-        "camera": {
-            "focal_px": f, "fx": float(cam.K[0, 0]), "fy": float(cam.K[1, 1]),
-            "principal_point": list(cam.principal_point), "dist": cam.dist.tolist(),
-            "fov_deg": list(cam.fov_deg()), "position": cam.position.tolist(),
-            "orientation": cam.orientation.to_dict(),
-        },
-        "model": {
-            "free_parameters": list(fit.model.names), "description": fit.model.describe(),
-            "reasons": list(fit.model.reasons), "loss": cal.notes.get("loss"),
-            "initialization": cal.notes.get("routes"), "starts": cal.notes.get("starts"),
-            "planarity_ratio": cal.notes.get("planarity_ratio"), "consensus": cal.notes.get("consensus"),
-        },
-        "stats": stats_block,
-        "check": check_block,
-        "gcps": rows,
-        "distance_ratios": ratios,
-        "distance_ratios_check": ratios_check,
-        "uncertainty": unc,
-        "pose_consistency": pose,
-        "outliers": [{"id": g.ids[i], "reason": reasons.get(int(i), "")} for i in ctrl_out],
-        "warnings": warnings,
-        "recommendations": recs,
-    }
+    return CalibrationReport(
+        summary=summary,
+        image_size=(int(cam.image_size[0]), int(cam.image_size[1])),
+        crs=cam.crs_text,
+        metres_per_crs_unit=m,
+        camera=CameraSummary(
+            focal_px=f, fx=float(cam.K[0, 0]), fy=float(cam.K[1, 1]),
+            principal_point=tuple(cam.principal_point), dist=tuple(cam.dist.tolist()),  # type: ignore[arg-type]
+            fov_deg=tuple(cam.fov_deg()), position=tuple(cam.position.tolist()),  # type: ignore[arg-type]
+            orientation=cam.orientation,
+        ),
+        model=_model_summary(cal),
+        stats=fit_stats,
+        check=check_stats,
+        gcps=tuple(rows),
+        distance_ratios=ratios,
+        distance_ratios_check=ratios_check,
+        uncertainty=unc,
+        pose_consistency=pose,
+        outliers=tuple(Outlier(g.ids[i], reasons.get(int(i), "")) for i in ctrl_out),
+        warnings=tuple(warnings),
+        recommendations=tuple(recs),
+    )
 
 
-def gcp_records(report: dict[str, Any]) -> list[dict[str, Any]]:
-    """The per-GCP list stored in the camera JSON (subset of the report's rows)."""
-    keys = ("id", "role", "x", "y", "z", "u", "v", "u_proj", "v_proj", "error_px", "inlier", "loo_error_px")
-    return [{k: r[k] for k in keys} for r in report["gcps"]]
+def _model_summary(cal: Calibration) -> ModelSummary:
+    """The model block of the report: the fit's model, and the notes the calibration made on the way."""
+    model, notes = cal.fit.model, cal.notes
+    routes, starts = notes.get("routes"), notes.get("starts")
+    return ModelSummary(
+        free_parameters=tuple(model.names), description=model.describe(), reasons=tuple(model.reasons),
+        loss=notes.get("loss"), initialization=None if routes is None else tuple(routes),
+        starts=None if starts is None else tuple(FitStart(s["method"], s["focal_px"], s["robust_cost"])
+                                                 for s in starts),
+        planarity_ratio=notes.get("planarity_ratio"), consensus=notes.get("consensus"),
+    )
 
 
-def stats_record(report: dict[str, Any]) -> dict[str, Any]:
+def gcp_records(report: CalibrationReport) -> list[dict[str, Any]]:
+    """The per-GCP list stored in the camera JSON (a subset of the report's rows)."""
+    return [{"id": r.id, "role": r.role, "x": r.x, "y": r.y, "z": r.z, "u": r.u, "v": r.v, "u_proj": r.u_proj,
+             "v_proj": r.v_proj, "error_px": r.error_px, "inlier": r.inlier, "loo_error_px": r.loo_error_px}
+            for r in report.gcps]
+
+
+def stats_record(report: CalibrationReport) -> dict[str, Any]:
     """The ``stats`` block stored in the camera JSON."""
-    s = report["stats"]
-    return {k: s[k] for k in ("n_control", "n_inliers", "mean_px", "rmse_px", "loo_rmse_px")}
+    s = report.stats
+    return {"n_control": s.n_control, "n_inliers": s.n_inliers, "mean_px": s.mean_px, "rmse_px": s.rmse_px,
+            "loo_rmse_px": s.loo_rmse_px}

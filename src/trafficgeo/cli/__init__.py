@@ -117,7 +117,7 @@ def calibrate(
     if gis is not None:
         _write_site_gis(gis, output)
     if quiet:
-        console.print(result.report["summary"])
+        console.print(result.report.summary)
     else:
         from trafficgeo.report.terminal import print_calibration_report
 

@@ -46,7 +46,7 @@ def gcp_ui(
     """
     from trafficgeo.calibration import CalibrationOptions
     from trafficgeo.ui.server import bind_socket, create_app, make_server, url_of
-    from trafficgeo.ui.session import open_session
+    from trafficgeo.ui.startup import open_session
 
     options = CalibrationOptions(focal_px=focal_px)
     if not host.strip():

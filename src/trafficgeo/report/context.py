@@ -8,7 +8,6 @@ Units: positions in the CRS's units (m or ft); ground errors in metres; image po
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,9 +15,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from trafficgeo.calibration.report import CalibrationReport, read_calibration_report
 from trafficgeo.errors import InputError
 from trafficgeo.report import figures as F
-from trafficgeo.report.inputs import CALIBRATION_REPORT_FORMAT, ReportInputs, read_json
+from trafficgeo.report.inputs import ReportInputs
 
 MAX_BACKGROUND_PX = 1800  # longest side of an orthophoto part behind a plan view; decimated by an integer factor,
 #                           so at least 900 px, the width of the figures
@@ -51,7 +51,7 @@ class ReportContext:
     used: list[tuple[str, str]] = field(default_factory=list)  # (what, file) for the header
     camera: Any = None
     doc: dict[str, Any] | None = None
-    report: dict[str, Any] | None = None
+    report: CalibrationReport | None = None
     gcps: pd.DataFrame | None = None
     grid: AccuracyGrid | None = None
     footprint: Any = None
@@ -135,15 +135,11 @@ def _load(b: ReportContext) -> None:
         b.used.append(("camera", str(inp.camera)))
     rep = inp.calibration_report
     if isinstance(rep, Path):
-        doc = read_json(rep)
-        if not (isinstance(doc, dict) and doc.get("format") == CALIBRATION_REPORT_FORMAT):
-            raise InputError(f"--calibration-report {rep}: not a calibration report (format "
-                             f"{CALIBRATION_REPORT_FORMAT}); give the --report JSON of 'trafficgeo calibrate'")
-        b.report = doc
+        b.report = read_calibration_report(rep, "--calibration-report")
         b.used.append(("calibration report", str(rep)))
-    elif isinstance(rep, Mapping):
-        b.report = dict(rep)
-    crs_text = (b.camera.crs if b.camera is not None else None) or (b.report or {}).get("crs")
+    elif isinstance(rep, CalibrationReport):
+        b.report = rep
+    crs_text = (b.camera.crs if b.camera is not None else None) or (b.report.crs if b.report is not None else None)
     if crs_text:
         b.crs = parse_crs(crs_text)
     else:
@@ -169,8 +165,8 @@ def _load(b: ReportContext) -> None:
 def _reference_xy(b: ReportContext) -> tuple[float, float] | None:
     if b.camera is not None:
         return float(b.camera.position[0]), float(b.camera.position[1])
-    if b.report is not None and b.report.get("camera", {}).get("position"):
-        p = b.report["camera"]["position"]
+    if b.report is not None:
+        p = b.report.camera.position
         return float(p[0]), float(p[1])
     if b.gcps is not None and len(b.gcps):
         return float(b.gcps["x"].median()), float(b.gcps["y"].median())
@@ -191,11 +187,13 @@ def _reference_xy(b: ReportContext) -> tuple[float, float] | None:
 def _gcp_table(b: ReportContext) -> pd.DataFrame | None:
     """Per-GCP rows from the report (or, lacking it, the camera JSON) with status, du/dv (px) and, with a camera,
     the ground residual vector gdx/gdy (CRS units) and ground error (m)."""
-    rows = (b.report or {}).get("gcps") or (b.doc or {}).get("gcps") or []
-    rows = [r for r in rows if isinstance(r, dict)]
-    if not rows:
-        return None
-    g = pd.DataFrame(rows)
+    if b.report is not None and b.report.gcps:
+        g = pd.DataFrame([r.to_dict() for r in b.report.gcps])
+    else:
+        rows = [r for r in (b.doc or {}).get("gcps") or [] if isinstance(r, dict)]
+        if not rows:
+            return None
+        g = pd.DataFrame(rows)
     for col in ("x", "y", "z", "u", "v", "u_proj", "v_proj", "error_px", "loo_error_px", "ground_error_m",
                 "loo_ground_error_m"):
         g[col] = pd.to_numeric(g[col], errors="coerce") if col in g.columns else np.nan
@@ -224,7 +222,8 @@ def frame_image(b: ReportContext) -> np.ndarray | None:
     import cv2
 
     inp = b.inputs
-    size = tuple(b.camera.image_size) if b.camera is not None else tuple((b.report or {}).get("image_size", ()))
+    size = (tuple(b.camera.image_size) if b.camera is not None
+            else tuple(b.report.image_size) if b.report is not None else ())
     section = "frame behind the GCP residuals"
     img, source = None, None
     if inp.frame is not None:

@@ -27,6 +27,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+from trafficgeo.calibration.report import CalibrationReport
 from trafficgeo.errors import InputError
 from trafficgeo.report.blocks import Section
 from trafficgeo.report.context import ReportContext, load_context, read_background
@@ -64,9 +65,9 @@ def _header(b: ReportContext) -> list[tuple[str, str]]:
 
 
 def build_page(run_dir: str | Path, *, camera: str | Path | None = None,
-               calibration_report: str | Path | Mapping[str, Any] | None = None, frame: str | Path | None = None,
-               ortho: str | Path | None = None, dem: str | Path | None = None, video: str | Path | None = None,
-               dpi: int = 100) -> ReportPage:
+               calibration_report: str | Path | CalibrationReport | Mapping[str, Any] | None = None,
+               frame: str | Path | None = None, ortho: str | Path | None = None, dem: str | Path | None = None,
+               video: str | Path | None = None, dpi: int = 100) -> ReportPage:
     """The page with its list of sections and of those left out (see :func:`build_report`)."""
     inputs = find_inputs(run_dir, camera=camera, calibration_report=calibration_report, frame=frame, ortho=ortho,
                          dem=dem, video=video)
@@ -90,12 +91,13 @@ def build_page(run_dir: str | Path, *, camera: str | Path | None = None,
 
 
 def build_report(run_dir: str | Path, *, camera: str | Path | None = None,
-                 calibration_report: str | Path | Mapping[str, Any] | None = None, frame: str | Path | None = None,
-                 ortho: str | Path | None = None, dem: str | Path | None = None, video: str | Path | None = None,
-                 dpi: int = 100) -> str:
+                 calibration_report: str | Path | CalibrationReport | Mapping[str, Any] | None = None,
+                 frame: str | Path | None = None, ortho: str | Path | None = None, dem: str | Path | None = None,
+                 video: str | Path | None = None, dpi: int = 100) -> str:
     """One self-contained HTML page (figures as base64 PNG, inline CSS, no links out) of what ``run_dir`` holds.
 
-    ``calibration_report`` may be the report dictionary itself. Files not given are looked for by name (module
+    ``calibration_report`` may be the report itself (:class:`~trafficgeo.calibration.CalibrationReport`) or its
+    report.json document as a dictionary. Files not given are looked for by name (module
     docstring).
 
     Raises:

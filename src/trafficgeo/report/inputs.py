@@ -10,10 +10,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from trafficgeo.calibration.report import REPORT_FORMAT, CalibrationReport
 from trafficgeo.errors import InputError
 from trafficgeo.io.run_manifest import COMPARE_MANIFEST, MANIFEST, RunIncompleteError, verify_outputs
 
-CALIBRATION_REPORT_FORMAT = "trafficgeo.calibration-report/1"
 CAMERA_NAMES = ("camera.json",)
 REPORT_NAMES = ("report.json", "calibration_report.json", "calibration.json")
 FRAME_NAMES = ("frame.png", "frame.jpg", "frame.jpeg")
@@ -42,7 +42,7 @@ class ReportInputs:
 
     run_dir: Path
     camera: Path | None = None
-    calibration_report: Path | Mapping[str, Any] | None = None
+    calibration_report: Path | CalibrationReport | None = None  # a file, or the report itself
     frame: Path | None = None
     frame_given: bool = False
     video: Path | None = None
@@ -138,13 +138,16 @@ def _traffic_runs(dirs: list[Path]) -> tuple[TrafficRun, ...]:
 
 
 def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
-                calibration_report: str | Path | Mapping[str, Any] | None = None, frame: str | Path | None = None,
-                ortho: str | Path | None = None, dem: str | Path | None = None,
+                calibration_report: str | Path | CalibrationReport | Mapping[str, Any] | None = None,
+                frame: str | Path | None = None, ortho: str | Path | None = None, dem: str | Path | None = None,
                 video: str | Path | None = None) -> ReportInputs:
     """The files of a run folder (see the module docstring); given paths override what is found.
 
+    ``calibration_report`` may also be the report itself, or its report.json document as a dictionary.
+
     Raises:
-        InputError: ``run_dir`` is not a folder, or a given file does not exist.
+        InputError: ``run_dir`` is not a folder, a given file does not exist, or a given dictionary is not a
+            calibration report.
     """
     root = Path(run_dir)
     if not root.is_dir():
@@ -161,8 +164,11 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
                 break
     extra = [cam.parent] if cam is not None and cam.parent.resolve() not in {d.resolve() for d in dirs} else []
     site_dirs = dirs + extra
-    if isinstance(calibration_report, Mapping):
-        rep: Path | Mapping[str, Any] | None = calibration_report
+    rep: Path | CalibrationReport | None
+    if isinstance(calibration_report, CalibrationReport):
+        rep = calibration_report
+    elif isinstance(calibration_report, Mapping):
+        rep = CalibrationReport.from_dict(calibration_report, "calibration_report")
     else:
         rep = _given_file(calibration_report, "--calibration-report", "give the report JSON of 'trafficgeo "
                           "calibrate --report'")
@@ -206,5 +212,5 @@ def _is_calibration_report(path: Path) -> bool:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         return False
-    return isinstance(doc, dict) and doc.get("format") == CALIBRATION_REPORT_FORMAT
+    return isinstance(doc, dict) and doc.get("format") == REPORT_FORMAT
 

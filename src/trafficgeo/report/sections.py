@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from trafficgeo.calibration.report import CalibrationReport
 from trafficgeo.report import figures as F
 from trafficgeo.report.blocks import Block, Heading, Part, Section, Text, figure, items, num, table
 from trafficgeo.report.context import ReportContext, frame_image
@@ -24,8 +25,8 @@ def calibration_sections(b: ReportContext) -> list[Section]:
                "(the outputs of 'trafficgeo calibrate')")
         return []
     parts: list[Part] = []
-    if rep is not None and rep.get("summary"):
-        parts.append((Text(str(rep["summary"]), "summary"),))
+    if rep is not None and rep.summary:
+        parts.append((Text(rep.summary, "summary"),))
     elif rep is None:
         b.skip("calibration report tables (leave-one-out ground errors, check points, warnings)",
                "no calibration report.json found: pass --calibration-report (calibrate --report)")
@@ -38,16 +39,17 @@ def calibration_sections(b: ReportContext) -> list[Section]:
             ["control points / inliers", f"{s.get('n_control', '-')} / {s.get('n_inliers', '-')}", ""],
             ["mean residual", s.get("mean_px"), "px"], ["RMSE", s.get("rmse_px"), "px"],
             ["leave-one-out RMSE", s.get("loo_rmse_px"), "px"]])))
-    unc = (rep or {}).get("uncertainty") or doc.get("uncertainty")
-    if unc:
-        parts.append((Heading("Parameter uncertainty"), *_uncertainty_blocks(unc)))
     if rep is not None:
-        if rep.get("outliers"):
-            parts.append((Heading("Outliers"), items([f"{o['id']}: {o['reason']}" for o in rep["outliers"]], "warn")))
-        if rep.get("warnings"):
-            parts.append((Heading("Warnings"), items([str(w) for w in rep["warnings"]], "warn")))
-        if rep.get("recommendations"):
-            parts.append((Heading("Recommendations"), items([str(r) for r in rep["recommendations"]])))
+        parts.append((Heading("Parameter uncertainty"), *_report_uncertainty_blocks(rep)))
+    elif doc.get("uncertainty"):
+        parts.append((Heading("Parameter uncertainty"), *_document_uncertainty_blocks(doc["uncertainty"])))
+    if rep is not None:
+        if rep.outliers:
+            parts.append((Heading("Outliers"), items([f"{o.id}: {o.reason}" for o in rep.outliers], "warn")))
+        if rep.warnings:
+            parts.append((Heading("Warnings"), items(list(rep.warnings), "warn")))
+        if rep.recommendations:
+            parts.append((Heading("Recommendations"), items(list(rep.recommendations))))
     sections = [Section("calibration", "Calibration", tuple(parts))]
     if g is None:
         b.skip("GCP figures and table", "the calibration lists no GCPs")
@@ -60,7 +62,7 @@ def _gcp_section(b: ReportContext) -> Section:
     """The GCPs on the frame and on the map, the residual histograms and the per-GCP table."""
     rep, g = b.report, b.gcps
     assert g is not None
-    size = tuple(b.camera.image_size) if b.camera is not None else tuple(rep["image_size"])  # type: ignore[index]
+    size = tuple(b.camera.image_size) if b.camera is not None else tuple(rep.image_size)  # type: ignore[union-attr]
     image = frame_image(b)
     ok = np.isfinite(g["u"]) & np.isfinite(g["v"])
     on_frame = figure(F.residuals_on_frame(g[ok], size, image),
@@ -71,8 +73,8 @@ def _gcp_section(b: ReportContext) -> Section:
     if b.camera is not None:
         cam_xy, heading = (float(b.camera.position[0]), float(b.camera.position[1])), b.camera.orientation.heading_deg
     elif rep is not None:
-        p = rep["camera"]["position"]
-        cam_xy, heading = (float(p[0]), float(p[1])), float(rep["camera"]["orientation"]["heading_deg"])
+        p = rep.camera.position
+        cam_xy, heading = (float(p[0]), float(p[1])), float(rep.camera.orientation.heading_deg)
     xs = [g["x"].to_numpy(float)] + ([np.array([cam_xy[0]])] if cam_xy else [])
     ys = [g["y"].to_numpy(float)] + ([np.array([cam_xy[1]])] if cam_xy else [])
     for part in F.geometry_parts(b.footprint):
@@ -97,63 +99,70 @@ def _gcp_section(b: ReportContext) -> Section:
 
 
 def _camera_table(b: ReportContext) -> Part:
-    rep, doc = b.report or {}, b.doc or {}
-    unc = rep.get("uncertainty") or doc.get("uncertainty") or {}
-    ps = unc.get("position_std_m") or [float("nan")] * 3
-    os_ = unc.get("orientation_std_deg") or {}
+    rep, doc = b.report, b.doc or {}
+    if rep is not None:
+        unc = rep.uncertainty
+        ps: Any = unc.position_std_m
+        angles_std = (unc.orientation_std_deg.heading, unc.orientation_std_deg.tilt, unc.orientation_std_deg.roll)
+        focal_std: Any = unc.focal_std_px
+        model = rep.model
+        desc = model.description or ", ".join(model.free_parameters)
+        reasons = list(model.reasons)
+    else:  # the camera JSON's copy of the report's blocks
+        u_doc, m_doc = doc.get("uncertainty") or {}, doc.get("model") or {}
+        ps = u_doc.get("position_std_m") or [float("nan")] * 3
+        os_ = u_doc.get("orientation_std_deg") or {}
+        angles_std = (os_.get("heading"), os_.get("tilt"), os_.get("roll"))
+        focal_std = u_doc.get("focal_std_px")
+        desc = m_doc.get("description") or ", ".join(m_doc.get("free_parameters") or [])
+        reasons = [str(r) for r in m_doc.get("reasons") or []]
     if b.camera is not None:
-        pos, o, f = b.camera.position, b.camera.orientation.to_dict(), b.camera.focal_px
+        pos, o, f = b.camera.position, b.camera.orientation, b.camera.focal_px
         dist, size = b.camera.dist, b.camera.image_size
     else:
-        c = rep["camera"]
-        pos, o, f, dist, size = c["position"], c["orientation"], c["focal_px"], c["dist"], rep["image_size"]
+        assert rep is not None  # the calibration section needs a camera or a report
+        c = rep.camera
+        pos, o, f, dist, size = c.position, c.orientation, c.focal_px, c.dist, rep.image_size
     u = b.axes.unit
     rows = [
         ["position X, Y, Z", ", ".join(num(v, 3) for v in pos), u, ", ".join(num(v, 2) for v in ps) + " m"],
-        ["heading (clockwise from grid north)", (o["heading_deg"], 2), "deg", num(os_.get("heading"), 3) + " deg"],
-        ["tilt (below the horizon)", (o["tilt_deg"], 2), "deg", num(os_.get("tilt"), 3) + " deg"],
-        ["roll", (o["roll_deg"], 2), "deg", num(os_.get("roll"), 3) + " deg"],
-        ["focal length", (f, 1), "px", num(unc.get("focal_std_px"), 1) + " px"],
+        ["heading (clockwise from grid north)", (o.heading_deg, 2), "deg", num(angles_std[0], 3) + " deg"],
+        ["tilt (below the horizon)", (o.tilt_deg, 2), "deg", num(angles_std[1], 3) + " deg"],
+        ["roll", (o.roll_deg, 2), "deg", num(angles_std[2], 3) + " deg"],
+        ["focal length", (f, 1), "px", num(focal_std, 1) + " px"],
         ["k1, k2", f"{num(dist[0], 4)}, {num(dist[1], 4)}", "", ""],
         ["image size", f"{size[0]} x {size[1]}", "px", ""],
     ]
-    model = rep.get("model") or doc.get("model") or {}
-    desc = model.get("description") or ", ".join(model.get("free_parameters") or [])
     if desc:
         rows.append(["free parameters", desc, "", ""])
-    reasons = items([str(r) for r in model.get("reasons") or []], "note")
-    return Heading("Camera"), table(["quantity", "value", "unit", "1-sigma"], rows), reasons
+    return Heading("Camera"), table(["quantity", "value", "unit", "1-sigma"], rows), items(reasons, "note")
 
 
-def _stats_table(rep: dict[str, Any], b: ReportContext) -> Block:
-    s, c, d = rep.get("stats", {}), rep.get("check", {}), rep.get("distance_ratios", {})
+def _stats_table(rep: CalibrationReport, b: ReportContext) -> Block:
+    s, c, d = rep.stats, rep.check, rep.distance_ratios
     rows = [
-        ["control points / inliers / outliers", f"{s.get('n_control')} / {s.get('n_inliers')} / "
-                                                f"{s.get('n_outliers')}", ""],
-        ["mean / RMSE / max residual (inliers)",
-         f"{num(s.get('mean_px'))} / {num(s.get('rmse_px'))} / {num(s.get('max_px'))}", "px"],
-        ["sigma0 (1 = residuals match the stated noise)", (s.get("sigma0"), 2), ""],
-        ["redundancy (observations - parameters)", s.get("redundancy"), ""],
-        ["leave-one-out RMSE", (s.get("loo_rmse_px"), 2), "px"],
-        ["leave-one-out ground error: RMSE / median", f"{num(s.get('loo_ground_rmse_m'), 3)} / "
-                                                      f"{num(s.get('loo_ground_median_m'), 3)}", "m"],
+        ["control points / inliers / outliers", f"{s.n_control} / {s.n_inliers} / {s.n_outliers}", ""],
+        ["mean / RMSE / max residual (inliers)", f"{num(s.mean_px)} / {num(s.rmse_px)} / {num(s.max_px)}", "px"],
+        ["sigma0 (1 = residuals match the stated noise)", (s.sigma0, 2), ""],
+        ["redundancy (observations - parameters)", s.redundancy, ""],
+        ["leave-one-out RMSE", (s.loo_rmse_px, 2), "px"],
+        ["leave-one-out ground error: RMSE / median", f"{num(s.loo_ground_rmse_m, 3)} / "
+                                                      f"{num(s.loo_ground_median_m, 3)}", "m"],
     ]
-    if c.get("n"):
-        rows += [["check points (not in the fit)", c["n"], ""],
-                 ["check points: RMSE / max", f"{num(c.get('rmse_px'))} / {num(c.get('max_px'))}", "px"],
-                 ["check points: ground RMSE", (c.get("ground_rmse_m"), 3), "m"]]
-    if d.get("n_pairs"):
-        rows.append([f"distance ratio error (eq. 15, {d['n_pairs']} pairs): mean / median / max",
-                     f"{num(d.get('mean_pct'))} / {num(d.get('median_pct'))} / {num(d.get('max_pct'))}", "%"])
-    p = rep.get("pose_consistency", {})
-    if p.get("available"):
-        sp, ang = p["position_spread_m"], p["angle_spread_deg"]
-        rows += [[f"pose spread over {p['n_fits']} leave-one-out fits: X, Y, Z",
-                  ", ".join(num(v, 3) for v in sp), "m"],
-                 ["pose spread: heading, tilt, roll", ", ".join(num(ang[k], 3) for k in ("heading", "tilt", "roll")),
+    if c.n:
+        rows += [["check points (not in the fit)", c.n, ""],
+                 ["check points: RMSE / max", f"{num(c.rmse_px)} / {num(c.max_px)}", "px"],
+                 ["check points: ground RMSE", (c.ground_rmse_m, 3), "m"]]
+    if d.n_pairs:
+        rows.append([f"distance ratio error (eq. 15, {d.n_pairs} pairs): mean / median / max",
+                     f"{num(d.mean_pct)} / {num(d.median_pct)} / {num(d.max_pct)}", "%"])
+    p = rep.pose_consistency
+    if p.available:
+        sp, ang = p.position_spread_m, p.angle_spread_deg
+        rows += [[f"pose spread over {p.n_fits} leave-one-out fits: X, Y, Z", ", ".join(num(v, 3) for v in sp), "m"],
+                 ["pose spread: heading, tilt, roll", ", ".join(num(v, 3) for v in (ang.heading, ang.tilt, ang.roll)),
                   "deg"],
-                 [f"largest camera shift (without {p.get('most_influential_gcp')})",
-                  (p.get("max_position_deviation_m"), 3), "m"]]
+                 [f"largest camera shift (without {p.most_influential_gcp})", (p.max_position_deviation_m, 3), "m"]]
     if b.grid is not None and b.gcps is not None and "predicted_m" in b.gcps.columns:
         inl = b.gcps[b.gcps["status"] == "inlier"]
         rows.append(["predicted 1-sigma ground error at the inlier GCPs (accuracy map), median",
@@ -162,11 +171,24 @@ def _stats_table(rep: dict[str, Any], b: ReportContext) -> Block:
     return table(["quantity", "value", "unit"], rows)
 
 
-def _uncertainty_blocks(unc: dict[str, Any]) -> Part:
-    params = unc.get("parameters") or {}
+def _report_uncertainty_blocks(rep: CalibrationReport) -> Part:
+    """The per-parameter table and the high correlations of the report."""
+    unc = rep.uncertainty
+    params = [(name, p.value, p.std) for name, p in unc.parameters.items()]
+    high = [(h.a, h.b, h.correlation) for h in unc.high_correlations]
+    return _uncertainty_blocks(params, high, unc.scaled_by_variance_factor)
+
+
+def _document_uncertainty_blocks(unc: dict[str, Any]) -> Part:
+    """The same from the camera JSON's ``uncertainty`` (which holds no per-parameter table: a note says so)."""
+    params = [(name, p.get("value"), p.get("std")) for name, p in (unc.get("parameters") or {}).items()]
+    high = [(h["a"], h["b"], h["correlation"]) for h in unc.get("high_correlations") or []]
+    return _uncertainty_blocks(params, high, bool(unc.get("scaled_by_variance_factor")))
+
+
+def _uncertainty_blocks(params: list[tuple[str, Any, Any]], high: list[tuple[str, str, float]], scaled: bool) -> Part:
     rows = []
-    for name, p in params.items():
-        v, s = p.get("value"), p.get("std")
+    for name, v, s in params:
         rel = abs(s / v) * 100 if isinstance(v, int | float) and isinstance(s, int | float) and v else float("nan")
         rows.append([name, (v, 6), (s, 6), (rel, 2)])
     out: list[Block] = []
@@ -174,11 +196,9 @@ def _uncertainty_blocks(unc: dict[str, Any]) -> Part:
         out.append(table(["parameter", "value", "1-sigma", "1-sigma / |value| (%)"], rows,
                          caption="free parameters (rotation vector rad; translation in CRS units; focal px; "
                                  "distortion unitless); from the fit covariance"
-                                 + (", scaled by sigma0^2" if unc.get("scaled_by_variance_factor") else "")))
-    high = unc.get("high_correlations") or []
+                                 + (", scaled by sigma0^2" if scaled else "")))
     if high:
-        out.append(items([f"parameters {h['a']} and {h['b']} are {abs(h['correlation']):.3f} correlated"
-                          for h in high], "warn"))
+        out.append(items([f"parameters {a} and {b_} are {abs(corr):.3f} correlated" for a, b_, corr in high], "warn"))
     if not params:
         out.append(Text("Only the propagated 1-sigma of position, angles and focal length are stored in the camera "
                         "JSON (see the camera table); the per-parameter table needs the calibration report.", "note"))
@@ -225,15 +245,15 @@ def accuracy_section(b: ReportContext) -> Section | None:
         text.append(f"Over the visible ground the expected 1-sigma horizontal error ranges from {finite.min():.2f} m "
                     f"to {finite.max():.2f} m (median {np.median(finite):.2f} m).")
     if b.gcps is not None and "predicted_m" in b.gcps.columns and b.report is not None:
-        s = b.report.get("stats", {})
+        s = b.report.stats
         inl = b.gcps[b.gcps["status"] == "inlier"]
         if inl["predicted_m"].notna().any():
             text.append(f"At the inlier GCPs it predicts {np.nanmedian(inl['predicted_m']):.3f} m (median); the "
-                        f"leave-one-out ground error measured there is {num(s.get('loo_ground_median_m'), 3)} m "
-                        f"(median), RMSE {num(s.get('loo_ground_rmse_m'), 3)} m.")
-        c = b.report.get("check", {})
-        if c.get("n"):
-            text.append(f"Check points, never used in the fit: ground RMSE {num(c.get('ground_rmse_m'), 3)} m.")
+                        f"leave-one-out ground error measured there is {num(s.loo_ground_median_m, 3)} m "
+                        f"(median), RMSE {num(s.loo_ground_rmse_m, 3)} m.")
+        c = b.report.check
+        if c.n:
+            text.append(f"Check points, never used in the fit: ground RMSE {num(c.ground_rmse_m, 3)} m.")
     fig = F.accuracy_map(values, bounds, b.axes, background=bg, camera_xy=cam_xy, gcps_xy=gxy)
     shown = figure(fig, "Expected 1-sigma horizontal ground error (m) of a point seen by the camera: calibration "
                    "uncertainty and pixel noise carried through the ray-surface intersection; contours in metres.",

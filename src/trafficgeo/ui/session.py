@@ -1,4 +1,5 @@
-"""The state of a GCP-picking session, in plain Python: pairs, their ground heights, live calibration, files.
+"""The state of a GCP-picking session, in plain Python: pairs, their ground heights, the autosave, files, and the
+cached live calibration (computed by :mod:`trafficgeo.ui.live`; a session is opened by :mod:`trafficgeo.ui.startup`).
 
 A *pair* joins a frame pixel ``(u, v)`` (camera convention: ``(0, 0)`` = centre of the top-left pixel) and a
 world point ``(x, y, z)`` picked on the orthophoto at raster position ``(col, row)`` (corner convention), converted
@@ -26,13 +27,12 @@ import numpy as np
 from trafficgeo.calibration import CalibrationOptions, GCPTable, read_gcps
 from trafficgeo.calibration.gcps import ROLE_CHECK, ROLE_CONTROL, ROLES
 from trafficgeo.calibration.pipeline import required_points
-from trafficgeo.calibration.run import CalibrationRun, camera_extras, run_calibration
+from trafficgeo.calibration.run import CalibrationRun, camera_extras
 from trafficgeo.camera.io import write_camera_json
 from trafficgeo.crs import crs_label
-from trafficgeo.errors import CalibrationError, InputError
-from trafficgeo.geo.surface import ConstantSurface, PlaneSurface
+from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import to_json_safe
-from trafficgeo.ui import overlays
+from trafficgeo.ui import live
 from trafficgeo.ui.inputs import FrameImage, Ground, GroundSample, Orthophoto
 
 log = logging.getLogger(__name__)
@@ -511,156 +511,14 @@ class Session:
             return payload, run
 
     def _calibrate(self, pairs: list[Pair], revision: int) -> tuple[dict[str, Any], CalibrationRun | None]:
-        """Calibrate on ``pairs``; a failure is an answer (``status`` "waiting" or "failed" with the reason).
-
-        The payload holds ``status`` ("ok", "waiting", "failed"), ``message``, and when ok: ``summary``,
-        ``stats``, ``check``, ``camera``, ``model``, ``warnings``, ``recommendations``, ``points`` (per pair: the
-        projected pixel, the residual ``du, dv`` = projected - clicked [px], ``error_px``, ``loo_error_px``, the
-        ground errors [m], ``status`` inlier/outlier/check and the outlier ``reason``), ``outliers`` (ids),
-        ``footprint`` (orthophoto polygons) and ``grid`` (see :func:`trafficgeo.ui.overlays.grid`).
-        """
-        need = self.min_control
-        n_control = sum(p.role == ROLE_CONTROL for p in pairs)
-        base: dict[str, Any] = {"revision": revision, "n_control": n_control, "n_check": len(pairs) - n_control,
-                                "min_control": need}
-        if n_control < need:
-            more = need - n_control
-            return {**base, "status": "waiting",
-                    "message": f"{more} more control pair{'s' if more > 1 else ''} needed to calibrate (at least "
-                               f"{need}; check points do not count)"}, None
-        table = self._table(pairs)
-        try:
-            run = run_calibration(table, self.frame.size, self.options)
-        except (InputError, CalibrationError) as exc:
-            return {**base, "status": "failed", "message": str(exc)}, None
-        except Exception as exc:  # a numerical failure is an answer, not a crash of the server
-            log.exception("calibration failed")
-            return {**base, "status": "failed",
-                    "message": f"the calibration failed ({type(exc).__name__}: {exc}); check the pairs"}, None
-        rep = run.report
-        points = [{k: r[k] for k in ("id", "role", "status", "inlier", "u_proj", "v_proj", "du", "dv", "error_px",
-                                     "loo_error_px", "ground_error_m", "loo_ground_error_m", "reason")}
-                  for r in rep["gcps"]]
-        payload: dict[str, Any] = {
-            **base, "status": "ok", "message": rep["summary"], "summary": rep["summary"], "stats": rep["stats"],
-            "check": rep["check"], "camera": rep["camera"], "model": rep["model"]["description"],
-            "warnings": rep["warnings"], "recommendations": rep["recommendations"], "points": points,
-            "outliers": [o["id"] for o in rep["outliers"]], "footprint": [], "grid": None, "overlay_error": None,
-        }
-        try:
-            surface = self._draw_surface(run)
-            seen, payload["footprint"] = overlays.footprint(run.calibration.camera, surface, self.ortho,
-                                                            self.max_distance_m)
-            payload["grid"] = overlays.grid(run.calibration.camera, surface, self.ortho, seen, self._unit())
-        except Exception as exc:  # the drawings are extras; the calibration stands without them
-            log.exception("footprint/grid failed")
-            payload["overlay_error"] = f"the footprint and grid could not be drawn ({type(exc).__name__}: {exc})"
-        return to_json_safe(payload), run
-
-    def _draw_surface(self, run: CalibrationRun) -> Any:
-        """The ground for drawing: the DEM, the cloud's ground DEM, else a plane through the inlier GCPs."""
-        if self.ground is not None:
-            return self.ground.surface
-        cal = run.calibration
-        pts = cal.gcps.world[cal.inlier]
-        if pts.shape[0] >= 3:
-            try:
-                return PlaneSurface.fit(pts, crs=self.crs)
-            except (ValueError, np.linalg.LinAlgError):
-                pass
-        return ConstantSurface(float(np.median(cal.gcps.world[:, 2])), crs=self.crs)
+        """Calibrate on ``pairs`` (:func:`trafficgeo.ui.live.calibration_answer`) and draw the footprint and grid."""
+        answer, run = live.calibration_answer(self._table(pairs), self.frame.size, self.options, revision=revision,
+                                              min_control=self.min_control)
+        if run is None:
+            return answer, None
+        live.draw_overlays(answer, run, ortho=self.ortho, ground=self.ground, crs=self.crs, unit=self._unit(),
+                           max_distance_m=self.max_distance_m)
+        return to_json_safe(answer), run
 
 
-def initial_table(gcps_path: Path | None, autosave_path: Path, crs: Any) -> tuple[GCPTable | None, Path | None]:
-    """The GCPs a session starts from, and the file they came from.
-
-    The autosave when it is newer than the --gcps file (it holds changes made after the last save) or when there is
-    no --gcps file; else the --gcps file; None when neither exists. An autosave with no rows gives an empty start.
-    """
-    gcps_exists = gcps_path is not None and gcps_path.is_file()
-    path: Path | None = None
-    if autosave_path.is_file() and (not gcps_exists or autosave_path.stat().st_mtime > gcps_path.stat().st_mtime):
-        path = autosave_path
-        if gcps_exists and autosave_path.read_bytes() == gcps_path.read_bytes():  # type: ignore[union-attr]
-            path = gcps_path  # saved since: nothing new in the autosave
-    elif gcps_exists:
-        path = gcps_path
-    if path is None:
-        return None, None
-    rows = [line for line in path.read_text(encoding="utf-8", errors="replace").splitlines() if line.strip()]
-    if path == autosave_path and len(rows) <= 1:
-        return None, path
-    try:
-        return read_gcps(path, crs=crs), path
-    except InputError as exc:
-        if path != autosave_path:
-            raise
-        raise damaged_autosave(autosave_path, exc, gcps_path) from None
-
-
-def damaged_autosave(autosave_path: Path, exc: Exception, gcps_path: Path | None) -> InputError:
-    """The one-line error for an autosave that cannot be used: what is wrong, and that moving it aside starts over
-    (from the --gcps file when there is one)."""
-    reason = str(exc).removeprefix(f"{autosave_path} ").removeprefix(f"{autosave_path}: ")
-    then = (f"continue from {gcps_path}" if gcps_path is not None and gcps_path.is_file()
-            else "start with no GCPs")
-    return InputError(f"the autosave {autosave_path} cannot be read ({reason}); move it aside (rename or delete "
-                      f"it) to {then} (it only holds the unsaved changes of an earlier gcp-ui session)")
-
-
-def open_session(*, frame: str | Path | None = None, video: str | Path | None = None, at_s: float | None = None,
-                 ortho: str | Path, dem: str | Path | None = None, cloud: str | Path | None = None,
-                 gcps: str | Path | None = None, workdir: str | Path | None = None,
-                 options: CalibrationOptions | None = None) -> tuple[Session, str]:
-    """Load the inputs of ``trafficgeo gcp-ui`` and start a session; returns it and a line saying where its GCPs
-    came from.
-
-    ``frame`` (an image) or ``video`` (with ``at_s`` seconds, default 0) gives the frame; ``ortho`` the GeoTIFF
-    orthophoto; ``dem`` or ``cloud`` the ground for Z; ``gcps`` the GCP CSV to continue (if it exists) and save to.
-    ``workdir`` defaults to the folder of ``gcps``, else the current folder. Raises
-    :class:`~trafficgeo.errors.InputError` (one line) for anything a user can fix.
-    """
-    from trafficgeo.ui.inputs import load_frame, load_ground, load_ortho, load_video_frame
-
-    if frame is not None and video is not None:
-        raise InputError("give the frame to pick on with either --frame IMAGE or --video VIDEO [--at SECONDS], "
-                         "not both")
-    if frame is None and video is None:
-        raise InputError("give the frame to pick on with --frame IMAGE or --video VIDEO [--at SECONDS]")
-    if at_s is not None and video is None:
-        raise InputError("--at picks a time in a --video; with --frame it has no meaning, leave it out")
-    if dem is not None and cloud is not None:
-        raise InputError("give either --dem or --cloud for the GCP heights, not both")
-    gcps_path = Path(gcps) if gcps is not None else None
-    if gcps_path is not None:
-        if gcps_path.is_dir():
-            raise InputError(f"--gcps {gcps_path} is a folder; give the GCP CSV file to continue or create")
-        if not gcps_path.parent.resolve().is_dir():
-            raise InputError(f"--gcps {gcps_path}: folder {gcps_path.parent} does not exist; create it first")
-        if gcps_path.suffix.lower() != ".csv":
-            raise InputError(f"--gcps {gcps_path} must be a .csv file (id,x,y,z,u,v,role,sigma_px)")
-    img = load_frame(frame) if frame is not None else load_video_frame(video, 0.0 if at_s is None else at_s)
-    orthophoto = load_ortho(ortho)
-    ground = load_ground(dem=dem, cloud=cloud, ortho_crs=orthophoto.crs)
-    wd = Path(workdir) if workdir is not None else (gcps_path.parent if gcps_path is not None else Path.cwd())
-    session = Session(img, orthophoto, ground, workdir=wd, gcps_path=gcps_path, options=options)
-    table, source = initial_table(gcps_path, session.autosave_path, session.crs)
-    if table is not None:
-        try:
-            session.set_table(table, autosave=False)
-        except (InputError, SessionError) as exc:
-            if source != session.autosave_path:
-                raise
-            raise damaged_autosave(session.autosave_path, exc, gcps_path) from None
-        note = f"continuing with {table.n} GCP(s) from {source}"
-        if source == session.autosave_path and gcps_path is not None and gcps_path.is_file():
-            note += f" (newer than {gcps_path}: unsaved changes of the last session)"
-    elif source is not None:
-        note = f"the autosave {source} holds no GCPs; starting empty"
-    else:
-        note = "no GCPs yet" + (f"; Save writes {gcps_path}" if gcps_path is not None else "")
-    return session, note
-
-
-__all__ = ["ROLE_CHECK", "ROLE_CONTROL", "ConflictError", "NotFoundError", "Pair", "Session", "SessionError",
-           "initial_table", "open_session"]
+__all__ = ["ROLE_CHECK", "ROLE_CONTROL", "ConflictError", "NotFoundError", "Pair", "Session", "SessionError"]
