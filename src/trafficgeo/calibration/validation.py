@@ -199,6 +199,11 @@ def _rms(a: np.ndarray) -> float:
     return float(np.sqrt(np.mean(a ** 2))) if a.size else float("nan")
 
 
+def _max(a: np.ndarray) -> float:
+    a = a[np.isfinite(a)]
+    return float(a.max()) if a.size else float("nan")
+
+
 def _median(a: np.ndarray) -> float:
     a = a[np.isfinite(a)]
     return float(np.median(a)) if a.size else float("nan")
@@ -268,7 +273,7 @@ def build_report(cal: Calibration) -> CalibrationReport:
             n=int(check.size), rmse_px=float(np.sqrt(np.mean(err[check] ** 2))), mean_px=float(err[check].mean()),
             max_px=float(err[check].max()),
             ground_rmse_m=_rms(ground_err[check]),
-            ground_max_m=float(np.max(ground_err[check][np.isfinite(ground_err[check])], initial=np.nan)),
+            ground_max_m=_max(ground_err[check]),
         )
 
     unc = _uncertainty(cal)
