@@ -99,8 +99,11 @@ def test_round_trip_in_memory_and_through_json(tmp_path: Path) -> None:
     gcps, size = _gcps("blunders")
     rep = build_report(calibrate(gcps, size))
     assert CalibrationReport.from_dict(rep.to_dict()) == rep
-    assert CalibrationReport.from_dict(json.loads(_json_text(rep.to_dict()))) == rep  # NaN came back from null
-    assert math.isnan(rep.check.ground_max_m)
+    assert CalibrationReport.from_dict(json.loads(_json_text(rep.to_dict()))) == rep
+    assert rep.check.ground_rmse_m <= rep.check.ground_max_m < 1.0
+    unknown = dataclasses.replace(rep, check=dataclasses.replace(rep.check, ground_max_m=math.nan))
+    assert json.loads(_json_text(unknown.to_dict()))["check"]["ground_max_m"] is None
+    assert CalibrationReport.from_dict(json.loads(_json_text(unknown.to_dict()))) == unknown  # NaN back from null
     assert dataclasses.replace(rep, summary=rep.summary + " ") != rep  # equality can fail
     moved = dataclasses.replace(rep.gcps[0], u=rep.gcps[0].u + 1e-9)
     assert dataclasses.replace(rep, gcps=(moved, *rep.gcps[1:])) != rep
