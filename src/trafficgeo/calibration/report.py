@@ -365,18 +365,23 @@ class CalibrationReport(_Record):
 
 def read_calibration_report(path: str | Path, what: str | None = None) -> CalibrationReport:
     """The calibration report in the JSON file ``path`` (written by ``trafficgeo calibrate --report``); ``what``
-    (e.g. the option that named the file) starts the error message.
+    (the parameter that named the file) starts the error message.
 
     Raises:
         InputError: the file cannot be read, is not JSON, or is not a calibration report.
     """
     p = Path(path)
     where = f"{what} {p}" if what else str(p)
+    named = (what,) if what else ()
     try:
         doc = json.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise InputError(f"{where}: file not found; give the --report JSON of 'trafficgeo calibrate'") from None
+        raise InputError(f"{where}: file not found; give the --report JSON of 'trafficgeo calibrate'",
+                         parameters=named) from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"{where}: not readable JSON ({' '.join(str(exc).split())}); write it again with "
-                         "'trafficgeo calibrate --report'") from None
-    return CalibrationReport.from_dict(doc, where)
+                         "'trafficgeo calibrate --report'", parameters=named) from None
+    try:
+        return CalibrationReport.from_dict(doc, where)
+    except InputError as exc:
+        raise InputError(str(exc), parameters=named) from None

@@ -213,7 +213,9 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "surface_crs": "--surface-crs", "radius_m": "--radius",
          "crs": "--crs", "gcp_crs": "--gcp-crs", "odm_image": "--odm-image", "image_size": "--image-size",
          "pattern": "--pattern", "focal_px": "--focal-px", "intrinsics": "--intrinsics",
-         "fps": "--fps", "coast_hidden_s": "--coast-hidden",
+         "fps": "--fps", "coast_hidden_s": "--coast-hidden", "camera": "--camera",
+         "calibration_report": "--calibration-report", "frame": "--frame", "video": "--video", "ortho": "--ortho",
+         "dem": "--dem",
          "lanes": "--lanes", "lines": "--lines"}
 
 

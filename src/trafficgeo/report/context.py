@@ -135,7 +135,7 @@ def _load(b: ReportContext) -> None:
         b.used.append(("camera", str(inp.camera)))
     rep = inp.calibration_report
     if isinstance(rep, Path):
-        b.report = read_calibration_report(rep, "--calibration-report")
+        b.report = read_calibration_report(rep, "calibration_report")
         b.used.append(("calibration report", str(rep)))
     elif isinstance(rep, CalibrationReport):
         b.report = rep
@@ -230,7 +230,8 @@ def frame_image(b: ReportContext) -> np.ndarray | None:
         img = cv2.imread(str(inp.frame), cv2.IMREAD_COLOR)
         if img is None:
             if inp.frame_given:
-                raise InputError(f"--frame {inp.frame}: not an image OpenCV can read; give a PNG or JPEG")
+                raise InputError(f"frame {inp.frame}: not an image OpenCV can read; give a PNG or JPEG",
+                                 parameters=("frame",))
             b.skip(section, f"{inp.frame} is not an image OpenCV can read: pass --frame")
         source = str(inp.frame)
     if img is None and inp.video is not None:

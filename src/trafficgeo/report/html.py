@@ -74,7 +74,8 @@ def build_page(run_dir: str | Path, *, camera: str | Path | None = None,
     if inputs.empty:
         raise InputError(f"{inputs.run_dir}: nothing to report: no camera.json, calibration report.json, "
                          "accuracy.tif or analyze/process outputs (summary.json with vehicles.csv) in it or its "
-                         "sub-folders; give such a folder, or --camera / --calibration-report")
+                         "sub-folders; give such a folder, or `camera` / calibration_report",
+                         parameters=("camera", "calibration_report"))
     b = load_context(inputs, dpi)
     sections: list[Section] = calibration_sections(b)
     accuracy = accuracy_section(b)

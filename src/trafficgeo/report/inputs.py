@@ -81,7 +81,7 @@ def _given_file(path: str | Path | None, option: str, hint: str) -> Path | None:
         return None
     p = Path(path)
     if not p.is_file():
-        raise InputError(f"{option} {p}: file not found; {hint}")
+        raise InputError(f"{option} {p}: file not found; {hint}", parameters=(option,))
     return p
 
 
@@ -154,7 +154,7 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
         raise InputError(f"{root}: not a folder; give the output folder of 'trafficgeo calibrate', 'analyze' or "
                          "'process'")
     dirs = [root, *_subfolders(root)]
-    cam = _given_file(camera, "--camera", "give the camera JSON written by 'trafficgeo calibrate'") or \
+    cam = _given_file(camera, "camera", "give the camera JSON written by 'trafficgeo calibrate'") or \
         _find(dirs, CAMERA_NAMES)
     traffic = _traffic_runs(dirs)
     if cam is None:  # a process run names its camera
@@ -170,7 +170,7 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
     elif isinstance(calibration_report, Mapping):
         rep = CalibrationReport.from_dict(calibration_report, "calibration_report")
     else:
-        rep = _given_file(calibration_report, "--calibration-report", "give the report JSON of 'trafficgeo "
+        rep = _given_file(calibration_report, "calibration_report", "give the report JSON of 'trafficgeo "
                           "calibrate --report'")
         if rep is None:
             for d in site_dirs:
@@ -178,7 +178,7 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
                 if found is not None and _is_calibration_report(found):
                     rep = found
                     break
-    frame_path = _given_file(frame, "--frame", "give a PNG or JPEG of the video frame the GCPs were clicked on")
+    frame_path = _given_file(frame, "frame", "give a PNG or JPEG of the video frame the GCPs were clicked on")
     frame_given = frame_path is not None
     if frame_path is None and cam is not None:
         doc = read_json(cam)
@@ -187,7 +187,7 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
             if frame_path is not None:
                 break
     frame_path = frame_path or _find(site_dirs, FRAME_NAMES)
-    video_path = _given_file(video, "--video", "give the video file")
+    video_path = _given_file(video, "video", "give the video file")
     video_given = video_path is not None
     time_s = 0.0
     if video_path is None:
@@ -199,8 +199,8 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
                 time_s = float(start) if isinstance(start, int | float) and math.isfinite(start) else 0.0
                 break
     video_path = video_path or _find(site_dirs, VIDEO_NAMES)
-    ortho_path = _given_file(ortho, "--ortho", "give the orthophoto GeoTIFF") or _find(site_dirs, ORTHO_NAMES)
-    dem_path = _given_file(dem, "--dem", "give the DEM GeoTIFF") or _find(site_dirs, DEM_NAMES)
+    ortho_path = _given_file(ortho, "ortho", "give the orthophoto GeoTIFF") or _find(site_dirs, ORTHO_NAMES)
+    dem_path = _given_file(dem, "dem", "give the DEM GeoTIFF") or _find(site_dirs, DEM_NAMES)
     return ReportInputs(run_dir=root, camera=cam, calibration_report=rep, frame=frame_path, frame_given=frame_given,
                         video=video_path, video_given=video_given, video_time_s=time_s, ortho=ortho_path,
                         dem=dem_path, accuracy=_find(site_dirs, ACCURACY_NAMES), site=_find(site_dirs, SITE_NAMES),
