@@ -109,7 +109,7 @@ def bad_files(tmp_path, scene):
 
 
 @pytest.mark.parametrize("args, words", [
-    (["--ortho", "{ortho}"], "--frame IMAGE or --video"),
+    (["--ortho", "{ortho}"], "with --frame (an image) or --video (with --at seconds)"),
     (["--frame", "{frame}", "--video", "{video}", "--ortho", "{ortho}"], "not both"),
     (["--frame", "{tmp}/missing.png", "--ortho", "{ortho}"], "does not exist"),
     (["--frame", "{tmp}/notimage.png", "--ortho", "{ortho}"], "not an image"),

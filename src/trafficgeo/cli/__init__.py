@@ -215,7 +215,8 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "pattern": "--pattern", "focal_px": "--focal-px", "intrinsics": "--intrinsics",
          "fps": "--fps", "coast_hidden_s": "--coast-hidden", "camera": "--camera",
          "calibration_report": "--calibration-report", "frame": "--frame", "video": "--video", "ortho": "--ortho",
-         "dem": "--dem",
+         "dem": "--dem", "cloud": "--cloud", "at_s": "--at", "gcps": "--gcps", "workdir": "--workdir",
+         "port": "--port", "host": "--host",
          "lanes": "--lanes", "lines": "--lines"}
 
 

@@ -115,7 +115,8 @@ def load_video_frame(path: str | Path, at_s: float) -> FrameImage:
     from trafficgeo.video.reader import read_frame_at
 
     if not (math.isfinite(at_s) and at_s >= 0):
-        raise InputError(f"--at {at_s:g} must be a time in seconds from the start of the video, >= 0")
+        raise InputError(f"at_s {at_s:g} must be a time in seconds from the start of the video, >= 0",
+                         parameters=("at_s",))
     picked = read_frame_at(path, at_s)
     return FrameImage.from_array(picked.image, f"{path} at {picked.time_s:.3f} s (frame {picked.index})")
 
@@ -335,7 +336,7 @@ def load_ground(*, dem: str | Path | None = None, cloud: str | Path | None = Non
                 ortho_crs: pyproj.CRS | None = None, options: GroundCheckOptions | None = None) -> Ground | None:
     """The ground from a DEM (GeoTIFF) or a LAS/LAZ point cloud in the orthophoto's CRS; None when neither."""
     if dem is not None and cloud is not None:
-        raise InputError("give either --dem or --cloud for the GCP heights, not both")
+        raise InputError("give either `dem` or `cloud` for the GCP heights, not both", parameters=("dem", "cloud"))
     if dem is not None:
         p = Path(dem)
         raster = read_dem(p)

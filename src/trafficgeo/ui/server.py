@@ -279,11 +279,13 @@ def bind_socket(host: str, port: int) -> socket.socket:
         InputError: the port is out of range or in use, or the host is unknown.
     """
     if not 0 <= port <= 65535:
-        raise InputError(f"--port {port} is not a TCP port; give 1 to 65535 (or 0 for any free port)")
+        raise InputError(f"port {port} is not a TCP port; give 1 to 65535 (or 0 for any free port)",
+                         parameters=("port",))
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
     except socket.gaierror as exc:
-        raise InputError(f"--host {host!r} is not a known address ({exc.strerror}); use 127.0.0.1") from None
+        raise InputError(f"host {host!r} is not a known address ({exc.strerror}); use 127.0.0.1",
+                         parameters=("host",)) from None
     family, _, _, _, addr = infos[0]
     sock = socket.socket(family, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -293,10 +295,10 @@ def bind_socket(host: str, port: int) -> socket.socket:
     except OSError as exc:
         sock.close()
         if port and exc.errno in (98, 48, 10048):  # EADDRINUSE on Linux, macOS, Windows
-            raise InputError(f"port {port} on {host} is in use (another gcp-ui?); give another with --port, "
-                             "or --port 0 for any free port") from None
-        raise InputError(f"cannot listen on {host}:{port} ({exc.strerror or exc}); give another --host or "
-                         "--port") from None
+            raise InputError(f"port {port} on {host} is in use (another gcp-ui?); give another `port`, "
+                             "or `port` 0 for any free port", parameters=("port",)) from None
+        raise InputError(f"cannot listen on {host}:{port} ({exc.strerror or exc}); give another `host` or "
+                         "`port`", parameters=("host", "port")) from None
     sock.set_inheritable(True)
     return sock
 

@@ -123,7 +123,8 @@ class Session:
         self.crs = ortho.crs if ortho.crs is not None else (ground.crs if ground is not None else None)
         self.workdir = Path(workdir).resolve()
         if not self.workdir.is_dir():
-            raise InputError(f"working folder {workdir} does not exist; create it or give another with --workdir")
+            raise InputError(f"working folder {workdir} does not exist; create it or give another `workdir`",
+                             parameters=("workdir",))
         self.gcps_path = Path(gcps_path) if gcps_path is not None else None
         if autosave_path is not None:
             self.autosave_path = Path(autosave_path)

@@ -66,22 +66,27 @@ def open_session(*, frame: str | Path | None = None, video: str | Path | None = 
     from trafficgeo.ui.inputs import load_frame, load_ground, load_ortho, load_video_frame
 
     if frame is not None and video is not None:
-        raise InputError("give the frame to pick on with either --frame IMAGE or --video VIDEO [--at SECONDS], "
-                         "not both")
+        raise InputError("give the frame to pick on with either `frame` (an image) or `video` (with at_s seconds), "
+                         "not both", parameters=("frame", "video", "at_s"))
     if frame is None and video is None:
-        raise InputError("give the frame to pick on with --frame IMAGE or --video VIDEO [--at SECONDS]")
+        raise InputError("give the frame to pick on with `frame` (an image) or `video` (with at_s seconds)",
+                         parameters=("frame", "video", "at_s"))
     if at_s is not None and video is None:
-        raise InputError("--at picks a time in a --video; with --frame it has no meaning, leave it out")
+        raise InputError("at_s picks a time in a `video`; with `frame` it has no meaning, leave it out",
+                         parameters=("at_s", "video", "frame"))
     if dem is not None and cloud is not None:
-        raise InputError("give either --dem or --cloud for the GCP heights, not both")
+        raise InputError("give either `dem` or `cloud` for the GCP heights, not both", parameters=("dem", "cloud"))
     gcps_path = Path(gcps) if gcps is not None else None
     if gcps_path is not None:
         if gcps_path.is_dir():
-            raise InputError(f"--gcps {gcps_path} is a folder; give the GCP CSV file to continue or create")
+            raise InputError(f"gcps {gcps_path} is a folder; give the GCP CSV file to continue or create",
+                             parameters=("gcps",))
         if not gcps_path.parent.resolve().is_dir():
-            raise InputError(f"--gcps {gcps_path}: folder {gcps_path.parent} does not exist; create it first")
+            raise InputError(f"gcps {gcps_path}: folder {gcps_path.parent} does not exist; create it first",
+                             parameters=("gcps",))
         if gcps_path.suffix.lower() != ".csv":
-            raise InputError(f"--gcps {gcps_path} must be a .csv file (id,x,y,z,u,v,role,sigma_px)")
+            raise InputError(f"gcps {gcps_path} must be a .csv file (id,x,y,z,u,v,role,sigma_px)",
+                             parameters=("gcps",))
     img = load_frame(frame) if frame is not None else load_video_frame(video, 0.0 if at_s is None else at_s)
     orthophoto = load_ortho(ortho)
     ground = load_ground(dem=dem, cloud=cloud, ortho_crs=orthophoto.crs)
