@@ -13,7 +13,8 @@ import cv2
 import numpy as np
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.blobs import (
+from trafficgeo.video.detections import Detections, check_image, check_roi
+from trafficgeo.video.detectors.blobs import (
     SizeRules,
     _Blobs,
     _tight_part,
@@ -24,7 +25,6 @@ from trafficgeo.video.blobs import (
     merge_candidates,
     split_mask,
 )
-from trafficgeo.video.detections import Detections, check_image, check_roi
 
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera
