@@ -19,16 +19,10 @@ from trafficgeo.video.detections_io import (
     write_detections,
 )
 from trafficgeo.video.detectors.background import BackgroundDetector, temporal_mode
-from trafficgeo.video.detectors.blobs import (
-    SizeRules,
-    blob_ground_size,
-    classify_sizes,
-    group_pairs,
-    merge_candidates,
-    split_mask,
-)
+from trafficgeo.video.detectors.blobs import group_pairs, merge_candidates, split_mask
 from trafficgeo.video.detectors.factory import make_detector
 from trafficgeo.video.detectors.onnx import OnnxDetector, letterbox
+from trafficgeo.video.detectors.sizes import SizeRules, blob_ground_size, classify_sizes
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -16,7 +16,7 @@ One concept per module:
   subtraction (OpenCV MOG2 or KNN with shadow detection) on a downscaled frame, then morphology, connected
   components, an optional region of interest, the merging of a vehicle's parts and the splitting of blobs of
   touching vehicles (:mod:`.blobs`), and, given a calibrated camera and a road surface, a size filter and a
-  size-based class in metres on the ground. It finds what moves: vehicles that touch in the image
+  size-based class in metres on the ground (:mod:`.sizes`). It finds what moves: vehicles that touch in the image
   often stay one blob.
 * :mod:`.onnx` - :class:`OnnxDetector` runs an ONNX export with onnxruntime, in any layout of :mod:`.onnx_formats`
   (YOLOv5/v7, YOLOv8/11, end-to-end YOLOv10/YOLO26, YOLOX, RT-DETR/D-FINE/DEIM, RF-DETR, NanoDet), recognised from
@@ -47,7 +47,7 @@ _EXPORTS: dict[str, str] = {
     "is_background": "names",
     "BackgroundDetector": "background",
     "WARMUP_S": "background",
-    "SizeRules": "blobs",
+    "SizeRules": "sizes",
     "OnnxDetector": "onnx",
     "LAYOUTS": "onnx_formats",
     "FORMAT_HELP": "onnx_formats",
@@ -103,13 +103,13 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from __getattr__
     from trafficgeo.video.detectors.background import WARMUP_S, BackgroundDetector
-    from trafficgeo.video.detectors.blobs import SizeRules
     from trafficgeo.video.detectors.builtin import BUILTIN_MODELS, builtin_model_path
     from trafficgeo.video.detectors.factory import check_detector, make_detector
     from trafficgeo.video.detectors.learned import SizeClasses, detector_plan, make_learned_detector
     from trafficgeo.video.detectors.names import DETECTOR_HELP, DETECTOR_NAMES, ONNX_HINT, detector_kind, is_background
     from trafficgeo.video.detectors.onnx import OnnxDetector
     from trafficgeo.video.detectors.onnx_formats import FORMAT_HELP, LAYOUTS
+    from trafficgeo.video.detectors.sizes import SizeRules
     from trafficgeo.video.detectors.tile_bands import plan_bands
     from trafficgeo.video.detectors.tile_plan import TilePlan
     from trafficgeo.video.detectors.tiled import TiledDetector

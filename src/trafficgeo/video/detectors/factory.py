@@ -13,10 +13,10 @@ import numpy as np
 from trafficgeo.errors import InputError
 from trafficgeo.video.detections import Detector
 from trafficgeo.video.detectors.background import WARMUP_S, BackgroundDetector
-from trafficgeo.video.detectors.blobs import SizeRules
 from trafficgeo.video.detectors.names import detector_kind
 from trafficgeo.video.detectors.onnx import OnnxDetector
 from trafficgeo.video.detectors.onnx_formats import format_name
+from trafficgeo.video.detectors.sizes import SizeRules
 
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera

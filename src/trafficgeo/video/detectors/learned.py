@@ -4,7 +4,7 @@ vehicle's class taken from its size on the ground.
 
 A COCO detector's class labels are unreliable on traffic cameras (cars seen from above are often called trucks),
 while a calibrated camera measures a vehicle's length on the road: :class:`SizeClasses` gives every box the class
-its ground size fits (:func:`trafficgeo.video.detectors.blobs.classify_sizes`), ``""`` (unknown) where no class
+its ground size fits (:func:`trafficgeo.video.detectors.sizes.classify_sizes`), ``""`` (unknown) where no class
 fits, and keeps the box either way (whether a box is a vehicle is the detector's call, not the size rule's).
 """
 
@@ -16,9 +16,9 @@ import numpy as np
 
 from trafficgeo.errors import InputError
 from trafficgeo.video.detections import Detections, Detector
-from trafficgeo.video.detectors.blobs import SizeRules, blob_ground_size, classify_sizes
 from trafficgeo.video.detectors.builtin import builtin_model, builtin_model_path
 from trafficgeo.video.detectors.onnx import OnnxDetector
+from trafficgeo.video.detectors.sizes import SizeRules, blob_ground_size, classify_sizes
 from trafficgeo.video.detectors.tile_bands import plan_bands
 from trafficgeo.video.detectors.tiling import TiledDetector, TilePlan, plan_tiles
 
