@@ -187,14 +187,8 @@ def sumo_world_times(folder: Path, repeat: int) -> None:
     """Wall time of ``run_sumo_world`` (a 60 s scene at 25 fps after its 60 s warm-up, the default 2 x 2 lane road
     and demand: netconvert, routes, sumo, the FCD copy and ``read_fcd``) against the bare ``sumo`` binary run on
     its net and routes with the same simulation options and FCD output (the baseline), in the same run."""
-    from trafficgeo.synth.sumo_world import (
-        LANE_CHANGE_DURATION_S,
-        WARMUP_S,
-        Demand,
-        RoadSpec,
-        run_sumo_world,
-        sumo_binary,
-    )
+    from trafficgeo.synth.sumo_scene import Demand, RoadSpec
+    from trafficgeo.synth.sumo_world import LANE_CHANGE_DURATION_S, WARMUP_S, run_sumo_world, sumo_binary
 
     ours, bare = [], []
     for k in range(max(repeat, 1)):

@@ -50,7 +50,7 @@ from trafficgeo.traffic.analyze import analyze
 from trafficgeo.traffic.lanes import read_lanes
 from trafficgeo.traffic.lines import read_count_lines
 from trafficgeo.traffic.tracks import tracks_from_table
-from trafficgeo.video.detect import box_iou
+from trafficgeo.video.detections import box_iou
 from trafficgeo.video.pipeline import TRACK_COLUMNS, ProcessOptions, settled_options
 from trafficgeo.video.reader import iter_frames, video_info
 from trafficgeo.video.run import process_video
@@ -104,8 +104,8 @@ def part_real_frames() -> None:
 
     sys.path.insert(0, str(ROOT / "tests"))
     from labelled_frames import INTEL_LABELS, NGSIM_LABELS, Score, load_labels, score_frame
-    from trafficgeo.video.detect import make_detector
-    from trafficgeo.video.tiling import TiledDetector, grid_plan
+    from trafficgeo.video.detectors.factory import make_detector
+    from trafficgeo.video.detectors.tiling import TiledDetector, grid_plan
 
     shared = ROOT.parent / "shared" / "data"
     nanodet = make_detector("nanodet")

@@ -15,8 +15,8 @@ import pytest
 
 from labelled_frames import INTEL_LABELS, NGSIM_LABELS, Score, load_labels, score_labels
 from trafficgeo.errors import InputError
-from trafficgeo.video.detect import make_detector
-from trafficgeo.video.tiling import TiledDetector, grid_plan
+from trafficgeo.video.detectors.factory import make_detector
+from trafficgeo.video.detectors.tiling import TiledDetector, grid_plan
 
 pytestmark = pytest.mark.slow  # the learned detector on real labelled frames
 

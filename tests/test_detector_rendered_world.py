@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 
 from trafficgeo.camera.io import read_camera_json
-from trafficgeo.video.detect import make_detector
 from trafficgeo.video.detections import box_iou
+from trafficgeo.video.detectors.factory import make_detector
 from trafficgeo.video.reader import iter_frames
 
 pytestmark = pytest.mark.slow  # builds a 1280x720 world and runs the learned detector on it

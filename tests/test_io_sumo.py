@@ -20,7 +20,8 @@ from trafficgeo.io.sumo import (
     read_net_location,
     write_fcd,
 )
-from trafficgeo.synth.sumo_world import VEHICLE_CLASSES, Demand, RoadSpec, SumoRun, _run_tool, run_sumo_world
+from trafficgeo.synth.sumo_scene import VEHICLE_CLASSES, Demand, RoadSpec
+from trafficgeo.synth.sumo_world import SumoRun, _run_tool, run_sumo_world
 
 DATA = Path(__file__).parent / "data" / "sumo-fcd-sample"
 SAMPLE = DATA / "fcd_geo_utm.sumo.xml"

@@ -66,6 +66,6 @@ def test_no_import_goes_up_a_layer(path: Path) -> None:
 def test_the_checker_sees_every_form_of_import() -> None:
     """The checker itself: imports inside a function, relative ones and ``from trafficgeo import x`` are found."""
     text = ("import numpy\nfrom trafficgeo.errors import InputError\ndef f():\n"
-            "    from trafficgeo.video import detect\n    from ..traffic import lanes\n"
+            "    from trafficgeo.video import detectors\n    from ..traffic import lanes\n"
             "    from . import raster\n    from trafficgeo import synth\n")
     assert {p for p, _ in parts_in(text, ("geo", "surface.py"))} == {"errors", "video", "traffic", "geo", "synth"}

@@ -18,9 +18,9 @@ import onnxruntime as ort
 import pytest
 
 from trafficgeo.errors import InputError
-from trafficgeo.video import builtin_models
-from trafficgeo.video.builtin_models import NANODET_G_416, builtin_model, builtin_model_path
 from trafficgeo.video.detections import COCO_VEHICLES, box_iou
+from trafficgeo.video.detectors import builtin
+from trafficgeo.video.detectors.builtin import NANODET_G_416, builtin_model, builtin_model_path
 from trafficgeo.video.reader import read_frame_at
 
 TOOLS = Path(__file__).resolve().parents[1] / "tools" / "nanodet"
@@ -47,7 +47,7 @@ def test_shipped_file_matches_registry():
     assert len(data) == NANODET_G_416.size_bytes
     assert hashlib.sha256(data).hexdigest() == NANODET_G_416.sha256
     assert (path.parent / "NOTICE").is_file()
-    notice = builtin_models.builtin_models_notice()
+    notice = builtin.builtin_models_notice()
     assert "Copyright 2020-2021 RangiLyu" in notice and "Copyright (c) 2021 Vladimir Mandic" in notice
     assert NANODET_G_416.sha256 in notice
     source = (path.parent / "SOURCE.txt").read_text()  # provenance beside the file, as tests/data has it
@@ -66,12 +66,12 @@ def test_registry_entry():
 
 
 def test_missing_or_corrupt_file_is_an_input_error(monkeypatch):
-    monkeypatch.setattr(builtin_models, "MODELS_PACKAGE_DIR", ("data", "no-such-dir"))
+    monkeypatch.setattr(builtin, "MODELS_PACKAGE_DIR", ("data", "no-such-dir"))
     with pytest.raises(InputError, match="missing: reinstall trafficgeo; the file is shipped in the package"):
         builtin_model_path("nanodet")
     monkeypatch.undo()
-    wrong = builtin_models.BuiltinModel(**{**NANODET_G_416.__dict__, "sha256": "0" * 64})
-    monkeypatch.setitem(builtin_models.BUILTIN_MODELS, "nanodet", wrong)
+    wrong = builtin.BuiltinModel(**{**NANODET_G_416.__dict__, "sha256": "0" * 64})
+    monkeypatch.setitem(builtin.BUILTIN_MODELS, "nanodet", wrong)
     assert builtin_model_path("nanodet").is_file()  # no check without verify
     with pytest.raises(InputError, match="corrupt"):
         builtin_model_path("nanodet", verify=True)

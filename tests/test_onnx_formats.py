@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.onnx_detect import OnnxDetector, pick_providers, suppress
-from trafficgeo.video.onnx_formats import LAYOUTS, format_name, looks_decoded
+from trafficgeo.video.detectors.onnx import OnnxDetector, pick_providers, suppress
+from trafficgeo.video.detectors.onnx_formats import LAYOUTS, format_name, looks_decoded
 
 onnx = pytest.importorskip("onnx")
 from onnx import TensorProto, helper, numpy_helper  # noqa: E402
@@ -442,7 +442,7 @@ def test_detector_format_reaches_the_run(tmp_path: Path) -> None:
     from trafficgeo.camera.io import write_camera_json
     from trafficgeo.camera.model import Camera
     from trafficgeo.video.checkpoint import run_key
-    from trafficgeo.video.detect import make_detector
+    from trafficgeo.video.detectors.factory import make_detector
     from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
     from video_support import H as VH
     from video_support import W as VW

@@ -23,7 +23,8 @@ from rasterio.errors import NotGeoreferencedWarning
 from trafficgeo.errors import InputError
 from trafficgeo.geo import raster as raster_mod
 from trafficgeo.geo.pointcloud import PointCloud, read_point_cloud
-from trafficgeo.geo.raster import GeoRaster, display_rgb, read_dem, read_raster, write_geotiff
+from trafficgeo.geo.raster import GeoRaster, read_dem, read_raster, write_geotiff
+from trafficgeo.geo.raster_display import display_rgb
 
 DATA = Path(__file__).parent / "data" / "autzen"
 ORTHO = DATA / "autzen_ortho_trim.tif"

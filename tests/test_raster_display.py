@@ -1,4 +1,4 @@
-"""The one "read a raster decimated for display" path (``geo.raster.read_display``) and the one pixel <-> map
+"""The one "read a raster decimated for display" path (``geo.raster_display.read_display``) and the one pixel <-> map
 conversion (``geo.raster.pixel_to_map`` / ``map_to_pixel``), on rasters with known geotransforms and values."""
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ import pytest
 from affine import Affine
 
 from trafficgeo.errors import InputError
-from trafficgeo.geo.raster import map_to_pixel, pixel_size, pixel_to_map, read_display, write_geotiff
+from trafficgeo.geo.raster import map_to_pixel, pixel_size, pixel_to_map, write_geotiff
+from trafficgeo.geo.raster_display import read_display
 
 CRS = "EPSG:32633"
 X0, Y0 = 500_000.0, 5_000_000.0

@@ -11,10 +11,8 @@ import pytest
 
 from trafficgeo.errors import InputError, TrafficgeoError
 from trafficgeo.synth.gcp_scene import RoadSurface
+from trafficgeo.synth.sumo_scene import VEHICLE_CLASSES, Demand, RoadSpec
 from trafficgeo.synth.sumo_world import (
-    VEHICLE_CLASSES,
-    Demand,
-    RoadSpec,
     SumoRun,
     Trajectories,
     _run_tool,

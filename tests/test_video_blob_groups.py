@@ -1,5 +1,5 @@
-"""``trafficgeo.video.blobs.group_pairs`` (connected components of joined blobs) against the union-find it replaced,
-on random pair lists: the same groups, in the same order (of first member), members ascending."""
+"""``trafficgeo.video.detectors.blobs.group_pairs`` (connected components of joined blobs) against the union-find it
+replaced, on random pair lists: the same groups, in the same order (of first member), members ascending."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from trafficgeo.video.blobs import group_pairs
+from trafficgeo.video.detectors.blobs import group_pairs
 
 
 def union_find_groups(n: int, pairs: np.ndarray) -> list[list[int]]:
@@ -51,7 +51,7 @@ def test_group_pairs_equals_the_union_find(graph: tuple[int, np.ndarray]) -> Non
 
 @pytest.mark.parametrize("seed", range(20))
 def test_group_pairs_on_merge_candidate_like_pairs(seed: int) -> None:
-    """Pairs ``i < j`` as :func:`~trafficgeo.video.blobs.merge_candidates` gives them, dense and sparse."""
+    """Pairs ``i < j`` as :func:`~trafficgeo.video.detectors.blobs.merge_candidates` gives them, dense and sparse."""
     rng = np.random.default_rng(seed)
     n = int(rng.integers(1, 200))
     i, j = np.triu_indices(n, k=1)

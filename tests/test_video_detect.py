@@ -1,4 +1,4 @@
-"""Vehicle detectors (trafficgeo.video.detect) and detection files (trafficgeo.video.detections_io)."""
+"""Vehicle detectors (trafficgeo.video.detectors) and detection files (trafficgeo.video.detections_io)."""
 
 from __future__ import annotations
 
@@ -11,28 +11,18 @@ import pandas as pd
 import pytest
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.detect import (
-    BackgroundDetector,
-    Detections,
-    Detector,
-    OnnxDetector,
-    SizeRules,
-    blob_ground_size,
-    box_iou,
-    classify_sizes,
-    group_pairs,
-    letterbox,
-    make_detector,
-    merge_candidates,
-    split_mask,
-    temporal_mode,
-)
+from trafficgeo.video.detections import Detections, Detector, box_iou
 from trafficgeo.video.detections_io import (
     detections_for_frame,
     detections_table,
     read_detections,
     write_detections,
 )
+from trafficgeo.video.detectors.background import BackgroundDetector, temporal_mode
+from trafficgeo.video.detectors.blobs import group_pairs, merge_candidates, split_mask
+from trafficgeo.video.detectors.factory import make_detector
+from trafficgeo.video.detectors.onnx import OnnxDetector, letterbox
+from trafficgeo.video.detectors.sizes import SizeRules, blob_ground_size, classify_sizes
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:

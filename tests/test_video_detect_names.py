@@ -11,8 +11,10 @@ import pytest
 
 from cli_support import invoke
 from trafficgeo.errors import InputError
-from trafficgeo.video.detect import BackgroundDetector, OnnxDetector, make_detector
-from trafficgeo.video.detector_names import DETECTOR_HELP, DETECTOR_NAMES, detector_kind, is_background
+from trafficgeo.video.detectors.background import BackgroundDetector
+from trafficgeo.video.detectors.factory import make_detector
+from trafficgeo.video.detectors.names import DETECTOR_HELP, DETECTOR_NAMES, detector_kind, is_background
+from trafficgeo.video.detectors.onnx import OnnxDetector
 from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
 from video_support import H, W, road, two_cars, write_two_car_video
 
@@ -59,7 +61,7 @@ def test_one_table_of_detector_names(tmp_path: Path) -> None:
 
 # ---------------------------------------------------------------------------------------------------- warm-up
 def test_the_pipeline_primes_longer_than_the_warm_up() -> None:
-    from trafficgeo.video.detect import WARMUP_S
+    from trafficgeo.video.detectors.background import WARMUP_S
     from trafficgeo.video.pipeline import PRIME_S
 
     assert 0 < WARMUP_S < PRIME_S
@@ -151,7 +153,7 @@ def test_blobs_no_single_vehicle_explains_are_of_unknown_class(monkeypatch: pyte
     "" (unknown), not "truck"/"van"; single vehicles keep their class."""
     from trafficgeo.camera.model import Camera
     from trafficgeo.geo.surface import ConstantSurface
-    from trafficgeo.video.detect import _Blobs
+    from trafficgeo.video.detectors.blobs import _Blobs
 
     cam = Camera.from_orientation((400, 200), 300.0, [0.0, -20.0, 8.0], 0.0, 20.0, crs="EPSG:32633")
     det = BackgroundDetector(camera=cam, surface=ConstantSurface(0.0))

@@ -1,5 +1,5 @@
-"""The built-in learned detector as `process` runs it (trafficgeo.video.learned): the shipped NanoDet model, tiled
-over the counted road when the camera is calibrated, classes from the ground size, and its tile plan carried into
+"""The built-in learned detector as `process` runs it (trafficgeo.video.detectors.learned): the shipped NanoDet model,
+tiled over the counted road when the camera is calibrated, classes from the ground size, and its tile plan carried into
 the run key and process.json."""
 
 from __future__ import annotations
@@ -16,12 +16,12 @@ from trafficgeo.errors import InputError
 from trafficgeo.geo.surface import ConstantSurface
 from trafficgeo.traffic.boxes import cuboid_boxes
 from trafficgeo.traffic.lanes import Lanes
-from trafficgeo.video.detect import make_detector
 from trafficgeo.video.detections import Detections
-from trafficgeo.video.learned import SizeClasses, detector_plan
-from trafficgeo.video.onnx_detect import OnnxDetector
+from trafficgeo.video.detectors.factory import make_detector
+from trafficgeo.video.detectors.learned import SizeClasses, detector_plan
+from trafficgeo.video.detectors.onnx import OnnxDetector
+from trafficgeo.video.detectors.tiling import TiledDetector
 from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
-from trafficgeo.video.tiling import TiledDetector
 
 FLAT = ConstantSurface(0.0)
 

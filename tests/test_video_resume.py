@@ -27,7 +27,7 @@ from trafficgeo.video.checkpoint import (
     read_part,
     run_key,
 )
-from trafficgeo.video.detect import Detections
+from trafficgeo.video.detections import Detections
 from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
 from trafficgeo.video.track import VehicleTracker
 

@@ -1,5 +1,5 @@
-"""Tiles for a detector with a free input size (trafficgeo.video.tile_bands): every road point's car reaches the
-minimum size in a tile holding its truck whole, inputs are multiples of 32 px, the plan costs fewer input pixels
+"""Tiles for a detector with a free input size (trafficgeo.video.detectors.tile_bands): every road point's car reaches
+the minimum size in a tile holding its truck whole, inputs are multiples of 32 px, the plan costs fewer input pixels
 than square tiles, and the tiled detector feeds each tile at its own input size."""
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ from test_video_tiling import (
 from trafficgeo.errors import InputError
 from trafficgeo.traffic.boxes import cuboid_boxes
 from trafficgeo.video.detections import Detections, box_iou
-from trafficgeo.video.tile_bands import input_hw_for, plan_bands
-from trafficgeo.video.tiling import LARGE_VEHICLE_M, TiledDetector, box_size_px, plan_tiles
+from trafficgeo.video.detectors.tile_bands import input_hw_for, plan_bands
+from trafficgeo.video.detectors.tiling import LARGE_VEHICLE_M, TiledDetector, box_size_px, plan_tiles
 
 pytestmark = pytest.mark.slow  # plans detector tiles over whole 1080p views
 

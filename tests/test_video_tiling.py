@@ -1,5 +1,5 @@
-"""Camera-aware tiling (trafficgeo.video.tiling): vehicle sizes against pinhole figures, tile plans that bring every
-road point to the detector's minimum size (or report it beyond reach), and the tiled detector on a fake base that
+"""Camera-aware tiling (trafficgeo.video.detectors.tiling): vehicle sizes against pinhole figures, tile plans that bring
+every road point to the detector's minimum size (or report it beyond reach), and the tiled detector on a fake base that
 only sees vehicles big enough in its own input."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from trafficgeo.geo.surface import ConstantSurface
 from trafficgeo.traffic.boxes import cuboid_boxes
 from trafficgeo.traffic.lanes import Lanes
 from trafficgeo.video.detections import Detections, box_iou
-from trafficgeo.video.tiling import (
+from trafficgeo.video.detectors.tiling import (
     REFERENCE_CAR_M,
     TiledDetector,
     TilePlan,

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.detect import Detections
+from trafficgeo.video.detections import Detections
 from trafficgeo.video.stitch import stitch_tracks
 from trafficgeo.video.track import TrackerOptions, VehicleTracker
 

@@ -60,7 +60,7 @@ _API: dict[str, str] = {
     "ProcessResult": "trafficgeo.video.run",
     "ProcessOptions": "trafficgeo.video.pipeline",
     "stitch": "trafficgeo.video.run",
-    "make_detector": "trafficgeo.video.detect",
+    "make_detector": "trafficgeo.video.detectors.factory",
     "Detections": "trafficgeo.video.detections",
 }
 
@@ -133,7 +133,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.traffic.tracks import ImageTracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
     from trafficgeo.traffic.validation import Comparison, compare_with_sumo, export_fcd
-    from trafficgeo.video.detect import make_detector
     from trafficgeo.video.detections import Detections
+    from trafficgeo.video.detectors.factory import make_detector
     from trafficgeo.video.pipeline import ProcessOptions
     from trafficgeo.video.run import ProcessResult, process_video, stitch

@@ -13,8 +13,8 @@ from trafficgeo.cli import app, console
 from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt
 from trafficgeo.cli.traffic import IntervalOpt, LanesOpt, LinesOpt, ReportHtmlOpt, _check_out_dir
 from trafficgeo.errors import InputError
-from trafficgeo.video.detector_names import DETECTOR_HELP
-from trafficgeo.video.onnx_formats import FORMAT_HELP
+from trafficgeo.video.detectors.names import DETECTOR_HELP
+from trafficgeo.video.detectors.onnx_formats import FORMAT_HELP
 
 
 @app.command()

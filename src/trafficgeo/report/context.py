@@ -87,7 +87,7 @@ def read_background(path: Path, bounds: tuple[float, float, float, float], crs: 
     Raises:
         InputError: the file is not a raster GDAL reads, or has no georeferencing.
     """
-    from trafficgeo.geo.raster import display_rgb, read_display
+    from trafficgeo.geo.raster_display import display_rgb, read_display
 
     shown = read_display(path, max_px, bounds=bounds, crs=crs, north_up=True, what="--ortho")
     if shown is None:

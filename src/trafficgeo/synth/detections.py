@@ -30,7 +30,7 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.detect import Detections, box_iou
+from trafficgeo.video.detections import Detections, box_iou
 
 
 @dataclass(frozen=True)

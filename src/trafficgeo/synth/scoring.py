@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.synth.world import truth_lane_name
-from trafficgeo.video.detect import box_iou
+from trafficgeo.video.detections import box_iou
 
 
 def detection_scores(detections: pd.DataFrame, truth_tracks: pd.DataFrame, *, min_visible: float = 0.5,

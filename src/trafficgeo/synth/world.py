@@ -30,7 +30,8 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.io.atomic import atomic_path, write_csv_atomic, write_text_atomic
 from trafficgeo.synth.gcp_scene import RoadSurface
 from trafficgeo.synth.orthophoto import RoadMarkings, dash_corners, render_orthophoto
-from trafficgeo.synth.sumo_world import VEHICLE_CLASSES, Demand, RoadSpec, Trajectories, run_sumo_world
+from trafficgeo.synth.sumo_scene import VEHICLE_CLASSES, Demand, RoadSpec
+from trafficgeo.synth.sumo_world import Trajectories, run_sumo_world
 
 CLASS_PALETTE = {"car": [(200, 40, 40), (40, 70, 160), (220, 220, 220), (30, 30, 30), (150, 150, 160)],
                  "van": [(235, 235, 235), (90, 90, 100)], "truck": [(230, 120, 30), (60, 110, 60)],

@@ -16,7 +16,7 @@ from trafficgeo.crs import metres_per_unit
 from trafficgeo.geo.mapping import Surface, camera_crs
 
 # Typical (length, width, height) in metres: car, van, truck and bus as the synthetic world's SUMO vehicle types
-# (trafficgeo.synth.sumo_world.VEHICLE_CLASSES); two-wheelers with their rider.
+# (trafficgeo.synth.sumo_scene.VEHICLE_CLASSES); two-wheelers with their rider.
 VEHICLE_DIMENSIONS: dict[str, tuple[float, float, float]] = {
     "car": (4.5, 1.8, 1.5),
     "van": (5.4, 2.0, 2.4),

@@ -32,15 +32,8 @@ from numpy.typing import ArrayLike
 from trafficgeo.crs import crs_label, is_geographic, same_horizontal_crs
 from trafficgeo.errors import InputError
 from trafficgeo.geo.georef import GroundCheckOptions, check_gcp_heights
-from trafficgeo.geo.raster import (
-    DisplayRaster,
-    display_rgb,
-    map_to_pixel,
-    pixel_size,
-    pixel_to_map,
-    read_dem,
-    read_display,
-)
+from trafficgeo.geo.raster import map_to_pixel, pixel_size, pixel_to_map, read_dem
+from trafficgeo.geo.raster_display import DisplayRaster, display_rgb, read_display
 from trafficgeo.geo.surface import DEMSurface
 
 #: Largest side (px) of the orthophoto image sent to the browser; larger orthophotos are shown block-averaged.

@@ -36,7 +36,7 @@ import pandas as pd
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import write_csv_atomic
 from trafficgeo.io.mot import read_mot
-from trafficgeo.video.detect import Detections
+from trafficgeo.video.detections import Detections
 
 COLUMNS = ["frame", "x1", "y1", "x2", "y2", "score", "class"]
 HINT = ("give a CSV with a header frame,x1,y1,x2,y2 (or frame,x,y,w,h) and optional score,class; a MOT Challenge "
@@ -273,7 +273,7 @@ def iter_detections(table: pd.DataFrame) -> Iterator[tuple[int, Detections]]:
 
 
 def detections_for_frame(table: pd.DataFrame) -> dict[int, Detections]:
-    """Per frame number, its :class:`~trafficgeo.video.detect.Detections` (frames without boxes are absent)."""
+    """Per frame number, its :class:`~trafficgeo.video.detections.Detections` (frames without boxes are absent)."""
     return dict(iter_detections(table))
 
 

@@ -1,7 +1,7 @@
 """``process``: video -> detections -> tracks -> traffic data, streaming, with checkpoints to resume from.
 
 Frames are decoded one at a time (:func:`trafficgeo.video.reader.iter_frames`, real timestamps), detected
-(:mod:`trafficgeo.video.detect`) and tracked (:mod:`trafficgeo.video.track`). The time range is cut into segments of
+(:mod:`trafficgeo.video.detectors`) and tracked (:mod:`trafficgeo.video.track`). The time range is cut into segments of
 ``checkpoint_s`` seconds of video; at the end of each, its frame times, detections and track boxes go to
 ``OUT/.checkpoint/`` (plain data, :mod:`trafficgeo.video.checkpoint`), so memory stays bounded during detection and
 an interrupted run (Ctrl-C, a crash, a reboot, a full disk) resumes at the segment it was in.
@@ -56,7 +56,8 @@ from trafficgeo.video.checkpoint import (
     save_checkpoint,
     write_part,
 )
-from trafficgeo.video.detect import Detections, check_detector
+from trafficgeo.video.detections import Detections
+from trafficgeo.video.detectors.factory import check_detector
 from trafficgeo.video.track import TrackerOptions, VehicleTracker
 
 __all__ = ["CHECKPOINT_DIR", "PRIME_S", "ProcessOptions", "detect_and_track", "finish_run", "hold_folder",
@@ -73,7 +74,7 @@ LEARNED_TRACKER = TrackerOptions(lost_track_s=3.0, activation_score=0.3, high_sc
 class ProcessOptions:
     """What ``process`` does with a video (times in seconds of video)."""
 
-    detector: str = "nanodet"  # a name of detector_names.DETECTOR_NAMES, or the path of an ONNX model
+    detector: str = "nanodet"  # a name of detectors.names.DETECTOR_NAMES, or the path of an ONNX model
     detector_format: str = "auto"  # an ONNX model's layout (onnx_formats.LAYOUTS), or "auto": from the model
     start_s: float = 0.0
     end_s: float | None = None
@@ -90,7 +91,7 @@ class ProcessOptions:
                              parameters=("start_s", "end_s"))
         if not (self.every is None or (isinstance(self.every, int) and self.every >= 1)):
             raise InputError(f"every {self.every}: must be a whole number >= 1", parameters=("every",))
-        from trafficgeo.video.learned import TILINGS
+        from trafficgeo.video.detectors.learned import TILINGS
 
         if self.tiling not in TILINGS:
             raise InputError(f"tiling {self.tiling}: use one of {', '.join(TILINGS)}", parameters=("tiling",))
@@ -112,7 +113,7 @@ def settled_options(options: ProcessOptions, fps: float) -> ProcessOptions:
     """
     if options.every is not None and options.tracker is not None:
         return options  # settled already (replace() would check the detector, e.g. open an ONNX model, again)
-    from trafficgeo.video.detector_names import is_background
+    from trafficgeo.video.detectors.names import is_background
 
     background = is_background(options.detector)
     every = options.every
@@ -188,13 +189,14 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     """Decode, detect and track (with checkpoints); returns the detections and track tables (also written as
     ``detections.csv`` and ``tracks.csv`` in ``out_dir``). ``progress(frames_done, frames_total, video_time_s)``
     is called per frame; ``notice(text)`` with one line when a checkpoint is resumed ("resuming from 8.0 s") or
-    ignored (and why), and with the built-in learned detector's tile plan (:mod:`trafficgeo.video.tiling`: the
+    ignored (and why), and with the built-in learned detector's tile plan (:mod:`trafficgeo.video.detectors.tiling`: the
     tiles over the counted road, ``lanes`` else ``roi``, and the road too far for it); ``detector_info(doc)`` once
     with that plan as plain data (for ``process.json``). Without a ``camera`` (and ``surface``) the detector has no
     size filter or class in metres and no tiles. Holds the lock on ``out_dir`` while it runs (:class:`InputError` if
     another process holds it)."""
-    from trafficgeo.video.detect import BackgroundDetector, make_detector
-    from trafficgeo.video.learned import detector_plan
+    from trafficgeo.video.detectors.background import BackgroundDetector
+    from trafficgeo.video.detectors.factory import make_detector
+    from trafficgeo.video.detectors.learned import detector_plan
     from trafficgeo.video.reader import video_info
 
     tell = notice or (lambda text: None)

@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.detect import box_iou
+from trafficgeo.video.detections import box_iou
 
 HINT = "give each part of the video once, as the --out folders of 'trafficgeo process --start/--end' runs"
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.detect import Detections
+from trafficgeo.video.detections import Detections
 
 
 @dataclass(frozen=True)
@@ -52,7 +52,7 @@ class TrackedBoxes:
 
 
 class VehicleTracker:
-    """Frame-by-frame ByteTrack over :class:`~trafficgeo.video.detect.Detections` at ``fps`` frames per second."""
+    """Frame-by-frame ByteTrack over :class:`~trafficgeo.video.detections.Detections` at ``fps`` frames per second."""
 
     def __init__(self, fps: float, options: TrackerOptions | None = None) -> None:
         import trackers

@@ -1,7 +1,7 @@
 """The weight-free detector for a **fixed** camera (:class:`BackgroundDetector`): background subtraction (OpenCV
 MOG2 or KNN with shadow detection) on a downscaled frame, then morphology, connected components, an optional region
 of interest, the merging of a vehicle's parts and the splitting of blobs of touching vehicles, and, given a calibrated
-camera and a road surface, a size filter and a size-based class in metres on the ground (:mod:`.blobs`). It finds
+camera and a road surface, a size filter and a size-based class in metres on the ground (:mod:`.sizes`). It finds
 what moves: vehicles that touch in the image often stay one blob."""
 
 from __future__ import annotations
@@ -13,18 +13,16 @@ import cv2
 import numpy as np
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.blobs import (
-    SizeRules,
+from trafficgeo.video.detections import Detections, check_image, check_roi
+from trafficgeo.video.detectors.blobs import (
     _Blobs,
     _tight_part,
     _union_boxes,
-    blob_ground_size,
-    classify_sizes,
     group_pairs,
     merge_candidates,
     split_mask,
 )
-from trafficgeo.video.detections import Detections, check_image, check_roi
+from trafficgeo.video.detectors.sizes import SizeRules, blob_ground_size, classify_sizes
 
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera

@@ -14,8 +14,8 @@ big a vehicle is at each point of the road, so the tiles can be planned once per
   detector input everywhere on the counted road, and so that a *large* vehicle (a truck) at any road point lies whole
   in the tile that serves that point (the tiles overlap by that vehicle's extent). No tiles when the full frame
   suffices. The plan reports, per lane (or for the ROI), the road that stays too small even at the maximum zoom.
-* :class:`~trafficgeo.video.tile_plan.TilePlan` (re-exported here) holds a plan and what it reaches per lane.
-* :class:`~trafficgeo.video.tiled_detector.TiledDetector` (re-exported here) - a
+* :class:`~trafficgeo.video.detectors.tile_plan.TilePlan` (re-exported here) holds a plan and what it reaches per lane.
+* :class:`~trafficgeo.video.detectors.tiled.TiledDetector` (re-exported here) - a
   :class:`~trafficgeo.video.detections.Detector` running a base detector on the full frame and on every tile crop,
   dropping tile boxes cut by a tile's inner edge and merging everything.
 
@@ -41,7 +41,7 @@ from trafficgeo.geo.mapping import Surface, camera_crs, pixels_to_world, world_t
 from trafficgeo.traffic.boxes import VEHICLE_DIMENSIONS, cuboid_boxes
 from trafficgeo.traffic.lanes import Lanes
 from trafficgeo.video.detections import check_roi
-from trafficgeo.video.tile_plan import (
+from trafficgeo.video.detectors.tile_plan import (
     REFERENCE_CAR_M,
     RegionReach,
     TilePlan,
@@ -51,7 +51,7 @@ from trafficgeo.video.tile_plan import (
     _regions,
     box_size_px,
 )
-from trafficgeo.video.tiled_detector import CUT_MARGIN_PX, TiledDetector, cut_by_tile, merge_boxes
+from trafficgeo.video.detectors.tiled import CUT_MARGIN_PX, TiledDetector, cut_by_tile, merge_boxes
 
 __all__ = ["LARGE_VEHICLE_M", "REFERENCE_CAR_M", "RegionReach", "RoadSamples", "RoadView", "TilePlan",
            "TiledDetector", "box_size_px", "cut_by_tile", "finish_plan", "lane_samples", "merge_boxes", "plan_tiles",

@@ -1,7 +1,7 @@
 """The names of the vehicle detectors, in one table (light: the command line imports it for its help).
 
-:func:`detector_kind` tells what a ``--detector`` value names; :func:`trafficgeo.video.detect.make_detector` builds
-it.
+:func:`detector_kind` tells what a ``--detector`` value names;
+:func:`trafficgeo.video.detectors.factory.make_detector` builds it.
 """
 
 from __future__ import annotations

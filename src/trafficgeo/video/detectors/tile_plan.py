@@ -1,8 +1,9 @@
 """A tile plan (:class:`TilePlan`): the tiles a detector runs on besides the full frame, each with its zoom, and
 what the detector then reaches on each lane (:class:`RegionReach`). Planned by
-:func:`trafficgeo.video.tiling.plan_tiles` (square tiles) or :func:`trafficgeo.video.tile_bands.plan_bands` (zoom
-bands); conventions as in :mod:`trafficgeo.video.tiling` (a tile ``(x0, y0, x1, y1)`` is the crop
-``image[y0:y1, x0:x1]``; boxes in full-frame px, pixel-centre convention)."""
+:func:`trafficgeo.video.detectors.tiling.plan_tiles` (square tiles) or
+:func:`trafficgeo.video.detectors.tile_bands.plan_bands` (zoom bands); conventions as in
+:mod:`trafficgeo.video.detectors.tiling` (a tile ``(x0, y0, x1, y1)`` is the crop ``image[y0:y1, x0:x1]``;
+boxes in full-frame px, pixel-centre convention)."""
 
 from __future__ import annotations
 
@@ -12,10 +13,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.tiled_detector import CUT_MARGIN_PX
+from trafficgeo.video.detectors.tiled import CUT_MARGIN_PX
 
 if TYPE_CHECKING:
-    from trafficgeo.video.tiling import RoadSamples
+    from trafficgeo.video.detectors.tiling import RoadSamples
 
 __all__ = ["REFERENCE_CAR_M", "RegionReach", "TilePlan", "box_size_px"]
 

@@ -1,11 +1,11 @@
 """The built-in learned detector as ``process`` runs it: NanoDet-g (shipped in the package, never downloaded) on the
-full frame plus camera-aware tiles over the counted road (:mod:`trafficgeo.video.tiling`), with each vehicle's class
-taken from its size on the ground.
+full frame plus camera-aware tiles over the counted road (:mod:`trafficgeo.video.detectors.tiling`), with each
+vehicle's class taken from its size on the ground.
 
 A COCO detector's class labels are unreliable on traffic cameras (cars seen from above are often called trucks),
 while a calibrated camera measures a vehicle's length on the road: :class:`SizeClasses` gives every box the class
-its ground size fits (:func:`trafficgeo.video.blobs.classify_sizes`), ``""`` (unknown) where no class fits, and
-keeps the box either way (whether a box is a vehicle is the detector's call, not the size rule's).
+its ground size fits (:func:`trafficgeo.video.detectors.sizes.classify_sizes`), ``""`` (unknown) where no class
+fits, and keeps the box either way (whether a box is a vehicle is the detector's call, not the size rule's).
 """
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.blobs import SizeRules, blob_ground_size, classify_sizes
-from trafficgeo.video.builtin_models import builtin_model, builtin_model_path
 from trafficgeo.video.detections import Detections, Detector
-from trafficgeo.video.onnx_detect import OnnxDetector
-from trafficgeo.video.tile_bands import plan_bands
-from trafficgeo.video.tiling import TiledDetector, TilePlan, plan_tiles
+from trafficgeo.video.detectors.builtin import builtin_model, builtin_model_path
+from trafficgeo.video.detectors.onnx import OnnxDetector
+from trafficgeo.video.detectors.sizes import SizeRules, blob_ground_size, classify_sizes
+from trafficgeo.video.detectors.tile_bands import plan_bands
+from trafficgeo.video.detectors.tiling import TiledDetector, TilePlan, plan_tiles
 
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera

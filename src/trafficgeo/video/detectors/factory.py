@@ -1,23 +1,7 @@
-"""Vehicle detectors behind one interface, ``detect(image, time_s) -> Detections`` (:mod:`.detections`), and the
-factory that builds one from a ``--detector`` value. The detectors live in their own modules
-(:mod:`.background`, :mod:`.onnx_detect`); their names are re-exported here.
-
-Images are (H, W, 3) uint8 **BGR** frames (OpenCV order). Boxes are ``x1, y1, x2, y2`` in full-frame pixels in the
-OpenCV pixel-centre convention (pixel (0, 0) is the *centre* of the top-left pixel, so a blob covering pixel columns
-``i..j`` spans ``x1 = i - 0.5`` to ``x2 = j + 0.5``); scores are in [0, 1]; classes are the names used downstream
-(``car, van, truck, bus, motorcycle, bicycle``; ``""`` = unknown).
-
-* :class:`BackgroundDetector` (the default, no weights needed) for a **fixed** camera: background subtraction
-  (OpenCV MOG2 or KNN with shadow detection) on a downscaled frame, then morphology, connected components, an
-  optional region of interest, the merging of a vehicle's parts and the splitting of blobs of touching vehicles,
-  and, given a calibrated camera and a road surface, a size filter and a size-based class in metres on the ground
-  (rules in the class docstring). It finds what moves: vehicles that touch in the image often stay one blob.
-* :class:`OnnxDetector` runs an ONNX export with onnxruntime, in any layout of :mod:`.onnx_formats` (YOLOv5/v7,
-  YOLOv8/11, end-to-end YOLOv10/YOLO26, YOLOX, RT-DETR/D-FINE/DEIM, RF-DETR, NanoDet), recognised from the model or
-  named with ``detector_format``. trafficgeo never downloads weights: bring your own ``.onnx`` file.
-* :func:`make_detector` builds either from a short spec (a name of
-  :data:`trafficgeo.video.detector_names.DETECTOR_NAMES` or the path of an ``.onnx`` file).
-"""
+"""The detector factory: :func:`make_detector` builds a detector from a ``--detector`` value (a name of
+:data:`~trafficgeo.video.detectors.names.DETECTOR_NAMES` or the path of an ``.onnx`` file) and
+:func:`check_detector` checks one before a run writes anything. The detectors themselves are described in
+:mod:`trafficgeo.video.detectors`."""
 
 from __future__ import annotations
 
@@ -27,40 +11,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.background import (  # noqa: F401 (re-exported)
-    GAIN_STEP,
-    WARMUP_FRAMES,
-    WARMUP_S,
-    BackgroundDetector,
-    temporal_mode,
-)
-from trafficgeo.video.blobs import (  # noqa: F401 (re-exported)
-    BlobSizes,
-    SizeRules,
-    _Blobs,
-    blob_ground_size,
-    classify_sizes,
-    group_pairs,
-    merge_candidates,
-    split_mask,
-)
-from trafficgeo.video.detections import (  # noqa: F401 (re-exported)
-    COCO_VEHICLES,
-    Detections,
-    Detector,
-    box_iou,
-    check_image,
-    check_roi,
-    in_roi,
-)
-from trafficgeo.video.detector_names import DETECTOR_NAMES, ONNX_HINT, detector_kind  # noqa: F401 (re-exported)
-from trafficgeo.video.onnx_detect import (  # noqa: F401 (re-exported)
-    ONNX_SHAPES,
-    OnnxDetector,
-    letterbox,
-    yolo_anchor_counts,
-)
-from trafficgeo.video.onnx_formats import format_name
+from trafficgeo.video.detections import Detector
+from trafficgeo.video.detectors.background import WARMUP_S, BackgroundDetector
+from trafficgeo.video.detectors.names import detector_kind
+from trafficgeo.video.detectors.onnx import OnnxDetector
+from trafficgeo.video.detectors.onnx_formats import format_name
+from trafficgeo.video.detectors.sizes import SizeRules
 
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera
@@ -87,7 +43,7 @@ def check_detector(spec: str, detector_format: str | None = None) -> str:
     if kind == "onnx":
         OnnxDetector(str(spec).strip(), format=fmt, threads=1)
     elif kind == "nanodet":
-        from trafficgeo.video.learned import BUILTIN, builtin_model_path
+        from trafficgeo.video.detectors.learned import BUILTIN, builtin_model_path
 
         builtin_model_path(BUILTIN)
     return kind
@@ -104,13 +60,13 @@ def make_detector(spec: str = "background", *, camera: Camera | None = None, sur
     ``.onnx`` model (:class:`OnnxDetector` of layout ``detector_format``, default recognised from the model;
     ``conf`` default the layout's; ``camera`` and ``surface`` are not used, ``roi`` keeps detections whose bottom
     centre lies inside it), or "nanodet", the built-in learned detector
-    (:func:`trafficgeo.video.learned.make_learned_detector`: tiled over the counted ``road`` (lanes, else ``roi``)
-    when ``tiles`` and a calibrated ``camera`` and ``surface`` are given). ``warmup_s``: the background detector's
-    warm-up (s of video)."""
+    (:func:`trafficgeo.video.detectors.learned.make_learned_detector`: tiled over the counted ``road`` (lanes,
+    else ``roi``) when ``tiles`` and a calibrated ``camera`` and ``surface`` are given). ``warmup_s``: the
+    background detector's warm-up (s of video)."""
     kind = detector_kind(spec)
     fmt = _check_format(kind, spec, detector_format)
     if kind == "nanodet":
-        from trafficgeo.video.learned import make_learned_detector
+        from trafficgeo.video.detectors.learned import make_learned_detector
 
         return make_learned_detector(camera=camera, surface=surface, road=road, roi=roi, tiles=tiles, conf=conf,
                                      iou=iou, tiling=tiling)

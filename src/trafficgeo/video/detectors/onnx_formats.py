@@ -1,4 +1,4 @@
-"""The ONNX detector layouts :class:`trafficgeo.video.onnx_detect.OnnxDetector` decodes: one small spec each
+"""The ONNX detector layouts :class:`trafficgeo.video.detectors.onnx.OnnxDetector` decodes: one small spec each
 (:class:`Layout`): how a model is recognised (output names, shapes, ``metadata_props``), its pre-processing
 (:class:`Preprocess`: colour order, mean/std, letterbox centred / top-left / plain resize, pad value) and a
 vectorised decode of its outputs to boxes ``x1, y1, x2, y2`` in model-input pixels (corner origin), scores and

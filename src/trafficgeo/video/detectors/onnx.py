@@ -1,6 +1,6 @@
 """Bring-your-own ONNX detectors run with onnxruntime (:class:`OnnxDetector`), in every common export layout
-(:mod:`trafficgeo.video.onnx_formats`: YOLOv5/v7, YOLOv8/11, end-to-end YOLOv10/YOLO26, YOLOX, RT-DETR/D-FINE/DEIM,
-ultralytics RT-DETR, RF-DETR, NanoDet). trafficgeo never downloads weights. Pixels follow
+(:mod:`trafficgeo.video.detectors.onnx_formats`: YOLOv5/v7, YOLOv8/11, end-to-end YOLOv10/YOLO26, YOLOX,
+RT-DETR/D-FINE/DEIM, ultralytics RT-DETR, RF-DETR, NanoDet). trafficgeo never downloads weights. Pixels follow
 :mod:`trafficgeo.video.detections`."""
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import numpy as np
 
 from trafficgeo.errors import InputError
 from trafficgeo.video.detections import Detections, check_image, in_roi
-from trafficgeo.video.detector_names import ONNX_HINT
-from trafficgeo.video.onnx_formats import (
+from trafficgeo.video.detectors.names import ONNX_HINT
+from trafficgeo.video.detectors.onnx_formats import (
     IDENTITY,
     P5,
     P6,
@@ -102,9 +102,9 @@ def _one_line(exc: Exception) -> str:
 
 
 class OnnxDetector:
-    """An ONNX detector of any layout of :mod:`trafficgeo.video.onnx_formats`, run with onnxruntime.
+    """An ONNX detector of any layout of :mod:`trafficgeo.video.detectors.onnx_formats`, run with onnxruntime.
 
-    ``format``: the layout (a name or alias of :data:`~trafficgeo.video.onnx_formats.LAYOUTS`), or ``None``/
+    ``format``: the layout (a name or alias of :data:`~trafficgeo.video.detectors.onnx_formats.LAYOUTS`), or ``None``/
     ``"auto"`` to recognise it from the outputs' names and shapes and the model's metadata (an InputError naming
     the outputs found when no layout or several fit). Frames are pre-processed as the layout wants (colour order,
     scale, mean/std, letterbox or plain resize), decoded, kept when of a class in ``class_map`` (model class id ->

@@ -5,8 +5,9 @@ A square tile at a fixed 416 px input spends most of its pixels off the road or 
 view along a road is a wedge; the far road needs zoom 1.7x, the middle 0.3-1x). :func:`plan_bands` works in
 *bands of zoom* instead:
 
-1. Each road point (:func:`~trafficgeo.video.tiling.road_view`) needs the zoom ``min_size_px / car size there``
-   (px in the model input per frame px), at most ``max_upscale``; points the full frame already serves need none.
+1. Each road point (:func:`~trafficgeo.video.detectors.tiling.road_view`) needs the zoom
+   ``min_size_px / car size there`` (px in the model input per frame px), at most ``max_upscale``; points the full
+   frame already serves need none.
 2. Sorted from the largest zoom down, points are cut into bands whose zooms lie within a factor ``ratio`` of the
    band's largest; the band runs at that zoom.
 3. A band's rectangle is the bounding box of the *large* vehicle (a truck, :data:`LARGE_VEHICLE_M`) standing at each
@@ -17,7 +18,7 @@ view along a road is a wedge; the far road needs zoom 1.7x, the middle 0.3-1x). 
 5. The cost of a plan is the model input pixels per frame plus ``pass_cost_px`` per run (onnxruntime's fixed cost
    per call); of the ``ratios`` tried, the cheapest plan wins.
 
-Conventions (pixels, tiles, world units) follow :mod:`trafficgeo.video.tiling`.
+Conventions (pixels, tiles, world units) follow :mod:`trafficgeo.video.detectors.tiling`.
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.traffic.lanes import Lanes
-from trafficgeo.video.tiled_detector import CUT_MARGIN_PX
-from trafficgeo.video.tiling import (
+from trafficgeo.video.detectors.tiled import CUT_MARGIN_PX
+from trafficgeo.video.detectors.tiling import (
     LARGE_VEHICLE_M,
     REFERENCE_CAR_M,
     TilePlan,
@@ -55,7 +56,7 @@ def input_hw_for(hw_px: tuple[float, float], zoom: float, stride_px: int = 32) -
 
 def _bbox(boxes: np.ndarray, frame_shape: tuple[int, int]) -> np.ndarray:
     """Integer tile ``x0, y0, x1, y1`` holding ``boxes`` (N, 4) whole (more than the cut margin inside every edge
-    that is not a frame edge; see :func:`trafficgeo.video.tiling._contains`)."""
+    that is not a frame edge; see :func:`trafficgeo.video.detectors.tiling._contains`)."""
     h, w = frame_shape
     m = CUT_MARGIN_PX
     x0 = math.floor(boxes[:, 0].min() + 0.5 - m) - 1
