@@ -347,7 +347,7 @@ def test_yolox_raw_or_decoded(tmp_path: Path) -> None:
     them in one line, and the named format decides (and decodes with its own padding)."""
     assert looks_decoded(enc_yolox_decoded()[0], (S, S)) and not looks_decoded(enc_yolox_raw()[0], (S, S))
     path = model(tmp_path / "xd.onnx", {"output": enc_yolox_decoded()})
-    with pytest.raises(InputError, match="--detector-format yolox") as err:
+    with pytest.raises(InputError, match="detector_format yolox") as err:
         OnnxDetector(path)
     assert "\n" not in str(err.value) and "[1, 2100, 85]" in str(err.value)
     det = OnnxDetector(path, format="yolox")
@@ -379,11 +379,11 @@ def test_recognition_from_metadata(tmp_path: Path) -> None:
         with pytest.raises(InputError, match="cannot decode") as err:
             OnnxDetector(model(tmp_path / "bad.onnx", {"output0": np.zeros(shape, np.float32)}))
         msg = str(err.value)
-        assert "\n" not in msg and str(list(shape)) in msg and "--detector-format" in msg, msg
+        assert "\n" not in msg and str(list(shape)) in msg and "detector_format" in msg, msg
     with pytest.raises(InputError, match=r"fit several layouts \(end2end, yolox\)") as err:  # 1 class, or 2100 boxes?
         OnnxDetector(model(tmp_path / "six.onnx", {"output0": np.zeros((1, 2100, 6), np.float32)}))
     assert "output0 [1, 2100, 6]" in str(err.value) and "\n" not in str(err.value)
-    with pytest.raises(InputError, match="do not fit --detector-format nanodet") as err:
+    with pytest.raises(InputError, match="do not fit detector_format nanodet") as err:
         OnnxDetector(case("yolov8", tmp_path / "v8.onnx"), format="nanodet")
     assert "output0 [1, 84, 2100]" in str(err.value)
     with pytest.raises(InputError, match="not known"):
@@ -449,7 +449,7 @@ def test_detector_format_reaches_the_run(tmp_path: Path) -> None:
     from video_support import write_two_car_video
 
     path = model(tmp_path / "xd.onnx", {"output": enc_yolox_decoded()})
-    with pytest.raises(InputError, match="--detector-format yolox"):
+    with pytest.raises(InputError, match="detector_format yolox"):
         ProcessOptions(detector=str(path))
     with pytest.raises(InputError, match="applies to an ONNX model"):
         ProcessOptions(detector="bg", detector_format="yolox")

@@ -216,7 +216,7 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "fps": "--fps", "coast_hidden_s": "--coast-hidden", "camera": "--camera",
          "calibration_report": "--calibration-report", "frame": "--frame", "video": "--video", "ortho": "--ortho",
          "dem": "--dem", "cloud": "--cloud", "at_s": "--at", "gcps": "--gcps", "workdir": "--workdir",
-         "port": "--port", "host": "--host",
+         "port": "--port", "host": "--host", "detector": "--detector", "detector_format": "--detector-format",
          "lanes": "--lanes", "lines": "--lines"}
 
 

@@ -89,7 +89,10 @@ def read_background(path: Path, bounds: tuple[float, float, float, float], crs: 
     """
     from trafficgeo.geo.raster_display import display_rgb, read_display
 
-    shown = read_display(path, max_px, bounds=bounds, crs=crs, north_up=True, what="--ortho")
+    try:
+        shown = read_display(path, max_px, bounds=bounds, crs=crs, north_up=True, what="ortho")
+    except InputError as exc:
+        raise InputError(str(exc), parameters=("ortho",)) from None
     if shown is None:
         return None
     img = display_rgb(shown.data, shown.valid) / 255.0
@@ -158,7 +161,10 @@ def _load(b: ReportContext) -> None:
     if inp.ortho is not None:
         from trafficgeo.geo.raster import open_raster
 
-        open_raster(inp.ortho, "--ortho")[0].close()  # unreadable: fail now, before any work
+        try:
+            open_raster(inp.ortho, "ortho")[0].close()  # unreadable: fail now, before any work
+        except InputError as exc:
+            raise InputError(str(exc), parameters=("ortho",)) from None
         b.used.append(("orthophoto", str(inp.ortho)))
 
 

@@ -116,7 +116,7 @@ def load_video_frame(path: str | Path, at_s: float) -> FrameImage:
 
 # --------------------------------------------------------------------------------------------------- orthophoto
 def _to_display(raster: DisplayRaster) -> np.ndarray:
-    """8-bit BGRA image of a raster: colours from :func:`~trafficgeo.geo.raster.display_rgb`, band 4 of 8-bit
+    """8-bit BGRA image of a raster: colours from :func:`~trafficgeo.geo.raster_display.display_rgb`, band 4 of 8-bit
     rasters as alpha; nodata cells are transparent."""
     data = raster.data
     n = data.shape[0]
@@ -203,7 +203,7 @@ class Orthophoto:
 
     @classmethod
     def from_display(cls, display: DisplayRaster) -> Orthophoto:
-        """From an orthophoto read for display (:func:`~trafficgeo.geo.raster.read_display`, whole raster)."""
+        """From an orthophoto read for display (:func:`~trafficgeo.geo.raster_display.read_display`, whole raster)."""
         crs = display.crs
         if crs is not None and is_geographic(crs):
             raise InputError(f"orthophoto {display.path} is in the geographic CRS {crs_label(crs)} (degrees); "
@@ -218,7 +218,7 @@ def load_ortho(path: str | Path) -> Orthophoto:
     """Read a georeferenced orthophoto (a GeoTIFF, or any GDAL raster with a geotransform or a world file).
 
     Orthophotos above :data:`MAX_DISPLAY_PX` on a side are read decimated by an integer factor
-    (:func:`~trafficgeo.geo.raster.read_display`), so even huge files need little memory; coordinates always use
+    (:func:`~trafficgeo.geo.raster_display.read_display`), so even huge files need little memory; coordinates always use
     the full-resolution grid.
     """
     display = read_display(path, MAX_DISPLAY_PX, what="orthophoto")

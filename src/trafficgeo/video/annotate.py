@@ -40,7 +40,7 @@ def annotate_video(video: str | Path, output: str | Path, tracks: pd.DataFrame, 
 
     out = Path(output)
     if out.suffix.lower() not in (".mp4", ".mov", ".mkv"):
-        raise InputError(f"--annotate {out}: write the annotated video as .mp4")
+        raise InputError(f"annotate {out}: write the annotated video as .mp4", parameters=("annotate",))
     info = video_info(video)
     rows = _label_rows(tracks, points)
     by_frame = rows.groupby("frame").indices

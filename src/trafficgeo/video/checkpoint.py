@@ -328,8 +328,8 @@ def hold_folder(folder: str | os.PathLike[str]) -> Iterator[None]:
             os.lseek(fd, 0, os.SEEK_SET)
             holder = os.read(fd, 32).decode("ascii", "replace").strip()
             who = f" (pid {holder})" if holder.isdigit() else ""
-            raise InputError(f"--out {root}: another trafficgeo run{who} is writing to this folder; wait for it to "
-                             "end or give another --out") from None
+            raise InputError(f"out_dir {root}: another trafficgeo run{who} is writing to this folder; wait for it to "
+                             "end or give another out_dir", parameters=("out_dir",)) from None
         os.ftruncate(fd, 0)
         os.lseek(fd, 0, os.SEEK_SET)
         os.write(fd, f"{os.getpid()}\n".encode())

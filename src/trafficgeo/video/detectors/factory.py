@@ -30,8 +30,8 @@ def _check_format(kind: str, spec: str, detector_format: str | None) -> str | No
     background subtraction detector."""
     fmt = format_name(detector_format)
     if fmt is not None and kind != "onnx":
-        raise InputError(f"--detector-format {detector_format} applies to an ONNX model (--detector PATH.onnx), "
-                         f"not to --detector {spec}")
+        raise InputError(f"detector_format {detector_format} applies to an ONNX model (`detector` PATH.onnx), "
+                         f"not to `detector` {spec}", parameters=("detector_format", "detector"))
     return fmt
 
 

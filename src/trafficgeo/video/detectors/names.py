@@ -12,8 +12,10 @@ from trafficgeo.errors import InputError
 
 ONNX_HINT = ("trafficgeo never downloads weights: export a detector to ONNX on a machine of your choice (YOLOv5/v7, "
              "YOLOv8/11, YOLOv10/YOLO26, YOLOX, RT-DETR, D-FINE, DEIM, RF-DETR or NanoDet; e.g. ultralytics "
-             "`yolo export model=yolo11n.pt format=onnx`), pass --detector PATH.onnx, and --detector-format NAME "
-             "if its layout is not recognised")
+             "yolo export model=yolo11n.pt format=onnx), give its path as `detector` (PATH.onnx), and "
+             "detector_format NAME if its layout is not recognised")
+#: the parameters :data:`ONNX_HINT` names (for :class:`~trafficgeo.errors.InputError`)
+DETECTOR_PARAMETERS = ("detector", "detector_format")
 # The detector names a user may give, and the kind each stands for ("mog2"/"knn": BackgroundDetector's method).
 DETECTOR_NAMES: dict[str, str] = {"nanodet": "nanodet", "learned": "nanodet", "background": "mog2", "bg": "mog2",
                                   "mog2": "mog2", "knn": "knn"}
@@ -34,11 +36,13 @@ def detector_kind(spec: str) -> str:
     path = Path(s)
     if key.endswith(".onnx") or path.is_file():
         if path.is_dir() or not path.is_file():
-            raise InputError(f"--detector {s}: ONNX model not found; put the .onnx file there ({ONNX_HINT})")
+            raise InputError(f"detector {s}: ONNX model not found; put the .onnx file there ({ONNX_HINT})",
+                             parameters=DETECTOR_PARAMETERS)
         if not key.endswith(".onnx"):
-            raise InputError(f"--detector {s}: a detector model must be an .onnx file; {ONNX_HINT}")
+            raise InputError(f"detector {s}: a detector model must be an .onnx file; {ONNX_HINT}",
+                             parameters=DETECTOR_PARAMETERS)
         return "onnx"
-    raise InputError(f"--detector {s!r} is not known; use {DETECTOR_HELP}")
+    raise InputError(f"detector {s!r} is not known; use {DETECTOR_HELP}", parameters=DETECTOR_PARAMETERS)
 
 
 def is_background(spec: str) -> bool:

@@ -13,7 +13,7 @@ import numpy as np
 
 from trafficgeo.errors import InputError
 from trafficgeo.video.detections import Detections, check_image, in_roi
-from trafficgeo.video.detectors.names import ONNX_HINT
+from trafficgeo.video.detectors.names import DETECTOR_PARAMETERS, ONNX_HINT
 from trafficgeo.video.detectors.onnx_formats import (
     IDENTITY,
     P5,
@@ -124,7 +124,7 @@ class OnnxDetector:
         p = Path(model_path)
         if not p.is_file():
             raise InputError(f"{p}: ONNX model not found; put the .onnx file there or pass its path with "
-                             f"--detector PATH.onnx ({ONNX_HINT})")
+                             f"`detector` ({ONNX_HINT})", parameters=DETECTOR_PARAMETERS)
         fmt = format_name(format)
         if input_size is not None and (int(input_size) != input_size or input_size < 32):
             raise InputError(f"OnnxDetector: input_size {input_size!r} must be a whole number of pixels >= 32")
@@ -141,14 +141,15 @@ class OnnxDetector:
         try:
             self._session = ort.InferenceSession(str(p), sess_options=opts, providers=chosen)
         except Exception as exc:  # onnxruntime raises its own exception types for bad files
-            raise InputError(f"{p}: not a usable ONNX model ({_one_line(exc)}); {ONNX_HINT}") from None
+            raise InputError(f"{p}: not a usable ONNX model ({_one_line(exc)}); {ONNX_HINT}",
+                             parameters=DETECTOR_PARAMETERS) from None
         self.path = p
         self.providers = list(self._session.get_providers())
         io = self._describe(input_size)
         try:
             layout, fit = recognise(io, fmt)
         except InputError as exc:
-            raise InputError(f"{p}: {exc}; {ONNX_HINT}") from None
+            raise InputError(f"{p}: {exc}; {ONNX_HINT}", parameters=DETECTOR_PARAMETERS) from None
         self.layout, self.input_hw = layout, io.input_hw
         roles = list(fit.roles.items())
         self._roles = [r for r, _ in roles]
@@ -204,10 +205,12 @@ class OnnxDetector:
         images = [a for a in inputs if len(a.shape) == 4 and a.shape[1] in (3, None)]
         if len(images) != 1:
             raise InputError(f"{p}: expected one image input of shape [1, 3, H, W], found "
-                             f"{[(a.name, list(a.shape)) for a in inputs]}; {ONNX_HINT}")
+                             f"{[(a.name, list(a.shape)) for a in inputs]}; {ONNX_HINT}",
+                             parameters=DETECTOR_PARAMETERS)
         image = images[0]
         if image.type not in ("tensor(float)", "tensor(float16)"):
-            raise InputError(f"{p}: the model's input is {image.type}, not float32 or float16; {ONNX_HINT}")
+            raise InputError(f"{p}: the model's input is {image.type}, not float32 or float16; {ONNX_HINT}",
+                             parameters=DETECTOR_PARAMETERS)
         self._image, self._extra = image, [a for a in inputs if a is not image]
         self._in_dtype = np.float16 if image.type == "tensor(float16)" else np.float32
         self._batch = image.shape[0]
@@ -223,7 +226,7 @@ class OnnxDetector:
                 h, w = h or int(input_size or 640), w or int(input_size or 640)
         outputs = [_port(a) for a in self._session.get_outputs()]
         if not outputs:
-            raise InputError(f"{p}: the model has no output; {SUPPORTED}; {ONNX_HINT}")
+            raise InputError(f"{p}: the model has no output; {SUPPORTED}; {ONNX_HINT}", parameters=DETECTOR_PARAMETERS)
         if any(None in o.shape for o in outputs):
             self._out_names = [o.name for o in outputs]
             self._roles = self._out_names
@@ -248,7 +251,8 @@ class OnnxDetector:
             return self._session.run(self._out_names, feeds)
         except Exception as exc:  # onnxruntime's own exception types (shape mismatch inside the graph, ...)
             raise InputError(f"{self.path}: the model failed on a {frame_wh[0]}x{frame_wh[1]} frame fed as "
-                             f"{blob.shape[3]}x{blob.shape[2]} ({_one_line(exc)}); {ONNX_HINT}") from None
+                             f"{blob.shape[3]}x{blob.shape[2]} ({_one_line(exc)}); {ONNX_HINT}",
+                             parameters=DETECTOR_PARAMETERS) from None
 
     def _infer(self, blob: np.ndarray, frame_wh: tuple[int, int]) -> list[dict[str, np.ndarray]]:
         """Per image of ``blob`` [B, 3, h, w], its outputs by role (batch dimension removed, float32): runs of the

@@ -385,7 +385,8 @@ def _settle_yolox(io: ModelIO, fit: Fit, out: Mapping[str, np.ndarray], forced: 
         shape = list(io.output(fit.roles["pred"]).shape)
         raise InputError(f"outputs {fit.roles['pred']} {shape} hold decoded boxes with an objectness score: a "
                          "YOLOX export with decoding or a YOLOv5/YOLOv6-style export, which differ in colour order "
-                         "and padding; pass --detector-format yolox or --detector-format yolov5")
+                         "and padding; pass detector_format yolox or detector_format yolov5",
+                         parameters=("detector_format",))
     return replace(fit, options={"decoded": decoded})
 
 
@@ -557,7 +558,7 @@ def format_name(name: str | None) -> str | None:
         return None
     key = FORMAT_ALIASES.get(key, key)
     if key not in LAYOUTS:
-        raise InputError(f"--detector-format {name!r} is not known; use {FORMAT_HELP}")
+        raise InputError(f"detector_format {name!r} is not known; use {FORMAT_HELP}", parameters=("detector_format",))
     return key
 
 
@@ -576,7 +577,7 @@ def recognise(io: ModelIO, fmt: str | None = None) -> tuple[Layout, Fit]:
         fit = LAYOUTS[name].fit(io, True)
         if fit is None:
             raise InputError(f"outputs {_shapes(io)} (input {io.input_hw[1]}x{io.input_hw[0]}) do not fit "
-                             f"--detector-format {name} ({LAYOUTS[name].title})")
+                             f"detector_format {name} ({LAYOUTS[name].title})", parameters=("detector_format",))
         return LAYOUTS[name], fit
     fits = [(lay, f) for lay in LAYOUTS.values() if (f := lay.fit(io, False)) is not None]
     if not fits:
@@ -585,5 +586,5 @@ def recognise(io: ModelIO, fmt: str | None = None) -> tuple[Layout, Fit]:
     best = [(lay, f) for lay, f in fits if f.sure] or fits
     if len(best) > 1:
         raise InputError(f"outputs {_shapes(io)} fit several layouts (" + ", ".join(lay.name for lay, _ in best)
-                         + "); pass --detector-format with one of them")
+                         + "); pass detector_format with one of them", parameters=("detector_format",))
     return best[0]
