@@ -1,4 +1,4 @@
-"""``trafficgeo.video.detectors.blobs.group_pairs`` (connected components of joined blobs) against the union-find it
+"""``trafficgeo.groups.group_pairs`` (connected components of joined blobs) against the union-find it
 replaced, on random pair lists: the same groups, in the same order (of first member), members ascending."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from trafficgeo.video.detectors.blobs import group_pairs
+from trafficgeo.groups import group_pairs
 
 
 def union_find_groups(n: int, pairs: np.ndarray) -> list[list[int]]:

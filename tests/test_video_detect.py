@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 
 from trafficgeo.errors import InputError
+from trafficgeo.groups import group_pairs
 from trafficgeo.video.detections import Detections, Detector, box_iou
 from trafficgeo.video.detections_io import (
     detections_for_frame,
@@ -19,7 +20,7 @@ from trafficgeo.video.detections_io import (
     write_detections,
 )
 from trafficgeo.video.detectors.background import BackgroundDetector, temporal_mode
-from trafficgeo.video.detectors.blobs import group_pairs, merge_candidates, split_mask
+from trafficgeo.video.detectors.blobs import merge_candidates, split_mask
 from trafficgeo.video.detectors.factory import make_detector
 from trafficgeo.video.detectors.onnx import OnnxDetector, letterbox
 from trafficgeo.video.detectors.sizes import SizeRules, blob_ground_size, classify_sizes

@@ -50,7 +50,7 @@ def test_one_table_of_detector_names(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="not known") as err:
         detector_kind("yolo-please")
     assert "'bg'" in str(err.value) and "\n" not in str(err.value)
-    with pytest.raises(InputError, match="^detector ") as err:
+    with pytest.raises(InputError, match=r"^detector ") as err:
         detector_kind(str(tmp_path / "yolo11n.onnx"))
     assert "--model" not in str(err.value)
     with pytest.raises(InputError, match="pass its path with `detector`"):

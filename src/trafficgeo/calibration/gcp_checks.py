@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pyproj
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from trafficgeo.calibration.gcp_table import (
@@ -18,6 +16,7 @@ from trafficgeo.crs import (
     metres_per_unit,
 )
 from trafficgeo.errors import InputError
+from trafficgeo.groups import group_pairs
 
 # ------------------------------------------------------------------------------------------ validation
 
@@ -46,14 +45,7 @@ def _unit(crs: pyproj.CRS | None) -> str:
 def _clusters(points: np.ndarray, tol: float) -> list[list[int]]:
     """Single-linkage groups of points closer than ``tol`` (connected components of the close pairs), each sorted,
     in order of first row."""
-    n = len(points)
-    pairs = cKDTree(points).query_pairs(tol, output_type="ndarray").reshape(-1, 2)
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    labels = connected_components(graph, directed=False)[1]
-    groups: dict[int, list[int]] = {}
-    for i, label in enumerate(labels.tolist()):
-        groups.setdefault(label, []).append(i)
-    return list(groups.values())
+    return group_pairs(len(points), cKDTree(points).query_pairs(tol, output_type="ndarray"))
 
 
 def _flatness(points: np.ndarray) -> float:

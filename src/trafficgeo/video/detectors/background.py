@@ -13,12 +13,12 @@ import cv2
 import numpy as np
 
 from trafficgeo.errors import InputError
+from trafficgeo.groups import group_pairs
 from trafficgeo.video.detections import Detections, check_image, check_roi
 from trafficgeo.video.detectors.blobs import (
     _Blobs,
     _tight_part,
     _union_boxes,
-    group_pairs,
     merge_candidates,
     split_mask,
 )

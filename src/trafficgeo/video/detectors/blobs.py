@@ -8,8 +8,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 
 # ---------------------------------------------------------------------------------------------------- blobs
@@ -33,20 +31,6 @@ def merge_candidates(boxes: np.ndarray, *, min_overlap: float = 0.5, max_gap: fl
     join = ((overlap >= min_overlap * np.minimum(w[:, None], w[None, :]))
             & (gap <= max_gap * np.minimum(h[:, None], h[None, :])))
     return np.argwhere(np.triu(join, k=1)).astype(np.int64).reshape(-1, 2)
-
-
-def group_pairs(n: int, pairs: np.ndarray) -> list[list[int]]:
-    """Groups of ``range(n)`` joined by ``pairs`` (P, 2), transitively (connected components), each ascending, in
-    order of first member."""
-    if n == 0:
-        return []
-    p = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    graph = coo_matrix((np.ones(len(p)), (p[:, 0], p[:, 1])), shape=(n, n))
-    labels = connected_components(graph, directed=False)[1]
-    groups: dict[int, list[int]] = {}
-    for i, label in enumerate(labels.tolist()):
-        groups.setdefault(label, []).append(i)
-    return list(groups.values())
 
 
 def split_mask(mask: np.ndarray, *, defect_ratio: float = 0.15, valley_ratio: float | None = 0.6,
