@@ -137,6 +137,7 @@ def test_library_errors_name_parameters_and_the_cli_names_flags(tmp_path: Path, 
     assert "error: --start 5.0 / --end 2.0: need 0 <= --start < --end" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_analyze_outputs_equal_those_of_the_release_before_the_api(tmp_path: Path) -> None:
     # tests/data/api-reference: outputs written by the code before the Python API (see its SOURCE.txt), from the
     # same deterministic input; the API and RunFolder must give the same values.

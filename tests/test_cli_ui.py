@@ -75,6 +75,7 @@ def test_serves_the_session_and_prints_the_address(scene, tmp_path, served):
         assert c.get("/", headers={"host": "evil.example"}).status_code == 400  # loopback: Host is checked
 
 
+@pytest.mark.slow
 def test_frame_from_a_video(scene, video, tmp_path, served):
     code, out, err = invoke("gcp-ui", "--video", video, "--at", 0.55, "--ortho", scene.ortho, "--port", 0,
                             "--workdir", tmp_path)

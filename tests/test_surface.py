@@ -131,6 +131,7 @@ def test_dem_maps_check_pixels_to_the_true_ground(crowned_road):
     assert np.median(np.linalg.norm(gp.xyz[far] - truth[keep][far], axis=1)) > 0.5
 
 
+@pytest.mark.slow
 def test_dem_hit_equals_surface_and_round_trips(crowned_road):
     _, dem = crowned_road
     cam = road_camera()

@@ -40,6 +40,7 @@ def test_geotiff_is_georeferenced_rgb(ortho):
     assert ortho.bounds == pytest.approx(BOUNDS)
 
 
+@pytest.mark.slow
 def test_markings_lie_where_the_geometry_puts_them(ortho):
     s_dash = np.arange(-18.0, 18.0, 9.0) + 1.5  # dash centres (phase 0, 3 m dashes every 9 m)
     s_gap = s_dash + 4.5

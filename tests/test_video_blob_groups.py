@@ -42,6 +42,7 @@ def graphs(draw: st.DrawFn) -> tuple[int, np.ndarray]:
     return n, np.array(pairs, dtype=np.int64).reshape(-1, 2)
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(graphs())
 def test_group_pairs_equals_the_union_find(graph: tuple[int, np.ndarray]) -> None:

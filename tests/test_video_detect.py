@@ -144,6 +144,7 @@ def test_background_finds_moving_boxes(synthetic_run: dict[str, object], name: s
         assert list(det.classes) == ["", ""]
 
 
+@pytest.mark.slow
 def test_background_static_frame_and_roi(synthetic_run: dict[str, object]) -> None:
     det: BackgroundDetector = synthetic_run["plain_detector"]
     rng = np.random.default_rng(11)
