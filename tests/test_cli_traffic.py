@@ -129,8 +129,8 @@ BAD = {
     "missing_lanes": (lambda s, t: ["--fps", 25, "--lanes", t / "nope.gpkg"], "not found"),
     "points_as_lanes": (lambda s, t: ["--fps", 25, "--lanes", _points_file(t)], "lane polygons"),
     "line_off_road": (lambda s, t: ["--fps", 25, "--lines", _sky_line(t)], "does not map to the road"),
-    "bad_sigma": (lambda s, t: ["--fps", 25, "--pixel-sigma", -1], "pixel_sigma"),
-    "bad_coast": (lambda s, t: ["--fps", 25, "--coast-hidden", -2], "coast_hidden_s=-2.0 is out of range"),
+    "bad_sigma": (lambda s, t: ["--fps", 25, "--pixel-sigma", -1], "option --pixel-sigma=-1.0 is out of range"),
+    "bad_coast": (lambda s, t: ["--fps", 25, "--coast-hidden", -2], "option --coast-hidden=-2.0 is out of range"),
 }
 
 

@@ -215,8 +215,8 @@ def test_a_folder_that_cannot_take_a_file_is_found_first(tmp_path: Path, monkeyp
     (["--fps", 1e-300], "--fps 1e-300 is not a video frame rate"),
     (["--fps", 5000], "--fps 5000 is not a video frame rate"),
     (["--coast-hidden", 1e9], "trajectory option --coast-hidden=1e+09 is more than 30 s"),
-    (["--pixel-sigma", "inf"], "pixel_sigma=inf must be a finite number"),
-    (["--resolution", "inf"], "--resolution inf"),
+    (["--pixel-sigma", "inf"], "trajectory option --pixel-sigma=inf must be a finite number"),
+    (["--resolution", "inf"], "--resolution inf: must be a positive cell size"),
 ])
 def test_numeric_options_out_of_range_are_one_line_errors(extra: list, expect: str,
                                                           scene: dict[str, Path], tmp_path: Path) -> None:  # noqa: F811

@@ -26,9 +26,9 @@ def _camera(path: Path):
 
 def _surface(spec: str, camera, doc, surface_crs: str | None, resolution: float, where: str):
     from trafficgeo.geo.load import load_surface
+    from trafficgeo.traffic.loading import check_resolution
 
-    if not (resolution > 0 and resolution < float("inf")):
-        raise InputError(f"--resolution {resolution} must be a positive cell size in metres, e.g. 0.25")
+    check_resolution(resolution)
     return load_surface(spec, camera, doc, surface_crs=surface_crs, resolution_m=resolution, where=where)
 
 
@@ -119,9 +119,9 @@ def dem(
     from trafficgeo.crs import crs_label
     from trafficgeo.geo.pointcloud import cloud_to_dem, read_point_cloud
     from trafficgeo.geo.raster import write_geotiff
+    from trafficgeo.traffic.loading import check_resolution
 
-    if not resolution > 0:
-        raise InputError(f"--resolution {resolution} must be a positive cell size in metres, e.g. 0.25")
+    check_resolution(resolution)
     if output.suffix.lower() not in (".tif", ".tiff"):
         raise InputError(f"{output}: the DEM is written as a GeoTIFF; name it .tif")
     pc = read_point_cloud(cloud, crs=crs)

@@ -12,7 +12,6 @@ import typer
 from trafficgeo.cli import app, console
 from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt
 from trafficgeo.cli.traffic import IntervalOpt, LanesOpt, LinesOpt, ReportHtmlOpt, _check_out_dir
-from trafficgeo.errors import InputError
 from trafficgeo.video.detectors.names import DETECTOR_HELP
 from trafficgeo.video.detectors.onnx_formats import FORMAT_HELP
 
@@ -59,17 +58,11 @@ def process(
 
     from trafficgeo.cli.report import check_html_path
     from trafficgeo.report.traffic import print_analysis
-    from trafficgeo.traffic.lines import check_interval
     from trafficgeo.video.pipeline import ProcessOptions
     from trafficgeo.video.run import process_video
 
     _check_out_dir(out)
     check_html_path(report_html)
-    check_interval(interval)
-    if annotate is not None and annotate.suffix.lower() != ".mp4":
-        raise InputError(f"--annotate {annotate}: write the annotated video as .mp4")
-    if not (resolution > 0 and resolution < float("inf")):
-        raise InputError(f"--resolution {resolution} must be a positive cell size in metres, e.g. 0.25")
     opts = ProcessOptions(detector=detector, detector_format=detector_format, start_s=start, end_s=end, every=every,
                           checkpoint_s=checkpoint, tiles=tiles, tiling=tiling)
     columns = (TextColumn("[progress.description]{task.description}"), BarColumn(),
@@ -125,13 +118,9 @@ def stitch(
 ) -> None:
     """Join the tracks of time chunks of one video (processed apart, e.g. on several machines) and analyze them."""
     from trafficgeo.report.traffic import print_analysis
-    from trafficgeo.traffic.lines import check_interval
     from trafficgeo.video.run import stitch as stitch_runs
 
     _check_out_dir(out)
-    check_interval(interval)
-    if not (resolution > 0 and resolution < float("inf")):
-        raise InputError(f"--resolution {resolution} must be a positive cell size in metres, e.g. 0.25")
     result = stitch_runs(chunks, camera, surface, out, lanes, lines, interval_s=interval, resolution_m=resolution,
                          surface_crs=surface_crs,
                          notice=lambda text: console.print(text, markup=False, highlight=False))

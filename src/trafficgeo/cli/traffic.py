@@ -59,7 +59,7 @@ def analyze(
     from trafficgeo.report.traffic import print_analysis
     from trafficgeo.traffic.analyze import analyze_tracks
     from trafficgeo.traffic.lines import check_interval
-    from trafficgeo.traffic.loading import load_surface
+    from trafficgeo.traffic.loading import check_resolution, load_surface
     from trafficgeo.traffic.run_folder import RunFolder
     from trafficgeo.traffic.tracks import read_tracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
@@ -67,8 +67,7 @@ def analyze(
     _check_out_dir(out)
     check_html_path(report_html)
     check_interval(interval)
-    if not (resolution > 0 and resolution < float("inf")):
-        raise InputError(f"--resolution {resolution} must be a positive cell size in metres, e.g. 0.25")
+    check_resolution(resolution)
     opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
                              max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
     cam, _doc = _camera(camera)  # a bad camera file is named before the tracks are read

@@ -41,6 +41,14 @@ __all__ = [
 PathLike = str | os.PathLike
 
 
+def check_resolution(resolution_m: float) -> float:
+    """``resolution_m`` if it is a usable cell size (m) for gridding a point cloud, else an InputError."""
+    if not (resolution_m > 0 and resolution_m < float("inf")):
+        raise InputError(f"resolution_m {resolution_m}: must be a positive cell size in metres, e.g. 0.25",
+                         parameters=("resolution_m",))
+    return float(resolution_m)
+
+
 def load_camera_document(camera: Camera | PathLike) -> tuple[Camera, dict[str, Any] | None]:
     """The camera and, when read from a camera JSON, the whole document (its GCPs give the ``"plane"`` surface)."""
     if isinstance(camera, Camera):
@@ -66,8 +74,7 @@ def load_surface(surface: Surface | float | PathLike, camera: Camera | PathLike,
         return surface  # a Surface
     from trafficgeo.geo.load import load_surface as build
 
-    if not (resolution_m > 0 and resolution_m < float("inf")):
-        raise InputError(f"resolution_m {resolution_m}: must be a positive cell size in metres, e.g. 0.25")
+    check_resolution(resolution_m)
     cam, doc = load_camera_document(camera)
     if isinstance(surface, bool) or not isinstance(surface, int | float | str | os.PathLike):
         raise InputError(f"surface: {type(surface).__name__} is not a surface, a number, 'plane' or a file path")

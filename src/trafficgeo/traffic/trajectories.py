@@ -78,7 +78,8 @@ class TrajectoryOptions:
         numbers = {k: v for k, v in asdict(self).items() if isinstance(v, float | int) and not isinstance(v, bool)}
         for name, value in numbers.items():
             if not np.isfinite(value):
-                raise InputError(f"trajectory option {name}={float(value):g} must be a finite number")
+                raise InputError(f"trajectory option {name}={float(value):g} must be a finite number",
+                                 parameters=(name,))
         if self.coast_hidden_s > MAX_COAST_HIDDEN_S:
             raise InputError(f"trajectory option coast_hidden_s={self.coast_hidden_s:g} is more than "
                              f"{MAX_COAST_HIDDEN_S:g} s: nobody stays hidden that long; give e.g. 3 (0: off)",
@@ -92,7 +93,7 @@ class TrajectoryOptions:
             if not ok:
                 need = {"min_points": "at least 2", "coast_hidden_s": "0 (off) or more"}.get(name, "positive")
                 raise InputError(f"trajectory option {name}={getattr(self, name)!r} is out of range; it must be "
-                                 f"{need}")
+                                 f"{need}", parameters=(name,))
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from trafficgeo.geo.mapping import Surface
 from trafficgeo.traffic.analyze import TrafficResult, analyze
 from trafficgeo.traffic.lanes import Lanes
 from trafficgeo.traffic.lines import CountLine, check_interval
-from trafficgeo.traffic.loading import load_camera_document, load_layout, load_surface
+from trafficgeo.traffic.loading import check_resolution, load_camera_document, load_layout, load_surface
 from trafficgeo.traffic.run_folder import RunFolder
 from trafficgeo.traffic.trajectories import TrajectoryOptions
 from trafficgeo.video.pipeline import ProcessOptions
@@ -132,7 +132,7 @@ def process_video(video: PathLike, camera: Camera | PathLike, surface: Surface |
     check_writable_folder(out, "out_dir")
     check_interval(interval_s)
     if annotate is not None and Path(annotate).suffix.lower() != ".mp4":
-        raise InputError(f"annotate {annotate}: write the annotated video as .mp4")
+        raise InputError(f"annotate {annotate}: write the annotated video as .mp4", parameters=("annotate",))
     video = Path(video)
     cam, doc = load_camera_document(camera)
     surf = load_surface(surface, camera if doc is not None else cam, surface_crs=surface_crs,
@@ -218,13 +218,15 @@ def stitch(chunks: Sequence[PathLike], camera: Camera | PathLike, surface: Surfa
     out = Path(out_dir)
     check_writable_folder(out, "out_dir")
     check_interval(interval_s)
+    check_resolution(resolution_m)
     seen: dict[Path, Path] = {}
     for folder in map(Path, chunks):
         key = folder.resolve()
         if key in seen:
             raise InputError(f"{folder}: given twice (as {seen[key]} too); give each chunk once")
         if out.resolve() == key:
-            raise InputError(f"out_dir {out}: is one of the chunks; write the stitched run to a folder of its own")
+            raise InputError(f"out_dir {out}: is one of the chunks; write the stitched run to a folder of its own",
+                             parameters=("out_dir",))
         seen[key] = folder
     read = [_chunk(Path(folder)) for folder in chunks]
     order, problems = plan_chunks([r[1] for r in read], [str(c) for c in chunks], [r[2] for r in read])
