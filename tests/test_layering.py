@@ -1,6 +1,7 @@
 """The import layering docs/architecture.md states: camera -> calibration -> geo -> traffic -> video ->
-synth/report/ui -> demo/cli, with errors, crs, groups and io at the bottom; no module imports a layer above its own
-(imports inside functions and under TYPE_CHECKING count too), and synth, report and ui do not import each other."""
+synth/report/ui -> batch/demo -> cli, with errors, crs, groups and io at the bottom; no module imports a layer above
+its own (imports inside functions and under TYPE_CHECKING count too), and synth, report and ui do not import each
+other."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "trafficgeo"
 # Each top-level part of the package and its layer; a part may import only parts of a lower layer.
 LAYER = {"errors": 0, "crs": 1, "groups": 1, "io": 2, "camera": 3, "calibration": 4, "geo": 5, "traffic": 6, "video": 7,
-         "synth": 8, "report": 8, "ui": 8, "demo": 9, "cli": 10, "__init__": 11}
+         "synth": 8, "report": 8, "ui": 8, "batch": 9, "demo": 9, "cli": 10, "__init__": 11}
 
 
 def part_of(path: Path) -> str:
