@@ -251,12 +251,17 @@ def build_tasks(videos: Sequence[VideoFile], cameras: Mapping[str, CameraEntry],
     """Detect tasks (a file, or windows of at most ``max_window_s`` of it; per camera in time order), then a track
     task per camera and local day depending on every detect task overlapping that day, spanning the day clipped to
     the video coverage. Ids: ``detect/<camera>/<UTC start as YYYYmmddTHHMMSSZ>`` (``+<offset_s>`` added only to
-    keep an id unique) and ``track/<camera>/<YYYY-MM-DD>``."""
+    keep an id unique) and ``track/<camera>/<YYYY-MM-DD>``. The files of a camera must not overlap (half a frame of
+    slack; ValueError otherwise): :func:`plan_batch` drops overlapping files as problems first."""
     detect: list[Task] = []
     track: list[Task] = []
     for cid, entry in cameras.items():
         mine: list[Task] = []
-        for v in sorted((v for v in videos if v.camera_id == cid), key=lambda v: (v.start_utc, str(v.path))):
+        files = sorted((v for v in videos if v.camera_id == cid), key=lambda v: (v.start_utc, str(v.path)))
+        for a, b in itertools.pairwise(files):
+            if b.start_utc < a.end_utc - timedelta(seconds=0.5 / b.fps):
+                raise ValueError(f"files {a.path} and {b.path} of camera {cid} overlap; drop one first")
+        for v in files:
             for a, b in windows(v.duration_s, max_window_s):
                 start = v.start_utc + timedelta(seconds=a)
                 mine.append(Task("", "detect", cid, _local_day(start, entry.timezone).isoformat(), start,
