@@ -266,8 +266,8 @@ def folder(tmp_path) -> Path:
 
 def test_plan_finds_dates_and_reports_problem_files(folder) -> None:
     plan = plan_batch(folder / "cameras.csv", [str(folder / "videos" / "*.mp4"), str(folder / "byB" / "{camera}/*"),
-                                               str(folder / "none" / "*.mp4")])
-    assert plan.crs == "EPSG:2949"
+                                               str(folder / "none" / "*.mp4")], crs="EPSG:32617")
+    assert plan.crs == "EPSG:32617"
     names = [(v.camera_id, v.path.name, v.start_utc, round(v.duration_s, 3)) for v in plan.videos]
     assert names == [("A", "A_2026-05-04_07-30-00.mp4", datetime(2026, 5, 4, 5, 30, tzinfo=UTC), 1.0),
                      ("A", "A_2026-05-04_07-30-05.mp4", datetime(2026, 5, 4, 5, 30, 5, tzinfo=UTC), 1.0),
@@ -277,14 +277,14 @@ def test_plan_finds_dates_and_reports_problem_files(folder) -> None:
     problems = "\n".join(plan.problems)
     assert len(plan.problems) == 5, problems
     assert "A_2026-05-04_07-30-05_copy.mp4: no start time" in problems and "rename it like A_2026" in problems
-    assert "B_2026-05-04_07-30-00.mp4: unreadable: " in problems
+    assert "B_2026-05-04_07-30-00.mp4: unreadable: not a readable video (" in problems
     assert "A_2026-05-04_07-30-08.mp4: overlaps A_2026-05-04_07-30-06.mp4" in problems
     assert "none/*.mp4: no video file matches" in problems
     ids = [t.task_id for t in plan.tasks]
     assert ids == ["detect/A/20260504T053000Z", "detect/A/20260504T053005Z", "detect/A/20260504T053006Z",
                    "detect/B/20260504T090000Z", "track/A/2026-05-04", "track/B/2026-05-04"]
     lines = plan_summary(plan)
-    assert lines[0].startswith("2 camera(s), 4 video file(s)")
+    assert lines[0].startswith("2 camera(s), 4 video file(s), 0.00 h (0:00:06) of video; 6 tasks (4 detect, 2 track)")
     assert any("camera A (Europe/Berlin): 3 file(s)" in ln and "2026-05-04 07:30:00 CEST (2026-05-04T05:30:00Z)" in ln
                for ln in lines)
     assert any(ln.strip().startswith("gap of 0:00:04 from 2026-05-04 07:30:01 CEST") for ln in lines)

@@ -377,7 +377,7 @@ def read_tasks(path: str | os.PathLike[str]) -> BatchPlan:
         try:
             videos.append(probe_video(t.video, t.camera_id, t.start_utc))
         except (InputError, OSError) as exc:
-            problems.append(f"{t.video}: unreadable: {exc}")
+            problems.append(f"{t.video}: unreadable: {str(exc).removeprefix(f'video {t.video}: ')}")
     return BatchPlan(cameras, tuple(videos), tuple(tasks), first["crs"], cameras_csv, tuple(problems))
 
 
@@ -437,12 +437,16 @@ def _duration(seconds: float) -> str:
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
 
+def _hours(seconds: float) -> str:
+    return f"{seconds / 3600.0:.2f} h ({_duration(seconds)})"
+
+
 def plan_summary(plan: BatchPlan, *, max_gaps: int = 10) -> list[str]:
     """Lines for a user: totals, then per camera the files, hours of video, first and last time (local and UTC) and
     the gaps longer than 1 s between consecutive files (at most ``max_gaps`` listed), then the problems."""
     n_detect = sum(t.stage == "detect" for t in plan.tasks)
-    hours = sum(v.duration_s for v in plan.videos) / 3600.0
-    lines = [f"{len(plan.cameras)} camera(s), {len(plan.videos)} video file(s), {hours:.2f} h of video; "
+    lines = [f"{len(plan.cameras)} camera(s), {len(plan.videos)} video file(s), "
+             f"{_hours(sum(v.duration_s for v in plan.videos))} of video; "
              f"{len(plan.tasks)} tasks ({n_detect} detect, {len(plan.tasks) - n_detect} track); CRS {plan.crs}"]
     for cid, entry in plan.cameras.items():
         files = sorted((v for v in plan.videos if v.camera_id == cid), key=lambda v: v.start_utc)
@@ -451,7 +455,7 @@ def plan_summary(plan: BatchPlan, *, max_gaps: int = 10) -> list[str]:
             continue
         days = sum(t.stage == "track" and t.camera_id == cid for t in plan.tasks)
         lines.append(f"camera {cid} ({entry.timezone}): {len(files)} file(s), "
-                     f"{sum(v.duration_s for v in files) / 3600.0:.2f} h, {days} day(s), from "
+                     f"{_hours(sum(v.duration_s for v in files))}, {days} day(s), from "
                      f"{_when(files[0].start_utc, entry.timezone)} to {_when(files[-1].end_utc, entry.timezone)}")
         gaps = [(a, b) for a, b in itertools.pairwise(files)
                 if (b.start_utc - a.end_utc).total_seconds() > 1.0]

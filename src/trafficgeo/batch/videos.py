@@ -111,7 +111,7 @@ def find_videos(cameras: Mapping[str, CameraEntry], videos: Sequence[str], *,
         try:
             files.append(probe_video(p, cid, start))
         except InputError as exc:
-            problems.append(f"{p}: unreadable: {exc}")
+            problems.append(f"{p}: unreadable: {str(exc).removeprefix(f'video {p}: ')}")
         except OSError as exc:
             problems.append(f"{p}: unreadable: {exc.strerror or exc}")
     return _without_overlaps(files, ids, problems), problems
