@@ -292,6 +292,14 @@ def test_plan_finds_dates_and_reports_problem_files(folder) -> None:
     assert "5 problem(s):" in lines
 
 
+def test_a_file_named_for_another_camera_than_its_glob_is_a_problem(folder) -> None:
+    _video(folder / "byB" / "B" / "A_2026-05-04_10-00-00.mp4")
+    plan = plan_batch(folder / "cameras.csv", [str(folder / "byB" / "{camera}" / "*.mp4")])
+    assert [v.path.name for v in plan.videos] == ["clip.mp4"]
+    (line,) = plan.problems
+    assert "A_2026-05-04_10-00-00.mp4: named for camera A but found by the glob of camera B" in line
+
+
 def test_a_file_with_creation_time_but_no_camera_is_a_problem(folder) -> None:
     plan = plan_batch(folder / "cameras.csv", [str(folder / "byB" / "*" / "*.mp4")])
     assert plan.videos == () and plan.tasks == ()

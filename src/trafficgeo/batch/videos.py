@@ -85,12 +85,16 @@ def find_videos(cameras: Mapping[str, CameraEntry], videos: Sequence[str], *,
     for p, hint in found.items():
         example = pattern.example(hint or ids[0]) + p.suffix
         try:
-            parsed = pattern.parse(p.stem, (hint,) if hint else ids)
+            parsed = pattern.parse(p.stem, ids)
         except ValueError as exc:
             problems.append(f"{p}: its name does not give a valid time ({exc}); rename it like {example}")
             continue
         if parsed is not None:
             cid, local = parsed
+            if hint is not None and cid not in (None, hint):
+                problems.append(f"{p}: named for camera {cid} but found by the glob of camera {hint}; move or "
+                                "rename it")
+                continue
             cid = cid or hint
             if cid is None:
                 problems.append(f"{p}: cannot tell which camera: name it like {example} or put {{camera}} in "
