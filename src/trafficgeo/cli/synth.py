@@ -49,8 +49,14 @@ def synth(
     outliers: Annotated[int, typer.Option(help="GCPs given a gross pixel error")] = 0,
     count_stations: Annotated[str, typer.Option(help="counting lines at these stations (m), e.g. -50,0,50")] = "0",
     no_video: Annotated[bool, typer.Option("--no-video", help="skip rendering the video")] = False,
+    cameras: Annotated[int | None, typer.Option(
+        "--cameras", help="build a city instead: N cameras along the road over the same traffic, their videos cut "
+        "into files in videos/ and a cameras.csv for trafficgeo batch plan")] = None,
+    file_s: Annotated[float | None, typer.Option(
+        "--file-s", help="with --cameras: length of each video file (whole s; default the whole video)")] = None,
 ) -> None:
-    """Generate a demo world: SUMO traffic, orthophoto, lidar, GCPs, true camera, H.264 video and truth."""
+    """Generate a demo world: SUMO traffic, orthophoto, lidar, GCPs, true camera, H.264 video and truth
+    (with --cameras: a city of several cameras and their cameras.csv)."""
     from rich.progress import BarColumn, Progress, TimeRemainingColumn
 
     from trafficgeo.io.run_manifest import check_writable_folder
@@ -80,6 +86,9 @@ def synth(
                         heading_deg=heading, tilt_deg=tilt, focal_px=focal_px, image_size=size,
                         dist=(k1, 0.0, 0.0, 0.0, 0.0), veh_per_hour_per_lane=demand, mix=_mix(mix),
                         duration_s=duration, fps=fps, n_outliers=outliers, count_stations=stations)
+    if cameras is not None or file_s is not None:
+        _city(out, opts, cameras, file_s, no_video)
+        return
     with Progress("[progress.description]{task.description}", BarColumn(), "{task.completed}/{task.total} frames",
                   TimeRemainingColumn(), console=console, transient=True) as progress:
         task = progress.add_task("rendering", total=None)
@@ -87,3 +96,22 @@ def synth(
                               progress=lambda i, n: progress.update(task, completed=i, total=n))
     console.print(f"{summary['vehicles']} vehicles, {summary['frames']} frames, {summary['gcps']} GCPs "
                   f"(SUMO {summary['sumo_version']}) -> {out}")
+
+
+def _city(out: Path, opts, cameras: int | None, file_s: float | None, no_video: bool) -> None:
+    """``synth --cameras N [--file-s S]``: a city of N cameras (one without --cameras)."""
+    from trafficgeo.synth.city import CityOptions, build_city, spread_cameras
+
+    if no_video:
+        raise InputError("--no-video: a city needs its videos; leave out --no-video or --cameras")
+    n = 1 if cameras is None else cameras
+    if n < 1:
+        raise InputError(f"--cameras {n} must be at least 1")
+    try:
+        city = CityOptions(cameras=spread_cameras(n, opts.length_m), world=opts,
+                           file_s=opts.duration_s if file_s is None else file_s)
+    except InputError as exc:
+        raise InputError(exc.in_terms_of({"file_s": "--file-s", "cameras": "--cameras"})) from None
+    with console.status(f"building {n} camera(s)") as status:
+        path = build_city(out, city, progress=lambda i, k: status.update(f"built {i} of {k} camera(s)"))
+    console.print(f"{n} camera(s), their videos in {out / 'videos'} -> {path}")
