@@ -198,6 +198,7 @@ def demo(
     run_demo(out, seed=seed, console=console, world=world, rebuild=rebuild)
 
 
+from trafficgeo.cli import batch as _batch  # noqa: E402, F401  (registers batch plan|run|summarize)
 from trafficgeo.cli import geo as _geo  # noqa: E402, F401  (registers the geospatial commands)
 from trafficgeo.cli import process as _process  # noqa: E402, F401  (registers process and stitch)
 from trafficgeo.cli import report as _report  # noqa: E402, F401  (registers the report command)

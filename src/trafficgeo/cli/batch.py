@@ -1,4 +1,4 @@
-"""``trafficgeo batch plan|run|summarize``: many cameras and files on Dask (a thin skin over :mod:`trafficgeo.batch`)."""
+"""``trafficgeo batch plan|run|summarize``: many cameras and files on Dask (thin over :mod:`trafficgeo.batch`)."""
 
 from __future__ import annotations
 
