@@ -123,3 +123,20 @@ class ReportThreads:
                 f"NUMBA={s['NUMBA_NUM_THREADS']} TRAFFICGEO={s['TRAFFICGEO_THREADS']} cv2={s['cv2']} "
                 f"numba={s['numba']} ort={worker_threads()}")
         return TaskOutcome(task.task_id, "done", reason=text)
+
+
+def main(argv: list[str]) -> int:
+    """``python batch_support.py DATASET``: run a plan of 2 cameras x 6 files of 0.4 s tasks on a local cluster of 2
+    workers, printing ``done=N`` lines; exit 130 when interrupted (as the CLI will)."""
+    from trafficgeo.batch.runner import RunOptions, run_batch
+
+    report = run_batch(make_plan(2, 6), Path(argv[0]), RunOptions(workers=2), execute=FakeTask(sleep_s=0.4),
+                       progress=lambda s: print(f"done={s.done}", flush=True))
+    print(f"interrupted={report.interrupted} done={report.count('done')}", flush=True)
+    return 130 if report.interrupted else 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main(sys.argv[1:]))

@@ -201,3 +201,31 @@ def test_missing_dask_and_bad_options_are_input_errors(tmp_path, monkeypatch) ->
         RunOptions(window=0)
     # serial needs no Dask
     assert run_batch(make_plan(1, 1), tmp_path, RunOptions(workers=0), execute=FakeTask()).count("done") == 2
+
+
+@pytest.mark.skipif(os.name != "posix", reason="process groups and SIGINT are POSIX")
+def test_ctrl_c_in_a_terminal_stops_cleanly(tmp_path) -> None:
+    """SIGINT to the whole process group (what Ctrl-C in a terminal does) while tasks run: the workers ignore it,
+    the runner cancels, closes the cluster and reports; no traceback on the terminal."""
+    import signal
+    import subprocess
+    import time
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(TESTS).parent / "src"), TESTS]))
+    proc = subprocess.Popen([sys.executable, str(Path(TESTS) / "batch_support.py"), str(tmp_path)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    lines = []
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        lines.append(proc.stdout.readline())
+        if lines[-1].strip() == "done=2":
+            break
+    os.killpg(proc.pid, signal.SIGINT)
+    out, _ = proc.communicate(timeout=60)
+    text = "".join(lines) + out
+    assert proc.returncode == 130, text
+    assert "Traceback" not in text and "KeyboardInterrupt" not in text, text
+    assert "interrupted=True" in text
+    rows = status_rows(tmp_path)
+    assert 2 <= sum(r["status"] == "done" for r in rows) < 14 and any(r["status"] == "pending" for r in rows)

@@ -176,11 +176,18 @@ def _thread_limits_plugin() -> type:
         name = "trafficgeo-thread-limits"
         idempotent = True
 
-        def __init__(self, threads: int) -> None:
+        def __init__(self, threads: int, ignore_sigint: bool = False) -> None:
             self.threads = int(threads)
+            self.ignore_sigint = ignore_sigint
 
         def setup(self, worker: Any) -> None:
             apply_thread_limits(self.threads)
+            if self.ignore_sigint:  # a local worker restarted after a crash: Ctrl-C is the client's business
+                import signal
+                import threading
+
+                if os.name == "posix" and threading.current_thread() is threading.main_thread():
+                    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     _ThreadLimits.__module__ = __name__
     _ThreadLimits.__qualname__ = "_ThreadLimits"
@@ -195,10 +202,10 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def _plugin(threads: int) -> Any:
+def _plugin(threads: int, ignore_sigint: bool = False) -> Any:
     import sys
 
-    return sys.modules[__name__]._ThreadLimits(threads)
+    return sys.modules[__name__]._ThreadLimits(threads, ignore_sigint)
 
 
 def _one_line(exc: BaseException) -> str:
@@ -414,19 +421,41 @@ def start_local_cluster(options: RunOptions = RunOptions()) -> Any:
     config = {"distributed.scheduler.allowed-failures": options.retries,
               "distributed.nanny.pre-spawn-environ": dict(env), "distributed.nanny.environ": dict(env),
               "distributed.worker.daemon": True}
-    with _quiet(), _environment(env), dask.config.set(config):
-        cluster = distributed.LocalCluster(n_workers=max(1, options.workers),
-                                           threads_per_worker=options.threads_per_worker,
-                                           memory_limit=options.memory_limit, processes=True, host="127.0.0.1",
-                                           dashboard_address=f"127.0.0.1:{_DASH_PORT}",
-                                           silence_logs=logging.CRITICAL, env=env)
-        try:
+    cluster = None
+    try:
+        with _quiet(), _environment(env), dask.config.set(config):
+            with _sigint_ignored():  # the workers ignore Ctrl-C: this process handles it
+                cluster = distributed.LocalCluster(n_workers=max(1, options.workers),
+                                                   threads_per_worker=options.threads_per_worker,
+                                                   memory_limit=options.memory_limit, processes=True,
+                                                   host="127.0.0.1", dashboard_address=f"127.0.0.1:{_DASH_PORT}",
+                                                   silence_logs=logging.CRITICAL, env=env)
             with distributed.Client(cluster, set_as_default=False) as client:
-                client.register_plugin(_plugin(options.threads_per_worker))
-        except BaseException:
-            cluster.close()
-            raise
+                client.register_plugin(_plugin(options.threads_per_worker, ignore_sigint=True))
+    except BaseException:  # Ctrl-C while starting: no cluster left behind
+        if cluster is not None:
+            with _quiet():
+                cluster.close()
+        raise
     return cluster
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ignore SIGINT in this process for the block (main thread only; POSIX). Worker processes spawned meanwhile
+    inherit "ignored", so a Ctrl-C in the terminal reaches this process only (which cancels and closes the cluster)
+    instead of also killing each worker with a traceback. A Ctrl-C during the block (the cluster's start) is lost."""
+    import signal
+    import threading
+
+    if os.name != "posix" or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options: RunOptions) -> BatchReport:
