@@ -4,7 +4,8 @@ A :class:`FakeTask` writes a marker ``_fake/<task>.done`` when it completes and 
 (the idempotence of the real tasks); every attempt appends a line to ``_fake/<task>.attempts``, and each run
 records its start and end (``time.time()``) in ``_fake/<task>.<pid>.<start ns>.span``. Behaviour per task id:
 ``bad`` ids return a failed outcome (bad input), ``raise_ids`` raise RuntimeError on every attempt, ``kill_ids``
-SIGKILL their own worker process on the first attempt (a marker ``_fake/<task>.killed`` says it happened).
+SIGKILL their own worker process on the first attempt (a marker ``_fake/<task>.killed`` says it happened),
+``always_kill_ids`` on every attempt.
 A task with ``depends`` fails (reason "dependency missing") if a dependency's marker is absent when it starts.
 """
 
@@ -61,6 +62,7 @@ class FakeTask:
     bad: frozenset[str] = frozenset()
     raise_ids: frozenset[str] = frozenset()
     kill_ids: frozenset[str] = frozenset()
+    always_kill_ids: frozenset[str] = frozenset()
 
     def __call__(self, task: Task, dataset: Path) -> TaskOutcome:
         folder = Path(dataset) / "_fake"
@@ -77,6 +79,8 @@ class FakeTask:
                 if not killed.exists():
                     killed.write_text("1")
                     os.kill(os.getpid(), signal.SIGKILL)
+            if task.task_id in self.always_kill_ids:
+                os.kill(os.getpid(), signal.SIGKILL)
             if task.task_id in self.raise_ids:
                 raise RuntimeError(f"boom in {task.task_id}\nsecond line")
             if task.task_id in self.bad:

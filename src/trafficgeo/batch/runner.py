@@ -173,12 +173,12 @@ def _thread_limits_plugin() -> type:
     from distributed import WorkerPlugin
 
     class _ThreadLimits(WorkerPlugin):
-        name = "trafficgeo-thread-limits"
-        idempotent = True
+        idempotent = True  # registered again with the same settings (several runs on one cluster): nothing to do
 
         def __init__(self, threads: int, ignore_sigint: bool = False) -> None:
             self.threads = int(threads)
             self.ignore_sigint = ignore_sigint
+            self.name = f"trafficgeo-threads-{self.threads}" + ("-local" if ignore_sigint else "")
 
         def setup(self, worker: Any) -> None:
             apply_thread_limits(self.threads)
@@ -480,6 +480,7 @@ def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options
                 client = distributed.Client(cluster, set_as_default=False)
             dashboard = client.dashboard_link if _has_dashboard(client, local=cluster is not None) else None
             window = options.window or 2 * max(1, sum(client.nthreads().values()))
+            allowed_deaths = _allowed_failures(client)
             book.report_progress()
             done_set = distributed.as_completed(loop=client.loop)
 
@@ -495,7 +496,7 @@ def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options
             book.write_status()
             for fut in done_set:
                 tid = in_flight.pop(fut)
-                book.finish(_result(fut, tid))
+                book.finish(_result(fut, tid, allowed_deaths))
                 fut.release()
                 fill()
         except KeyboardInterrupt:
@@ -521,6 +522,15 @@ def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options
     return book.report(dashboard, interrupted)
 
 
+def _allowed_failures(client: Any) -> int:
+    """How many worker deaths the scheduler allows a task before it gives up (``allowed-failures``)."""
+    import dask
+
+    with contextlib.suppress(Exception):
+        return int(client.run_on_scheduler(lambda dask_scheduler: dask_scheduler.allowed_failures))
+    return int(dask.config.get("distributed.scheduler.allowed-failures"))
+
+
 def _has_dashboard(client: Any, local: bool) -> bool:
     """Whether the scheduler serves the dashboard (a local one needs bokeh here; its HTTP server runs anyway)."""
     if local:
@@ -533,7 +543,7 @@ def _has_dashboard(client: Any, local: bool) -> bool:
     return False
 
 
-def _result(fut: Any, task_id: str) -> TaskOutcome:
+def _result(fut: Any, task_id: str, allowed_deaths: int) -> TaskOutcome:
     """The outcome of a finished future: its TaskOutcome, or failed with the exception's one line."""
     if fut.status == "finished":
         return fut.result()
@@ -541,4 +551,9 @@ def _result(fut: Any, task_id: str) -> TaskOutcome:
         exc = fut.exception()
     except Exception as err:  # cancelled futures raise on exception()
         exc = err
-    return TaskOutcome(task_id, "failed", reason=_one_line(exc) if exc is not None else f"task {fut.status}")
+    if exc is None:
+        return TaskOutcome(task_id, "failed", reason=f"task {fut.status}")
+    if type(exc).__name__ == "KilledWorker":  # Dask's own words name keys and addresses, not the cause
+        return TaskOutcome(task_id, "failed", reason=f"the worker process died {allowed_deaths + 1} times running "
+                           "it (out of memory? raise memory_limit or give it fewer threads; see the worker logs)")
+    return TaskOutcome(task_id, "failed", reason=_one_line(exc))
