@@ -243,3 +243,17 @@ def test_task_killing_its_worker_every_time_fails_after_the_allowed_deaths(clust
     assert by_id["detect/cam0/01"].status in ("done", "skipped")
     assert marker(tmp_path, "detect/cam0/01", "done").exists()
     assert by_id["track/cam0/2026-05-04"].reason == "depends on failed task detect/cam0/00"
+
+
+def test_an_execute_that_cannot_be_pickled_is_refused_before_anything_runs(cluster, tmp_path) -> None:
+    import threading
+
+    class Holding(FakeTask):  # stands for an execute holding an ONNX session
+        lock = threading.Lock()
+
+        def __reduce__(self):
+            return (Holding, (), {"lock": self.lock})
+
+    with pytest.raises(InputError, match=r"cannot be sent to the Dask workers \(.*lock.*\); keep models, ONNX"):
+        run_batch(make_plan(1, 1), tmp_path, on(cluster), execute=Holding())
+    assert attempts(tmp_path, "detect/cam0/00") == 0

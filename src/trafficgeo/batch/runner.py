@@ -223,8 +223,8 @@ def attempt(execute: Callable[[Task, Path], TaskOutcome], task: Task, dataset: P
     except InputError as exc:
         return TaskOutcome(task.task_id, "failed", reason=" ".join(str(exc).split()),
                            seconds=time.perf_counter() - t0)
-    if not isinstance(outcome, TaskOutcome):
-        raise TypeError(f"task {task.task_id}: execute returned {type(outcome).__name__}, not a TaskOutcome")
+    if not isinstance(outcome, TaskOutcome) or outcome.task_id != task.task_id:
+        raise TypeError(f"task {task.task_id}: execute returned {outcome!r:.120}, not the task's TaskOutcome")
     if outcome.seconds == 0.0:
         outcome = dataclasses.replace(outcome, seconds=time.perf_counter() - t0)
     return outcome
@@ -460,6 +460,7 @@ def _sigint_ignored() -> Iterator[None]:
 
 def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options: RunOptions) -> BatchReport:
     distributed = _import_distributed()
+    _check_sendable(execute)
     cluster = None
     client = None
     interrupted = False
@@ -474,7 +475,12 @@ def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options
                 except (OSError, TimeoutError) as exc:
                     raise InputError(f"could not reach the Dask scheduler at {options.scheduler} ({_one_line(exc)});"
                                      " start it or check the address", parameters=("scheduler",)) from None
-                client.register_plugin(_plugin(options.threads_per_worker))
+                try:
+                    client.register_plugin(_plugin(options.threads_per_worker))
+                except Exception as exc:
+                    raise InputError(f"the Dask workers of {options.scheduler} could not set up trafficgeo "
+                                     f"({_one_line(exc)}); install the same trafficgeo on every worker",
+                                     parameters=("scheduler",)) from None
             else:
                 cluster = start_local_cluster(options)
                 client = distributed.Client(cluster, set_as_default=False)
@@ -504,8 +510,9 @@ def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options
             if client is not None and in_flight:
                 with contextlib.suppress(Exception):
                     client.cancel(list(in_flight), force=True)
-            for tid in in_flight.values():
-                book.state[tid] = "pending"
+            for tid, state in book.state.items():
+                if state == "running":
+                    book.state[tid] = "pending"
             book.write_status()
         finally:
             if client is not None:
@@ -520,6 +527,17 @@ def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options
                 else:
                     os.environ[k] = v
     return book.report(dashboard, interrupted)
+
+
+def _check_sendable(execute: Callable[[Task, Path], TaskOutcome]) -> None:
+    """The execute callable goes to the workers with every task: it must pickle (and should be small)."""
+    from distributed.protocol.pickle import dumps
+
+    try:
+        dumps(execute)
+    except Exception as exc:
+        raise InputError(f"execute {execute!r} cannot be sent to the Dask workers ({_one_line(exc)}); keep models, "
+                         "ONNX sessions and open files out of it and build them inside the task") from None
 
 
 def _allowed_failures(client: Any) -> int:
