@@ -76,13 +76,22 @@ def test_own_cluster_runs_every_task_with_its_thread_limits(tmp_path) -> None:
 def test_all_done_progress_and_status(cluster, tmp_path) -> None:
     plan = make_plan(cameras=2, files=3, minutes=30.0)
     calls: list[BatchProgress] = []
-    report = run_batch(plan, tmp_path, on(cluster), execute=FakeTask(sleep_s=0.05), progress=calls.append)
+    seen: list[dict[str, int]] = []
+
+    def progress(state: BatchProgress) -> None:  # status.csv is already rewritten when progress is called
+        calls.append(state)
+        rows = status_rows(tmp_path)
+        seen.append({s: sum(r["status"] == s for r in rows) for s in ("done", "running", "pending")})
+
+    report = run_batch(plan, tmp_path, on(cluster), execute=FakeTask(sleep_s=0.05), progress=progress)
     assert [o.task_id for o in report.outcomes] == [t.task_id for t in plan.tasks]
     assert report.count("done") == 8 and not report.interrupted
     assert report.video_hours == pytest.approx(3.0)  # 6 detect tasks of 30 min; track tasks add no video
     assert len(calls) == 9 and [c.done for c in calls] == list(range(9))
     assert calls[-1].video_hours == pytest.approx(3.0) and calls[-1].speed > 0
     assert max(c.running for c in calls) <= 4
+    assert [(v["done"], v["running"]) for v in seen] == [(c.done, c.running) for c in calls]
+    assert seen[0]["pending"] == 8 and max(v["running"] for v in seen) >= 1
     rows = status_rows(tmp_path)
     assert list(rows[0]) == list(STATUS_COLUMNS)
     assert [r["task_id"] for r in rows] == [t.task_id for t in plan.tasks]
@@ -112,6 +121,8 @@ def test_window_bounds_the_tasks_in_flight(cluster, tmp_path) -> None:
     report = run_batch(plan, tmp_path / "w1", on(cluster, window=1), execute=FakeTask(sleep_s=0.15))
     assert report.count("done") == 5
     assert max_in_flight(tmp_path / "w1") == 1
+    in_order = [name for name, _, _ in sorted(spans(tmp_path / "w1"), key=lambda s: s[1])]
+    assert in_order == [task_folder(t.task_id) for t in plan.tasks]  # one at a time: plan order
     # the check can fail: with a window of 2 the two workers run two tasks at once
     run_batch(plan, tmp_path / "w2", on(cluster, window=2), execute=FakeTask(sleep_s=0.15))
     assert max_in_flight(tmp_path / "w2") == 2
