@@ -12,19 +12,26 @@
   and a worker plugin calls ``cv2.setNumThreads`` before any task runs. onnxruntime reads no environment variable:
   code that builds an ONNX session in a task passes :func:`worker_threads` as its intra-op thread count. Sessions
   are built inside the task on the worker; the runner sends only the task, the dataset path and the execute
-  callable (plain data), never a session.
+  callable (plain data, checked to pickle before anything runs), never a session. On a running cluster
+  (``scheduler``) the plugin sets the variables and OpenCV when the run registers it; BLAS pools already started
+  in those workers keep their size (start the workers with the variables set), and the workers must see the
+  dataset folder at the same path and have the same trafficgeo installed.
 - **Order**: tasks are submitted in plan order (the detect tasks first), at most ``window`` submitted and not
   finished at a time; a task with ``depends`` only once all of them ended done or skipped. When one of them failed,
   the task is recorded failed ("depends on failed task <id>") without running.
-- **Errors**: a task returning a failed outcome (bad input) is not retried; a task raising an exception (a bug)
-  or whose worker died is retried ``retries`` times, then recorded failed with a one-line reason.
+- **Errors**: a task returning a failed outcome (bad input, an InputError) is not retried; a task raising any other
+  exception (a bug) or whose worker process died is retried ``retries`` times, then recorded failed with a
+  one-line reason (worker deaths count against the scheduler's ``allowed-failures``, which a local cluster sets to
+  ``retries``; a running cluster keeps its own).
 - **Status**: ``DATASET/status.csv`` (task_id, stage, camera_id, status, seconds, reason, finished_utc) is
   rewritten atomically at the start and after each finished task; ``progress`` gets a :class:`BatchProgress`.
 - **Ctrl-C**: outstanding work is cancelled, the cluster closed, status.csv written, and the report says
-  ``interrupted``; a rerun skips the tasks already done (their idempotence).
+  ``interrupted``; a rerun skips the tasks already done (their idempotence). Local workers ignore SIGINT (the
+  terminal sends it to them too), so they print nothing; a Ctrl-C during the local cluster's start (1-2 s) is
+  ignored. Call :func:`run_batch` under ``if __name__ == "__main__":`` in a script (worker processes are spawned).
 
-The execute callable is ``execute(task, dataset) -> TaskOutcome`` (``dataset`` a :class:`~pathlib.Path`); it must
-be picklable by reference (a module-level function or a picklable object) when run on Dask. The default runs
+The execute callable is ``execute(task, dataset) -> TaskOutcome`` (``dataset`` a :class:`~pathlib.Path`); on Dask it
+must pickle (cloudpickle; best a module-level function or a small object of an importable module). The default runs
 :func:`trafficgeo.batch.tasks.run_task` with a :class:`~trafficgeo.batch.tasks.BatchContext` of the plan.
 """
 
