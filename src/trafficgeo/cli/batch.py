@@ -64,7 +64,7 @@ def run(
         def tick(state) -> None:
             bar.update(shown, completed=state.done + state.skipped + state.failed,
                        line=f"{state.failed} failed, {state.running} running, "
-                            f"{state.video_hours_per_hour:.2f} h of video per hour")
+                            f"{state.speed:.2f} h of video per hour")
 
         report = run_batch(manifest, out, options, progress=tick)
     if report.dashboard:
