@@ -214,24 +214,29 @@ def test_counts_start_on_whole_minutes(anchor: dict, tmp_path: Path) -> None:
     assert counts["count"].sum() == read_table(anchor["ctx"].dataset, "counts")["count"].sum()
 
 
-def test_bad_inputs_fail_with_one_line_and_write_nothing(small_world: Path, tmp_path: Path) -> None:
+@pytest.mark.slow
+def test_bad_inputs_fail_with_one_line_and_write_nothing(tmp_path: Path) -> None:
     ds = tmp_path / "ds"
-    ctx = BatchContext(ds, {"cam1": _entry(small_world)}, "EPSG:2949")
+    bad = tmp_path / "camera.json"
+    bad.write_text("{not json", encoding="utf-8")
+    video = tmp_path / "v.mp4"
+    video.write_bytes(b"not looked at: the camera fails first")
+    entry = replace(_entry(tmp_path), camera=bad)
+    ctx = BatchContext(ds, {"cam1": entry}, "EPSG:2949")
     out = run_task(_detect(tmp_path / "missing.mp4", "m", START, 8.0), ctx)
     assert out.status == "failed" and "missing.mp4" in out.reason and "\n" not in out.reason
     assert not ds.exists()
-    bad = tmp_path / "camera.json"
-    bad.write_text("{not json", encoding="utf-8")
-    ctx = BatchContext(ds, {"cam1": replace(_entry(small_world), camera=bad)}, "EPSG:2949")
-    det = _detect(small_world / "video.mp4", "v", START, 8.0)
+    det = _detect(video, "v", START, 8.0)
     out = run_task(det, ctx)
     assert out.status == "failed" and "camera.json" in out.reason and "\n" not in out.reason
     assert not ds.exists()
     out = run_task(_track(det), ctx)
-    assert out.status == "failed" and "\n" not in out.reason and not ds.exists()
-    ctx = BatchContext(ds, {"cam1": _entry(small_world, bogus=1)}, "EPSG:2949")
+    assert out.status == "failed" and "camera.json" in out.reason and not ds.exists()
+    ctx = BatchContext(ds, {"cam1": replace(entry, options={"bogus": 1})}, "EPSG:2949")
     out = run_task(det, ctx)
     assert out.status == "failed" and "bogus" in out.reason and not ds.exists()
+    out = run_task(replace(det, camera_id="nobody"), ctx)
+    assert out.status == "failed" and "nobody" in out.reason and not is_done(replace(det, camera_id="nobody"), ctx)
 
 
 @pytest.mark.slow

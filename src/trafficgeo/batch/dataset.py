@@ -195,8 +195,8 @@ def read_table(dataset: str | os.PathLike, name: str, camera: str | None = None,
 def summarize(dataset: str | os.PathLike, output_gpkg: str | os.PathLike) -> Path:
     """A GeoPackage of the dataset (written atomically): layer ``counts`` (per camera, line, lane, direction and
     interval: ``start_utc``, ``end_utc``, ``count`` and ``count_<class>``, summed over the rows of that interval;
-    geometry the counting line) and layer ``cameras`` (camera position points: ``camera_id``, ``days``,
-    ``vehicles``), in the dataset CRS."""
+    geometry the counting line) and layer ``cameras`` (camera position points: ``camera_id``, ``days`` (camera-days
+    tracked, empty ones too), ``vehicles``), in the dataset CRS."""
     import geopandas as gpd
     import shapely
 
@@ -218,10 +218,13 @@ def summarize(dataset: str | os.PathLike, output_gpkg: str | os.PathLike) -> Pat
         table[c] = table[c].dt.strftime("%Y-%m-%dT%H:%M:%S.%fZ").str.replace(".000000Z", "Z", regex=False)
     layer_counts = gpd.GeoDataFrame(table, geometry="geometry", crs=crs)
     vehicles = read_table(root, "vehicles")
+    per_camera = vehicles.groupby("camera").size()
     cams = []
-    for cam, g in vehicles.groupby("camera", sort=True):
+    for folder in sorted((root / "vehicles").glob("camera=*")):
+        cam = folder.name.split("=", 1)[1]
         pos = _camera_position(root, cam)
-        cams.append({"camera_id": cam, "days": int(g["date"].nunique()), "vehicles": len(g),
+        cams.append({"camera_id": cam, "days": len(list(folder.glob("date=*"))),
+                     "vehicles": int(per_camera.get(cam, 0)),
                      "geometry": shapely.Point(pos) if pos is not None else None})
     layer_cams = gpd.GeoDataFrame(pd.DataFrame(cams, columns=["camera_id", "days", "vehicles", "geometry"]),
                                   geometry="geometry", crs=crs)

@@ -22,6 +22,7 @@ holds it with the outputs' SHA-256 (:func:`is_done`). Bad input (:class:`~traffi
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
@@ -182,7 +183,10 @@ def _done(task: Task, ctx: BatchContext, key: str) -> dict[str, Any] | None:
 
 def is_done(task: Task, ctx: BatchContext) -> bool:
     """Whether ``task`` has run with its current key and its outputs are unchanged since."""
-    return _done(task, ctx, task_key(task, ctx)) is not None
+    try:
+        return _done(task, ctx, task_key(task, ctx)) is not None
+    except InputError:  # a task of an unknown camera or stage is never done
+        return False
 
 
 # ------------------------------------------------------------------------------------------------ running
@@ -190,7 +194,10 @@ def run_task(task: Task, ctx: BatchContext) -> TaskOutcome:
     """Run ``task`` into ``ctx.dataset`` unless it is done (``skipped``, nothing touched). Bad input gives a
     ``failed`` outcome with a one-line reason and leaves nothing of the task behind; other errors propagate."""
     t0 = time.perf_counter()
-    key = task_key(task, ctx)
+    try:
+        key = task_key(task, ctx)
+    except InputError as exc:  # a task of an unknown camera or stage
+        return TaskOutcome(task.task_id, "failed", reason=" ".join(str(exc).split()))
     doc = _done(task, ctx, key)
     if doc is not None:
         return TaskOutcome(task.task_id, "skipped", key=key, seconds=time.perf_counter() - t0,
@@ -223,15 +230,13 @@ def run_task(task: Task, ctx: BatchContext) -> TaskOutcome:
 
 
 def _remove_work(work: Path, dataset: Path, existed: bool) -> None:
-    """Remove a task's work folder (and ``_work`` when empty; the dataset folder if this task made it and it
-    holds no file)."""
+    """Remove a task's work folder, ``_work`` when that leaves it empty, and the dataset folder when this task made
+    it and it is empty (never another task's files: only empty folders go)."""
     if work.exists():
         shutil.rmtree(work, ignore_errors=True)
-    for folder in (work.parent,):
-        if folder.is_dir() and not any(folder.iterdir()):
+    for folder in (work.parent, *(() if existed else (dataset,))):
+        with contextlib.suppress(OSError):  # not empty (another task writes there) or gone
             folder.rmdir()
-    if not existed and dataset.is_dir() and not any(p.is_file() for p in dataset.rglob("*")):
-        shutil.rmtree(dataset, ignore_errors=True)
 
 
 def process_options(entry: CameraEntry, **window: float) -> ProcessOptions:
