@@ -50,6 +50,19 @@ def small_world(tmp_path_factory: pytest.TempPathFactory):
 
 
 @pytest.fixture(scope="session")
+def small_city(tmp_path_factory: pytest.TempPathFactory):
+    """Folder of the default multi-camera city (``trafficgeo.synth.city.build_city``: 2 cameras on one road, 640x360,
+    10 fps, two 10 s video files each in ``videos/``, ``cameras.csv``). Read only, checked like :func:`small_world`."""
+    from trafficgeo.synth.city import CityOptions, build_city
+
+    folder = tmp_path_factory.mktemp("small_city")
+    build_city(folder, CityOptions())
+    before = _digest(folder)
+    yield folder
+    assert _digest(folder) == before, f"a test changed the shared city in {folder}"
+
+
+@pytest.fixture(scope="session")
 def roadside_camera() -> Camera:
     """The camera of :data:`ROADSIDE_ORIGIN` (frozen, read-only arrays)."""
     e0, n0, z0 = ROADSIDE_ORIGIN

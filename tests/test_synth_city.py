@@ -16,7 +16,6 @@ from trafficgeo.synth.city import (
     CITY_NAME_PATTERN,
     CityCamera,
     CityOptions,
-    build_city,
     camera_world,
     files_per_camera,
     spread_cameras,
@@ -56,9 +55,8 @@ def test_cameras_spread_along_the_road_and_offsets_turn_them() -> None:
 
 
 @pytest.fixture(scope="module")
-def city(tmp_path_factory):
-    out = tmp_path_factory.mktemp("city")
-    return out, build_city(out, CityOptions())
+def city(small_city):
+    return small_city, small_city / "cameras.csv"
 
 
 def _frames(path) -> np.ndarray:

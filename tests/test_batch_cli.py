@@ -1,0 +1,132 @@
+"""``trafficgeo batch plan | run | summarize`` end to end on the two-camera city: a local Dask cluster of 2 workers
+gives the same dataset as running the tasks serially, a second run does nothing, a changed option re-runs only what
+it touches, a corrupt video fails only its own tasks, and the city-wide GeoPackage holds the dataset's counts."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from pathlib import Path
+
+import geopandas as gpd
+import pandas as pd
+import pytest
+from tests.cli_support import invoke
+
+from trafficgeo.batch.dataset import read_table
+
+pytestmark = pytest.mark.slow
+
+TABLES = ("vehicles", "crossings", "counts", "trajectories")
+
+
+def _status(dataset: Path) -> dict[str, str]:
+    with open(dataset / "status.csv", newline="", encoding="utf-8") as f:
+        return {row["task_id"]: row["status"] for row in csv.DictReader(f)}
+
+
+def _sorted(df: pd.DataFrame) -> pd.DataFrame:
+    df = pd.DataFrame(df.drop(columns="geometry", errors="ignore"))
+    return df.sort_values(list(df.columns)).reset_index(drop=True)
+
+
+@pytest.fixture(scope="module")
+def city(small_city: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A copy of the city (the tests edit its cameras.csv and damage a video) with its task manifest."""
+    folder = tmp_path_factory.mktemp("batch_city") / "city"
+    shutil.copytree(small_city, folder)
+    code, out, err = invoke("batch", "plan", folder / "cameras.csv", "--videos", str(folder / "videos" / "*.mp4"),
+                            "-o", folder / "tasks.csv")
+    assert code == 0, err
+    text = " ".join(out.split())
+    assert "2 camera(s), 4 video file(s)" in text and "6 tasks (4 detect, 2 track)" in text
+    return folder
+
+
+@pytest.fixture(scope="module")
+def dataset(city: Path) -> Path:
+    out = city.parent / "dataset"
+    code, stdout, err = invoke("batch", "run", city / "tasks.csv", "--out", out, "--workers", 2)
+    assert code == 0, err
+    assert "6 done, 0 skipped (already done), 0 failed" in " ".join(stdout.split())
+    return out
+
+
+def test_two_workers_give_what_a_serial_run_gives(city: Path, dataset: Path) -> None:
+    # the manifest is editable: keep camera cam1's tasks only, and run them in this process without Dask
+    rows = list(csv.DictReader(open(city / "tasks.csv", newline="", encoding="utf-8")))
+    cam1 = city / "tasks_cam1.csv"
+    with open(cam1, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(r for r in rows if r["camera_id"] == "cam1")
+    serial = city.parent / "serial"
+    code, _, err = invoke("batch", "run", cam1, "--out", serial, "--workers", 0)
+    assert code == 0, err
+    for table in TABLES:
+        on_dask = read_table(dataset, table, camera="cam1")
+        alone = read_table(serial, table, camera="cam1")
+        assert len(on_dask) > 0, table
+        pd.testing.assert_frame_equal(_sorted(on_dask), _sorted(alone), obj=table)
+    # the dataset is readable by geopandas with its hive partitions, in the dataset's CRS, with lon/lat
+    vehicles = gpd.read_parquet(dataset / "vehicles")
+    assert set(vehicles["camera"].astype(str)) == {"cam1", "cam2"} and vehicles.crs.to_epsg() == 2949
+    assert vehicles["lat"].between(46, 47).all() and vehicles["lon"].between(-72, -70).all()
+    assert json.loads((dataset / "dataset.json").read_text())["crs"] == "EPSG:2949"
+
+
+def test_a_second_run_skips_everything_and_a_changed_option_reruns_only_its_tasks(city: Path,
+                                                                                   dataset: Path) -> None:
+    code, stdout, err = invoke("batch", "run", city / "tasks.csv", "--out", dataset, "--workers", 2)
+    assert code == 0, err
+    assert "0 done, 6 skipped (already done), 0 failed" in " ".join(stdout.split())
+    assert set(_status(dataset).values()) == {"skipped"}
+    before = read_table(dataset, "counts", camera="cam1")
+    # camera cam2 counts per 5 s instead of 10 s: only its track task runs again (detection does not depend on it)
+    cameras = (city / "cameras.csv").read_text(encoding="utf-8")
+    lines = cameras.splitlines()
+    lines[2] = lines[2].replace('{""interval_s"": 10}', '{""interval_s"": 5}')
+    (city / "cameras.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    try:
+        code, stdout, err = invoke("batch", "run", city / "tasks.csv", "--out", dataset, "--workers", 2)
+        assert code == 0, err
+        status = _status(dataset)
+        assert status.pop("track/cam2/2026-05-04") == "done"
+        assert set(status.values()) == {"skipped"}
+        counts = read_table(dataset, "counts", camera="cam2")
+        spans = (pd.to_datetime(counts["end_utc"]) - pd.to_datetime(counts["start_utc"])).dt.total_seconds()
+        assert spans.max() == pytest.approx(5.0)
+        pd.testing.assert_frame_equal(_sorted(read_table(dataset, "counts", camera="cam1")), _sorted(before))
+    finally:
+        (city / "cameras.csv").write_text(cameras, encoding="utf-8")
+
+
+def test_a_corrupt_video_fails_only_its_own_tasks(city: Path, dataset: Path) -> None:
+    broken = city.parent / "broken"
+    shutil.copytree(city, broken)
+    video = broken / "videos" / "cam1_2026-05-04_07-30-10.mp4"
+    video.write_bytes(video.read_bytes()[:2000])  # cut: no frame can be decoded
+    out = broken.parent / "broken_dataset"
+    code, stdout, err = invoke("batch", "run", broken / "tasks.csv", "--out", out, "--workers", 2)
+    text = " ".join(stdout.split())
+    assert code == 1, (stdout, err)
+    assert "Traceback" not in stdout + err
+    status = _status(out)
+    assert status["detect/cam1/20260504T053010Z"] == "failed" and status["track/cam1/2026-05-04"] == "failed"
+    assert {status[k] for k in status if "cam2" in k} == {"done"}
+    assert "failed: detect/cam1/20260504T053010Z: " in text and "depends on failed task" in text
+    assert not (out / "vehicles" / "camera=cam1").exists()
+    pd.testing.assert_frame_equal(_sorted(read_table(out, "vehicles", camera="cam2")),
+                                  _sorted(read_table(dataset, "vehicles", camera="cam2")))
+
+
+def test_summarize_writes_the_dataset_counts_city_wide(dataset: Path, tmp_path: Path) -> None:
+    code, _, err = invoke("batch", "summarize", dataset, "-o", tmp_path / "city.gpkg")
+    assert code == 0, err
+    counts = gpd.read_file(tmp_path / "city.gpkg", layer="counts")
+    table = read_table(dataset, "counts")
+    assert counts["count"].sum() == table["count"].sum() > 0
+    assert set(counts["camera"]) == {"cam1", "cam2"} and counts.crs.to_epsg() == 2949
+    cameras = gpd.read_file(tmp_path / "city.gpkg", layer="cameras")
+    assert sorted(cameras["camera_id"]) == ["cam1", "cam2"]
