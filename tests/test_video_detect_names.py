@@ -211,3 +211,18 @@ def test_a_vehicle_mostly_of_unknown_class_is_unknown() -> None:
     assert _vehicle_class(np.array(["truck", "truck", "", "van"], dtype=object)) == "truck"
     assert _vehicle_class(np.array(["car", "", "car", "van", ""], dtype=object)) == "car"
     assert _vehicle_class(np.array(["", ""], dtype=object)) == ""
+
+
+def test_detector_threads_follow_the_batch_worker_setting(monkeypatch: pytest.MonkeyPatch) -> None:
+    from trafficgeo.video.detectors.learned import BUILTIN, builtin_model_path
+    from trafficgeo.video.detectors.onnx import OnnxDetector, default_threads
+
+    path = builtin_model_path(BUILTIN)
+    monkeypatch.delenv("TRAFFICGEO_THREADS", raising=False)
+    assert default_threads() == 2
+    monkeypatch.setenv("TRAFFICGEO_THREADS", "1")  # what a batch worker of one thread sets
+    assert OnnxDetector(path)._session.get_session_options().intra_op_num_threads == 1
+    assert OnnxDetector(path, threads=3)._session.get_session_options().intra_op_num_threads == 3
+    for bad in ("0", "x", "-2"):
+        monkeypatch.setenv("TRAFFICGEO_THREADS", bad)
+        assert default_threads() == 2

@@ -57,7 +57,7 @@ class SizeClasses:
 
 def make_learned_detector(*, camera: Camera | None = None, surface: Surface | None = None,
                           road: Lanes | np.ndarray | None = None, roi: np.ndarray | None = None, tiles: bool = True,
-                          conf: float | None = None, iou: float = 0.5, threads: int = 2,
+                          conf: float | None = None, iou: float = 0.5, threads: int | None = None,
                           tiling: str = "squares") -> Detector:
     """The built-in learned detector. With a calibrated ``camera`` and its ``surface`` and a counted ``road`` (lanes,
     else the ``roi`` mask), tiles are planned so that vehicles on that road are large enough for it (``tiles``) and

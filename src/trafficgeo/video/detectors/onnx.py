@@ -5,6 +5,7 @@ RT-DETR/D-FINE/DEIM, ultralytics RT-DETR, RF-DETR, NanoDet). trafficgeo never do
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -101,6 +102,13 @@ def _one_line(exc: Exception) -> str:
     return " ".join(str(exc).split())[:200]
 
 
+def default_threads() -> int:
+    """Intra-op threads of a detector not told otherwise: ``TRAFFICGEO_THREADS`` (set in batch workers) if it is a
+    positive whole number, else 2."""
+    text = os.environ.get("TRAFFICGEO_THREADS", "")
+    return int(text) if text.isdigit() and int(text) > 0 else 2
+
+
 class OnnxDetector:
     """An ONNX detector of any layout of :mod:`trafficgeo.video.detectors.onnx_formats`, run with onnxruntime.
 
@@ -114,12 +122,13 @@ class OnnxDetector:
     coordinates - 0.5 for the pixel-centre convention), clipped, and kept when their bottom centre is in ``roi``.
     A model with a dynamic input size gets its metadata ``imgsz``, else ``input_size`` (px, square).
     ``providers``: onnxruntime execution providers (:func:`pick_providers`; default CUDA or OpenVINO when
-    installed, else the CPU); ``threads``: intra-op threads.
+    installed, else the CPU); ``threads``: intra-op threads (default: the ``TRAFFICGEO_THREADS`` environment
+    variable, which batch workers set to their share of the machine, else 2).
     """
 
     def __init__(self, model_path: str | Path, *, format: str | None = None, input_size: int | None = None,
                  conf: float | None = None, iou: float = 0.5, inside: float | None = 0.8,
-                 class_map: Mapping[int, str] | None = None, roi: np.ndarray | None = None, threads: int = 2,
+                 class_map: Mapping[int, str] | None = None, roi: np.ndarray | None = None, threads: int | None = None,
                  providers: str | Sequence[str] | None = None) -> None:
         p = Path(model_path)
         if not p.is_file():
@@ -134,7 +143,7 @@ class OnnxDetector:
         import onnxruntime as ort
 
         opts = ort.SessionOptions()
-        opts.intra_op_num_threads = int(threads)
+        opts.intra_op_num_threads = int(threads) if threads is not None else default_threads()
         opts.inter_op_num_threads = 1
         opts.log_severity_level = 3
         chosen = pick_providers(providers, ort.get_available_providers())
