@@ -19,7 +19,7 @@ import pandas as pd
 import pytest
 
 from trafficgeo.batch import tasks as batch_tasks
-from trafficgeo.batch.dataset import read_table, summarize
+from trafficgeo.batch.dataset import read_table, summarize_dataset
 from trafficgeo.batch.model import CameraEntry, Task
 from trafficgeo.batch.tasks import BatchContext, analysis_origin, is_done, run_task, task_key
 
@@ -275,7 +275,7 @@ def test_summarize_and_reading_back(anchor: dict, tmp_path: Path) -> None:
     import pyarrow.dataset as pads
 
     ds = anchor["ctx"].dataset
-    gpkg = summarize(ds, tmp_path / "city.gpkg")
+    gpkg = summarize_dataset(ds, tmp_path / "city.gpkg")
     layer = gpd.read_file(gpkg, layer="counts")
     counts = read_table(ds, "counts")
     per = counts.groupby(["line", "lane", "direction", "start_utc"])["count"].sum()

@@ -62,10 +62,21 @@ _API: dict[str, str] = {
     "stitch": "trafficgeo.video.run",
     "make_detector": "trafficgeo.video.detectors.factory",
     "Detections": "trafficgeo.video.detections",
+    # many cameras (batch)
+    "plan_batch": "trafficgeo.batch.manifest",
+    "read_tasks": "trafficgeo.batch.manifest",
+    "BatchPlan": "trafficgeo.batch.manifest",
+    "run_batch": "trafficgeo.batch.runner",
+    "RunOptions": "trafficgeo.batch.runner",
+    "BatchReport": "trafficgeo.batch.runner",
+    "read_table": "trafficgeo.batch.dataset",
+    "summarize_dataset": "trafficgeo.batch.dataset",
 }
 
 __all__ = [
     "SCHEMAS",
+    "BatchPlan",
+    "BatchReport",
     "Calibration",
     "CalibrationError",
     "CalibrationOptions",
@@ -84,6 +95,7 @@ __all__ = [
     "ProcessOptions",
     "ProcessResult",
     "RunFolder",
+    "RunOptions",
     "TrafficResult",
     "TrafficgeoError",
     "TrajectoryOptions",
@@ -99,9 +111,14 @@ __all__ = [
     "load_surface",
     "load_tracks",
     "make_detector",
+    "plan_batch",
     "process_video",
     "read_gcps",
+    "read_table",
+    "read_tasks",
+    "run_batch",
     "stitch",
+    "summarize_dataset",
 ]
 
 

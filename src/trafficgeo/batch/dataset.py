@@ -38,7 +38,7 @@ from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_path, write_json_atomic
 
 __all__ = ["DATASET_FILE", "FORMAT", "STAGE1_TABLES", "STAGE2_TABLES", "check_dataset", "ensure_dataset",
-           "read_table", "summarize", "table_path", "write_geo_table", "write_table"]
+           "read_table", "summarize_dataset", "table_path", "write_geo_table", "write_table"]
 
 FORMAT = "trafficgeo.dataset/1"
 DATASET_FILE = "dataset.json"
@@ -192,7 +192,7 @@ def read_table(dataset: str | os.PathLike, name: str, camera: str | None = None,
 
 
 # ------------------------------------------------------------------------------------------------ summary
-def summarize(dataset: str | os.PathLike, output_gpkg: str | os.PathLike) -> Path:
+def summarize_dataset(dataset: str | os.PathLike, output_gpkg: str | os.PathLike) -> Path:
     """A GeoPackage of the dataset (written atomically): layer ``counts`` (per camera, line, lane, direction and
     interval: ``start_utc``, ``end_utc``, ``count`` and ``count_<class>``, summed over the rows of that interval;
     geometry the counting line) and layer ``cameras`` (camera position points: ``camera_id``, ``days`` (camera-days

@@ -88,7 +88,7 @@ def summarize(
     output: Annotated[Path, typer.Option("--output", "-o", help="the city-wide GeoPackage to write (.gpkg)")],
 ) -> None:
     """Counts per camera, line, lane, direction and interval of the whole dataset as one GeoPackage."""
-    from trafficgeo.batch.dataset import summarize as summarize_dataset
+    from trafficgeo.batch.dataset import summarize_dataset
 
     written = summarize_dataset(dataset, output)
     console.print(f"wrote {written}")
