@@ -348,15 +348,15 @@ def run_batch(plan: Any, dataset: str | os.PathLike[str], options: RunOptions = 
         from trafficgeo.batch.tasks import BatchContext
 
         execute = _RunTask(BatchContext.from_plan(plan, folder))
-    book = _Book(tasks, folder, progress)
-    book.write_status()
-    if options.serial:
+    book = _Book(tasks, folder, progress)  # status.csv is first written once the run can start: a bad scheduler
+    if options.serial:                      # address leaves no dataset folder behind
         return _run_serial(book, execute, options)
     return _run_dask(book, execute, options)
 
 
 def _run_serial(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options: RunOptions) -> BatchReport:
     interrupted = False
+    book.write_status()
     try:
         book.report_progress()
         while (task := book.next_ready()) is not None:
@@ -494,6 +494,7 @@ def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options
             dashboard = client.dashboard_link if _has_dashboard(client, local=cluster is not None) else None
             window = options.window or 2 * max(1, sum(client.nthreads().values()))
             allowed_deaths = _allowed_failures(client)
+            book.write_status()
             book.report_progress()
             done_set = distributed.as_completed(loop=client.loop)
 

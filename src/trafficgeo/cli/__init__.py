@@ -219,6 +219,8 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "calibration_report": "--calibration-report", "frame": "--frame", "video": "--video", "ortho": "--ortho",
          "dem": "--dem", "cloud": "--cloud", "at_s": "--at", "gcps": "--gcps", "workdir": "--workdir",
          "port": "--port", "host": "--host", "detector": "--detector", "detector_format": "--detector-format",
+         "workers": "--workers", "threads_per_worker": "--threads", "retries": "--retries", "scheduler": "--scheduler",
+         "max_window_s": "--max-window", "name_pattern": "--name-pattern",
          "lanes": "--lanes", "lines": "--lines"}
 
 
