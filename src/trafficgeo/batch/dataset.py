@@ -142,7 +142,7 @@ def transform_to(x: np.ndarray, y: np.ndarray, src: pyproj.CRS | None, dst: pypr
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     if src is None:
         raise InputError(f"{where}: the camera has no CRS, so its positions cannot go into the dataset; calibrate it "
-                         "with --crs")
+                         "in a projected CRS")
     if src.equals(dst):
         return x, y
     return transform_xy(x, y, src, dst)

@@ -81,11 +81,10 @@ class BatchContext:
 # ------------------------------------------------------------------------------------------------ keys
 @lru_cache(maxsize=256)
 def _file_sha256(path: str, size: int, mtime_ns: int) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+    """SHA-256 of a whole file, remembered per (path, size, mtime) within a worker."""
+    from trafficgeo.video.checkpoint import sha256_file
+
+    return sha256_file(Path(path))
 
 
 def _sha256(path: Path) -> str:
@@ -104,12 +103,13 @@ def _input_id(path: str | os.PathLike | None) -> str | None:
 
 
 def _video_fingerprint(path: Path | None) -> str:
-    """Size and SHA-256 of the first and last MiB (cheap for hour-long files); ``missing`` when not a file."""
-    from trafficgeo.video.checkpoint import _sha256_file
+    """The plan's fingerprint of the video (:func:`trafficgeo.batch.videos.fingerprint`: its size and the hash of
+    its first and last MiB, cheap for hour-long files); ``missing`` when not a file."""
+    from trafficgeo.batch.videos import fingerprint
 
     if path is None or not Path(path).is_file():
         return "missing"
-    return f"{Path(path).stat().st_size}:{_sha256_file(Path(path), head_tail=1 << 20)}"
+    return fingerprint(Path(path), Path(path).stat().st_size)
 
 
 def _entry(task: Task, ctx: BatchContext) -> CameraEntry:

@@ -20,9 +20,9 @@ def fingerprint(path: Path, size_bytes: int) -> str:
     """SHA-256 over a file's size and the hash of its first and last MiB (cheap, changes with the content)."""
     import hashlib
 
-    from trafficgeo.video.checkpoint import _sha256_file
+    from trafficgeo.video.checkpoint import sha256_file
 
-    head_tail = _sha256_file(path, head_tail=_FINGERPRINT_BYTES)
+    head_tail = sha256_file(path, head_tail=_FINGERPRINT_BYTES)
     return hashlib.sha256(f"{size_bytes}:{head_tail}".encode()).hexdigest()
 
 

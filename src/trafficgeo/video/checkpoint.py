@@ -47,7 +47,7 @@ _PART_ARRAYS = {  # name: (dtype kind, ndim)
 
 
 # ------------------------------------------------------------------------------------------------ run key
-def _sha256_file(path: Path, *, head_tail: int | None = None) -> str:
+def sha256_file(path: Path, *, head_tail: int | None = None) -> str:
     """SHA-256 of a file, or of its first and last ``head_tail`` bytes."""
     h = hashlib.sha256()
     with path.open("rb") as fh:
@@ -115,10 +115,10 @@ def run_key(video: Path, *, camera: Any, surface: Any, roi: np.ndarray | None, o
     st = video.stat()
     doc = {"format": FORMAT_VERSION, "trafficgeo": __version__, "trackers": _package_version("trackers"),
            "opencv": cv2.__version__,
-           "video": [str(video.resolve()), st.st_size, st.st_mtime_ns, _sha256_file(video, head_tail=1 << 20)],
+           "video": [str(video.resolve()), st.st_size, st.st_mtime_ns, sha256_file(video, head_tail=1 << 20)],
            "camera": content_hash(camera), "surface": content_hash(surface),
            "roi": content_hash(None if roi is None else np.asarray(roi)),
-           "detector_file": None if detector_file is None else _sha256_file(detector_file),
+           "detector_file": None if detector_file is None else sha256_file(detector_file),
            "options": json.loads(json.dumps(dict(options), default=str, sort_keys=True))}
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:32]
 
@@ -185,7 +185,7 @@ def write_part(folder: Path, number: int, part: Part) -> dict[str, Any]:
     name = f"part{number:05d}.npz"
     with atomic_open(folder / name, "wb") as fh:
         np.savez_compressed(fh, **part.arrays)
-    return {"name": name, "sha256": _sha256_file(folder / name), "frames": part.n_frames}
+    return {"name": name, "sha256": sha256_file(folder / name), "frames": part.n_frames}
 
 
 def _check_part(a: dict[str, np.ndarray]) -> str | None:
@@ -212,7 +212,7 @@ def read_part(folder: Path, entry: Mapping[str, Any]) -> Part:
     path = folder / entry["name"]
     if not path.is_file():
         raise ValueError(f"{entry['name']} is missing")
-    if _sha256_file(path) != entry["sha256"]:
+    if sha256_file(path) != entry["sha256"]:
         raise ValueError(f"{entry['name']} has changed since it was written")
     try:
         with np.load(path) as z:  # numbers and strings only: object arrays are refused
