@@ -309,3 +309,16 @@ def test_curved_road_keeps_vehicles_on_their_lanes_and_headings(tmp_path):
     assert np.quantile(dh[centred], 0.95) < 1.0 and dh.max() < 8.0  # lane changes turn vehicles a little
     with pytest.raises(InputError):
         RoadSpec(curve_radius=20.0)
+
+
+def test_finding_sumo_leaves_the_proj_database_of_this_process_alone() -> None:
+    """Importing the eclipse-sumo package sets PROJ_DATA to SUMO's older PROJ database; a process that inherits it (a
+    Dask worker spawned after a world was built) then cannot transform coordinates. Finding SUMO must not leak it."""
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("PROJ_DATA", "PROJ_LIB", "SUMO_HOME")}
+    code = ("import os; from trafficgeo.synth.sumo_world import sumo_binary; sumo_binary('sumo'); "
+            "print([k for k in ('PROJ_DATA', 'PROJ_LIB', 'SUMO_HOME') if k in os.environ])")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

@@ -133,12 +133,25 @@ WARMUP_S = 60.0  # simulated before the trajectories start: SUMO time = trajecto
 LANE_CHANGE_DURATION_S = 3.0  # lane changes drift across over this time (SUMO's default is an instant jump)
 
 
+#: variables the eclipse-sumo package sets in ``os.environ`` on import when they are unset; its PROJ database is
+#: older than pyproj's and rasterio's, so a process that inherits PROJ_DATA from it (a Dask worker, a subprocess)
+#: fails to transform coordinates. SUMO's own programs get them through :func:`_sumo_env` only.
+_SUMO_IMPORT_VARIABLES = ("SUMO_HOME", "PROJ_LIB", "PROJ_DATA")
+
+
 def _sumo_home() -> Path:
+    before = {k: os.environ.get(k) for k in _SUMO_IMPORT_VARIABLES}
     try:
         import sumo  # the eclipse-sumo wheel
     except ImportError:
         raise InputError("SUMO is not installed (Python package eclipse-sumo missing); "
                          "install it with: pip install eclipse-sumo") from None
+    finally:
+        for k, v in before.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
     return Path(sumo.SUMO_HOME)
 
 
