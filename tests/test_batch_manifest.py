@@ -214,6 +214,7 @@ _GOOD = {"camera_id": "A", "camera": "cam.json", "surface": "90", "timezone": "E
     ({"options": '{"start_s": 2}'}, "options", "windows set it"),
     ({"options": '{"every": 0}'}, "options", "whole number >= 1"),
     ({"options": '{"interval_s": -5}'}, "options", "interval_s"),
+    ({"options": '{"report": "yes"}'}, "options", "report 'yes' must be true or false"),
     ({"detector": "yolo.onnx"}, "detector", "not found"),
     ({"lanes": "lanes.gpkg"}, "lanes", "not found"),
 ])

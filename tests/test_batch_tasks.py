@@ -20,6 +20,7 @@ import pytest
 
 from trafficgeo.batch import tasks as batch_tasks
 from trafficgeo.batch.dataset import read_table, summarize_dataset
+from trafficgeo.batch.day_report import report_path
 from trafficgeo.batch.model import CameraEntry, Task
 from trafficgeo.batch.tasks import BatchContext, analysis_origin, is_done, run_task, task_key
 
@@ -175,13 +176,16 @@ def test_rerun_skips_and_changed_options_redo(anchor: dict, tmp_path: Path) -> N
     assert is_done(det, ctx) and is_done(trk, ctx)
     assert [run_task(t, ctx).status for t in (det, trk)] == ["skipped", "skipped"]
     assert _mtimes(ds) == before
-    # the counting interval enters the track key only
-    entry = replace(ctx.cameras["cam1"], options={"interval_s": 30.0})
+    # the counting interval enters the track key only (as does the report, here turned off: the old page goes)
+    page = report_path(ds, "cam1", DAY)
+    assert page.is_file()
+    entry = replace(ctx.cameras["cam1"], options={"interval_s": 30.0, "report": False})
     ctx30 = replace(ctx, cameras={"cam1": entry})
     assert task_key(det, ctx30) == task_key(det, ctx) and task_key(trk, ctx30) != task_key(trk, ctx)
     assert [run_task(t, ctx30).status for t in (det, trk)] == ["skipped", "done"]
     counts = read_table(ds, "counts")
     assert counts["count"].sum() == read_table(anchor["ctx"].dataset, "counts")["count"].sum()
+    assert not page.exists() and not any(o.startswith("reports/") for o in run_task(trk, ctx30).outputs)
     # a changed output is not done; the frame step enters the detect key
     out = ds / run_task(det, ctx30).outputs[0]
     out.write_bytes(out.read_bytes() + b"\0")
@@ -267,6 +271,26 @@ def test_killed_detect_resumes_and_ends_equal(small_world: Path, tmp_path: Path,
     assert not (ctx.dataset / "_work").exists()
     for name in ("detections", "frames"):
         assert read_table(ctx.dataset, name).equals(read_table(straight.dataset, name))
+
+
+@pytest.mark.slow
+def test_each_camera_day_has_its_report(anchor: dict) -> None:
+    import re
+
+    ds = anchor["ctx"].dataset
+    page = report_path(ds, "cam1", DAY)
+    success = json.loads((ds / "_tasks" / f"track--cam1--{DAY}" / "_SUCCESS.json").read_text())
+    assert page.relative_to(ds).as_posix() in success["outputs"]
+    html = page.read_text(encoding="utf-8")
+    assert "trafficgeo report: camera cam1, 2026-05-04" in html and "(UTC); times in s since local midnight" in html
+    vehicles = read_table(ds, "vehicles")
+    shown = re.search(r"<td>vehicles</td><td[^>]*>(\d+)<", html)
+    assert shown is not None and int(shown.group(1)) == len(vehicles) > 0
+    # the observed period in seconds since midnight, as the dataset's times
+    period = re.search(r"<td>observed period</td><td[^>]*>([\d.]+) to ([\d.]+)<", html)
+    assert period is not None and float(period.group(1)) == pytest.approx(OF_DAY, abs=1.0)
+    assert "<h2" in html and ">Traffic<" in html and ">Calibration<" in html
+    assert not (ds / "_work").exists()  # the run folder the page was built from is gone
 
 
 @pytest.mark.slow

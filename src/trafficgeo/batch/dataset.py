@@ -7,6 +7,7 @@ Layout (``camera=`` and ``date=`` are Hive partitions, read back as text columns
     DATASET/frames/camera=<id>/<task>.parquet              detect stage: one row per frame read (boxes or not)
     DATASET/vehicles/camera=<id>/date=<YYYY-MM-DD>/part-0.parquet       track stage, GeoParquet
     DATASET/crossings/...  DATASET/counts/...  DATASET/trajectories/...   as vehicles
+    DATASET/reports/camera=<id>/date=<YYYY-MM-DD>/report.html          track stage, the camera-day's HTML report
 
 Stage 1 tables are plain Parquet (pixel boxes have no place on the map). ``frames`` holds every frame the
 detector saw, so that the tracker of stage 2 advances over frames without a detection exactly as
@@ -37,8 +38,9 @@ import pyproj
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_path, write_json_atomic
 
-__all__ = ["DATASET_FILE", "FORMAT", "STAGE1_TABLES", "STAGE2_TABLES", "check_dataset", "ensure_dataset",
-           "read_table", "summarize_dataset", "table_path", "write_geo_table", "write_table"]
+__all__ = ["DATASET_FILE", "FORMAT", "STAGE1_TABLES", "STAGE2_TABLES", "check_dataset", "day_tables",
+           "ensure_dataset", "merge_day", "read_table", "summarize_dataset", "table_path", "write_geo_table",
+           "write_table"]
 
 FORMAT = "trafficgeo.dataset/1"
 DATASET_FILE = "dataset.json"
@@ -299,16 +301,18 @@ def _times_utc(midnight: Any, seconds: pd.Series) -> pd.Series:
     return out
 
 
-def day_tables(results: list, camera: Any, lines: list, crs: str, midnight: Any, camera_id: str) -> dict:
-    """The four GeoDataFrames of a camera-day from the analyses of its segments (``(TrafficResult, origin,
-    tracks)``, times in seconds from ``origin``): times to seconds since local ``midnight`` plus UTC columns,
-    positions to the dataset CRS, lon/lat and geometry (see the module docstring)."""
-    import geopandas as gpd
-    import shapely
+def merge_day(results: list, midnight: Any, lanes: Any = None, lines: list | None = None) -> Any:
+    """One :class:`~trafficgeo.traffic.analyze.TrafficResult` of a camera-day from the analyses of its segments
+    (``(TrafficResult, origin, tracks)``, times in seconds from ``origin``): times in **seconds since local
+    ``midnight``**, positions in the camera's CRS, trajectory ``frame`` the frame in its video file, every table
+    with the columns of its run folder schema and counts with ``count_<class>`` for every class."""
+    from trafficgeo.traffic.analyze import TrafficResult
 
-    dst = _crs_doc(crs)
-    where = f"camera {camera_id}"
     parts: dict[str, list[pd.DataFrame]] = {n: [] for n in STAGE2_TABLES}
+    period = [np.inf, -np.inf]
+    dropped: dict[str, int] = {}
+    warnings: list[str] = []
+    options: dict[str, object] = {}
     for result, origin, tracks in results:
         shift = (origin - midnight).total_seconds()
         veh = result.vehicles.copy()
@@ -323,6 +327,11 @@ def day_tables(results: list, camera: Any, lines: list, crs: str, midnight: Any,
         pts["frame"] = pts["frame"].map(frame_of).astype("Int64")
         for name, table in zip(STAGE2_TABLES, (veh, cross, counts, pts), strict=True):
             parts[name].append(table)
+        period = [min(period[0], result.period[0] + shift), max(period[1], result.period[1] + shift)]
+        for reason, n in result.dropped.items():
+            dropped[reason] = dropped.get(reason, 0) + int(n)
+        warnings += [w for w in result.warnings if w not in warnings]
+        options = options or dict(result.options)
     schema_of = {"vehicles": "vehicles.csv", "crossings": "crossings.csv", "counts": "counts.csv",
                  "trajectories": "trajectories.csv"}
     tables = {}
@@ -331,6 +340,24 @@ def day_tables(results: list, camera: Any, lines: list, crs: str, midnight: Any,
         if name == "counts" and not parts[name]:
             merged = _class_counts(pd.DataFrame({"count": pd.Series(dtype="Int64")}))
         tables[name] = _conform(merged, schema_of[name])
+    if not results:
+        period = [0.0, 0.0]
+    return TrafficResult(points=tables["trajectories"], vehicles=tables["vehicles"], crossings=tables["crossings"],
+                         counts=tables["counts"], period=(float(period[0]), float(period[1])), dropped=dropped,
+                         lanes=lanes, lines=list(lines or []), options=options, warnings=warnings)
+
+
+def day_tables(day: Any, camera: Any, crs: str, midnight: Any, camera_id: str) -> dict:
+    """The four GeoDataFrames of a camera-day from its merged analysis (:func:`merge_day`): positions to the
+    dataset CRS, UTC times, lon/lat and geometry (see the module docstring); ``day`` is not changed."""
+    import geopandas as gpd
+    import shapely
+
+    dst = _crs_doc(crs)
+    where = f"camera {camera_id}"
+    tables = {"vehicles": day.vehicles.copy(), "crossings": day.crossings.copy(), "counts": day.counts.copy(),
+              "trajectories": day.points.copy()}
+    lines = day.lines
     out = {}
     # trajectories: smoothed points
     pts = tables["trajectories"]

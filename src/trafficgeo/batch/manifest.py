@@ -27,7 +27,7 @@ from datetime import UTC, date, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
-from trafficgeo.batch.model import STAGES, CameraEntry, Task, VideoFile, parse_utc, utc_text
+from trafficgeo.batch.model import BATCH_OPTIONS, STAGES, CameraEntry, Task, VideoFile, parse_utc, utc_text
 from trafficgeo.batch.names import DEFAULT_NAME_PATTERN, compile_pattern, local_to_utc, zone
 from trafficgeo.batch.videos import find_videos, probe_video
 from trafficgeo.errors import InputError
@@ -117,7 +117,7 @@ def _check_options(where: str, text: str, detector: str) -> dict[str, Any]:
     if not isinstance(options, dict):
         raise InputError(f"{where}, column options: {text!r} is not a JSON object; write one such as "
                          '{"every": 2} or leave it empty')
-    allowed = sorted({f.name for f in fields(ProcessOptions)} - set(_NOT_OPTIONS) | {"interval_s"})
+    allowed = sorted({f.name for f in fields(ProcessOptions)} - set(_NOT_OPTIONS) | set(BATCH_OPTIONS))
     for key in options:
         if key in _NOT_OPTIONS:
             raise InputError(f"{where}, column options: key {key!r} cannot be given here ({_NOT_OPTIONS[key]})")
@@ -126,8 +126,10 @@ def _check_options(where: str, text: str, detector: str) -> dict[str, Any]:
     interval = options.get("interval_s", 60.0)
     if isinstance(interval, bool) or not isinstance(interval, int | float) or not 0 < interval < math.inf:
         raise InputError(f"{where}, column options: interval_s {interval!r} must be a positive number of seconds")
+    if not isinstance(options.get("report", True), bool):
+        raise InputError(f"{where}, column options: report {options['report']!r} must be true or false")
     try:
-        ProcessOptions(detector=detector, **{k: v for k, v in options.items() if k != "interval_s"})
+        ProcessOptions(detector=detector, **{k: v for k, v in options.items() if k not in BATCH_OPTIONS})
     except InputError as exc:
         raise InputError(f"{where}, column options: {exc}") from None
     except TypeError as exc:

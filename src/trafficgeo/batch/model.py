@@ -18,6 +18,10 @@ from typing import Any
 #: the two stages, in the order they run
 STAGES = ("detect", "track")
 
+#: options of a camera that are the batch's, not the pipeline's, with their defaults: ``interval_s`` the counting
+#: interval (s), ``report`` whether each camera-day also gets its HTML report
+BATCH_OPTIONS: dict[str, Any] = {"interval_s": 60.0, "report": True}
+
 #: the states a task can end a run in (``status.csv``)
 OUTCOMES = ("done", "skipped", "failed")
 
@@ -29,7 +33,7 @@ class CameraEntry:
     ``surface`` is a surface spec as the command line takes it (a number, ``plane``, a DEM or a LAS/LAZ file);
     ``timezone`` an IANA name (``Europe/Berlin``) for the local times in file names and the camera-days;
     ``options`` the processing options: :class:`~trafficgeo.video.pipeline.ProcessOptions` fields (``every``,
-    ``tiling``, ...) and ``interval_s`` (counting interval, s).
+    ``tiling``, ...) and the options of the batch itself (:data:`BATCH_OPTIONS`).
     """
 
     camera_id: str

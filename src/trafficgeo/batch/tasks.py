@@ -44,12 +44,14 @@ from trafficgeo.batch.dataset import (
     check_dataset,
     day_tables,
     ensure_dataset,
+    merge_day,
     table_metadata,
     table_path,
     write_day_tables,
     write_table,
 )
-from trafficgeo.batch.model import CameraEntry, Task, TaskOutcome, task_folder, utc_text
+from trafficgeo.batch.day_report import report_path, write_day_report
+from trafficgeo.batch.model import BATCH_OPTIONS, CameraEntry, Task, TaskOutcome, task_folder, utc_text
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import write_json_atomic
 from trafficgeo.video.pipeline import ProcessOptions, detect_and_track, settled_options
@@ -135,7 +137,8 @@ def task_key(task: Task, ctx: BatchContext) -> str:
                            "detector": _input_id(detector) if Path(detector).is_file() else detector}
     options = dict(entry.options)
     if task.stage == "detect":
-        options.pop("interval_s", None)
+        for name in BATCH_OPTIONS:
+            options.pop(name, None)
         doc.update(video=_video_fingerprint(task.video), window=[task.video_start_s, task.video_end_s],
                    start_utc=utc_text(task.start_utc))
     elif task.stage == "track":
@@ -245,10 +248,10 @@ def process_options(entry: CameraEntry, **window: float) -> ProcessOptions:
     from trafficgeo.video.track import TrackerOptions
 
     known = {f.name for f in fields(ProcessOptions)} - {"detector", "start_s", "end_s"}
-    unknown = sorted(set(entry.options) - known - {"interval_s"})
+    unknown = sorted(set(entry.options) - known - set(BATCH_OPTIONS))
     if unknown:
         raise InputError(f"camera {entry.camera_id}: options {', '.join(unknown)} unknown; use "
-                         f"{', '.join(sorted(known | {'interval_s'}))}")
+                         f"{', '.join(sorted(known | set(BATCH_OPTIONS)))}")
     kw = {k: v for k, v in entry.options.items() if k in known}
     try:
         if isinstance(kw.get("tracker"), dict):
@@ -258,11 +261,20 @@ def process_options(entry: CameraEntry, **window: float) -> ProcessOptions:
         raise InputError(f"camera {entry.camera_id}: options: {exc}") from None
 
 
+@lru_cache(maxsize=4)
+def _surface(spec: str, camera: str, identity: tuple[str | None, str | None]) -> Any:
+    """The surface of a camera, built once per worker process for the same files (``identity``: their hashes): a
+    point cloud is gridded once, not by every task of the camera (read only: tasks never change a surface)."""
+    from trafficgeo.traffic.loading import load_surface
+
+    return load_surface(spec, camera)
+
+
 def _load(entry: CameraEntry, *, lines: bool):
-    from trafficgeo.traffic.loading import load_camera_document, load_layout, load_surface
+    from trafficgeo.traffic.loading import load_camera_document, load_layout
 
     cam, _ = load_camera_document(entry.camera)
-    surface = load_surface(entry.surface, entry.camera)
+    surface = _surface(str(entry.surface), str(entry.camera), (_input_id(entry.surface), _input_id(entry.camera)))
     lane_set, count_lines = load_layout(cam, surface, entry.lanes, entry.lines if lines else None)
     return cam, surface, lane_set, count_lines
 
@@ -451,7 +463,7 @@ def _run_track(task: Task, ctx: BatchContext, entry: CameraEntry):
     from trafficgeo.traffic.tracks import tracks_from_table
 
     process_options(entry)  # checks the options
-    interval_s = float(entry.options.get("interval_s", 60.0))
+    interval_s = float(entry.options.get("interval_s", BATCH_OPTIONS["interval_s"]))
     check_interval(interval_s)
     midnight, next_midnight = day_bounds(task.day, entry.timezone)
     cam, surface, lane_set, count_lines = _load(entry, lines=True)
@@ -468,9 +480,15 @@ def _run_track(task: Task, ctx: BatchContext, entry: CameraEntry):
         result = analyze(cam, surface, tracks_from_table(tracks), lanes=lane_set, lines=count_lines,
                          interval_s=interval_s)
         results.append((result, origin, tracks))
-    tables = day_tables(results, cam, count_lines or [], ctx.crs, midnight, task.camera_id)
+    day = merge_day(results, midnight, lane_set, count_lines)
+    tables = day_tables(day, cam, ctx.crs, midnight, task.camera_id)
     ensure_dataset(ctx.dataset, ctx.crs)
     written = write_day_tables(ctx.dataset, task.camera_id, task.day, tables)
+    if entry.options.get("report", BATCH_OPTIONS["report"]):
+        written.append(write_day_report(ctx.dataset, task.camera_id, task.day, entry.timezone, day, cam,
+                                        entry.camera))
+    else:  # not asked for: no page of an earlier run stays beside this run's tables
+        report_path(ctx.dataset, task.camera_id, task.day).unlink(missing_ok=True)
     extra = {"segments": len(results), "vehicles": len(tables["vehicles"]),
              "camera_position": camera_position(cam, ctx.crs, task.camera_id)}
     return written, extra, 0.0

@@ -21,7 +21,7 @@ views; ground errors and distances in metres; speeds in km/h; times in seconds.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -49,15 +49,16 @@ class ReportPage:
     left_out: tuple[tuple[str, str], ...]
 
 
-def _header(b: ReportContext) -> list[tuple[str, str]]:
-    """(label, value) rows at the top of the page: the folder, when, the version, the CRS and the inputs used."""
+def _header(b: ReportContext, about: Sequence[tuple[str, str]] = ()) -> list[tuple[str, str]]:
+    """(label, value) rows at the top of the page: the folder (or what ``about`` says the page is about), when, the
+    version, the CRS and the inputs used."""
     from trafficgeo import __version__
     from trafficgeo.crs import crs_label
 
     unit = b.axes.unit if b.m_per_unit == 1.0 else f"{b.axes.unit} (1 {b.axes.unit} = {b.m_per_unit:.10g} m)"
     crs = (f"{crs_label(b.crs)}; units {unit}; ground errors and distances in m, speeds in km/h"
            if b.crs is not None else "none (local coordinates, taken as metres)")
-    rows = [("run folder", str(b.inputs.run_dir.resolve())),
+    rows = [*(about or [("run folder", str(b.inputs.run_dir.resolve()))]),
             ("created", datetime.now().astimezone().isoformat(timespec="seconds")),
             ("trafficgeo version", str(__version__)), ("CRS", crs),
             ("plan-view origin", f"easting {b.axes.origin[0]:.0f}, northing {b.axes.origin[1]:.0f} ({b.axes.unit})")]
@@ -67,8 +68,10 @@ def _header(b: ReportContext) -> list[tuple[str, str]]:
 def build_page(run_dir: str | Path, *, camera: str | Path | None = None,
                calibration_report: str | Path | CalibrationReport | Mapping[str, Any] | None = None,
                frame: str | Path | None = None, ortho: str | Path | None = None, dem: str | Path | None = None,
-               video: str | Path | None = None, dpi: int = 100) -> ReportPage:
-    """The page with its list of sections and of those left out (see :func:`build_report`)."""
+               video: str | Path | None = None, dpi: int = 100, title: str | None = None,
+               about: Sequence[tuple[str, str]] = ()) -> ReportPage:
+    """The page with its list of sections and of those left out (see :func:`build_report`); ``title`` replaces the
+    page's title (the folder's name) and ``about`` rows (label, value) the header's run folder row."""
     inputs = find_inputs(run_dir, camera=camera, calibration_report=calibration_report, frame=frame, ortho=ortho,
                          dem=dem, video=video)
     if inputs.empty:
@@ -87,7 +90,8 @@ def build_page(run_dir: str | Path, *, camera: str | Path | None = None,
     for k, run in enumerate(inputs.traffic):
         sections.append(traffic_section(b, run, k + 1))
     left = list(dict.fromkeys(b.left_out))
-    html = render_page(f"trafficgeo report: {inputs.run_dir.resolve().name}", _header(b), sections, left)
+    html = render_page(title or f"trafficgeo report: {inputs.run_dir.resolve().name}", _header(b, about), sections,
+                       left)
     return ReportPage(html, tuple(s.title for s in sections), tuple(left))
 
 
