@@ -7,6 +7,9 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import geopandas as gpd
@@ -15,6 +18,7 @@ import pytest
 from tests.cli_support import invoke
 
 from trafficgeo.batch.dataset import read_table
+from trafficgeo.batch.model import task_folder
 
 pytestmark = pytest.mark.slow
 
@@ -24,6 +28,18 @@ TABLES = ("vehicles", "crossings", "counts", "trajectories")
 def _status(dataset: Path) -> dict[str, str]:
     with open(dataset / "status.csv", newline="", encoding="utf-8") as f:
         return {row["task_id"]: row["status"] for row in csv.DictReader(f)}
+
+
+def _edit_options(cameras_csv: Path, edit) -> None:
+    """Rewrite the options of every camera of ``cameras_csv`` with ``edit(camera_id, options) -> options``."""
+    with open(cameras_csv, newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    for row in rows:
+        row["options"] = json.dumps(edit(row["camera_id"], json.loads(row["options"] or "{}")))
+    with open(cameras_csv, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
 
 
 def _sorted(df: pd.DataFrame) -> pd.DataFrame:
@@ -36,6 +52,8 @@ def city(small_city: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A copy of the city (the tests edit its cameras.csv and damage a video) with its task manifest."""
     folder = tmp_path_factory.mktemp("batch_city") / "city"
     shutil.copytree(small_city, folder)
+    # checkpoints every 2 s of video, so that a task killed in the middle has something to resume from
+    _edit_options(folder / "cameras.csv", lambda camera_id, options: {**options, "checkpoint_s": 2})
     code, out, err = invoke("batch", "plan", folder / "cameras.csv", "--videos", str(folder / "videos" / "*.mp4"),
                             "-o", folder / "tasks.csv")
     assert code == 0, err
@@ -49,7 +67,9 @@ def dataset(city: Path) -> Path:
     out = city.parent / "dataset"
     code, stdout, err = invoke("batch", "run", city / "tasks.csv", "--out", out, "--workers", 2)
     assert code == 0, err
-    assert "6 done, 0 skipped (already done), 0 failed" in " ".join(stdout.split())
+    text = " ".join(stdout.split())
+    assert "6 done, 0 skipped (already done), 0 failed" in text
+    assert text.count("dashboard: http://127.0.0.1:") == 1
     return out
 
 
@@ -76,6 +96,52 @@ def test_two_workers_give_what_a_serial_run_gives(city: Path, dataset: Path) -> 
     assert json.loads((dataset / "dataset.json").read_text())["crs"] == "EPSG:2949"
 
 
+def _kill_a_worker_mid_task(run: subprocess.Popen, out: Path, videos: dict[str, Path]) -> str | None:
+    """Wait until a detect task of the ``run`` (a ``batch run`` process) has written a checkpoint part, then kill
+    (SIGKILL) the worker process that is decoding that task's video; returns the task's folder name."""
+    import psutil
+
+    deadline = time.monotonic() + 300
+    while run.poll() is None and time.monotonic() < deadline:
+        for part in sorted((out / "_work").glob("*/.checkpoint/part*.npz")):
+            name = part.parents[1].name
+            for child in psutil.Process(run.pid).children(recursive=True):
+                try:
+                    files = {Path(f.path).resolve() for f in child.open_files()}
+                except psutil.Error:
+                    continue
+                if videos[name] in files:
+                    child.kill()
+                    return name
+        time.sleep(0.02)
+    return None
+
+
+def test_a_worker_killed_mid_task_still_ends_with_the_complete_dataset(city: Path, dataset: Path) -> None:
+    """(Before the tests that change the dataset.) A ``batch run`` of the same tasks in its own process; one of its
+    workers is killed (SIGKILL) while it decodes a video, after the task's first checkpoint: the dataset ends
+    complete and equal to the undisturbed one."""
+    tasks = list(csv.DictReader(open(city / "tasks.csv", newline="", encoding="utf-8")))
+    videos = {task_folder(t["task_id"]): Path(city, t["video"]).resolve() for t in tasks if t["stage"] == "detect"}
+    out = city.parent / "killed_dataset"
+    run = subprocess.Popen([sys.executable, "-c", "import sys; from trafficgeo import cli; cli.main(sys.argv[1:])",
+                            "batch", "run", str(city / "tasks.csv"), "--out", str(out), "--workers", "2"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        killed = _kill_a_worker_mid_task(run, out, videos)
+        stdout, stderr = run.communicate(timeout=600)
+    finally:
+        run.kill()
+    assert killed is not None, "no worker was caught in the middle of a detect task"
+    assert run.returncode == 0, stderr
+    assert "6 done, 0 skipped (already done), 0 failed" in " ".join(stdout.split())
+    assert set(_status(out).values()) == {"done"} and not (out / "_work").exists()
+    for table in TABLES:
+        for camera in ("cam1", "cam2"):
+            pd.testing.assert_frame_equal(_sorted(read_table(out, table, camera=camera)),
+                                          _sorted(read_table(dataset, table, camera=camera)), obj=table)
+
+
 def test_a_second_run_skips_everything_and_a_changed_option_reruns_only_its_tasks(city: Path,
                                                                                    dataset: Path) -> None:
     code, stdout, err = invoke("batch", "run", city / "tasks.csv", "--out", dataset, "--workers", 2)
@@ -85,9 +151,8 @@ def test_a_second_run_skips_everything_and_a_changed_option_reruns_only_its_task
     before = read_table(dataset, "counts", camera="cam1")
     # camera cam2 counts per 5 s instead of 10 s: only its track task runs again (detection does not depend on it)
     cameras = (city / "cameras.csv").read_text(encoding="utf-8")
-    lines = cameras.splitlines()
-    lines[2] = lines[2].replace('{""interval_s"": 10}', '{""interval_s"": 5}')
-    (city / "cameras.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    _edit_options(city / "cameras.csv", lambda camera_id, options: {**options, "interval_s": 5}
+                  if camera_id == "cam2" else options)
     try:
         code, stdout, err = invoke("batch", "run", city / "tasks.csv", "--out", dataset, "--workers", 2)
         assert code == 0, err

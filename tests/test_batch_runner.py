@@ -68,9 +68,11 @@ def test_own_cluster_runs_every_task_with_its_thread_limits(tmp_path) -> None:
     for o in report.outcomes:  # each task saw 3 threads everywhere (the defaults would be 1 or 2 on this machine)
         assert o.reason == "OMP=3 MKL=3 OPENBLAS=3 NUMBA=3 TRAFFICGEO=3 cv2=3 numba=3 ort=3"
     assert not report.interrupted and report.seconds > 0
-    assert report.dashboard is None or report.dashboard.startswith("http://127.0.0.1:")
+    # the cluster extra installs bokeh, so the local cluster serves its dashboard and the report links it
+    assert report.dashboard is not None and report.dashboard.startswith("http://127.0.0.1:")
     assert {k: os.environ.get(k) for k in env_before} == env_before  # this process's environment is untouched
     assert calls[0].done == 0 and calls[0].total == 3 and calls[-1].done == 3 and calls[-1].running == 0
+    assert calls[0].dashboard == report.dashboard  # known from the start, for the progress display
 
 
 def test_all_done_progress_and_status(cluster, tmp_path) -> None:

@@ -96,23 +96,6 @@ def test_an_interrupted_run_resumes_to_the_same_tracks(world: Path, tmp_path: Pa
     assert len(dets) == len(full_dets)
 
 
-def test_chunks_stitched_count_like_one_run(world: Path, tmp_path: Path) -> None:
-    common = ["--camera", world / "camera_truth.json", "--surface", world / "cloud.laz", "--lines",
-              world / "count_lines.gpkg"]
-    whole = tmp_path / "whole"
-    assert invoke("process", world / "video.mp4", *common, "--out", whole)[0] == 0
-    a, b = tmp_path / "a", tmp_path / "b"
-    code, _, stderr = invoke("process", world / "video.mp4", *common, "--end", 5.0, "--out", a)
-    assert code == 0, stderr
-    code, _, stderr = invoke("process", world / "video.mp4", *common, "--start", 3.0, "--out", b)
-    assert code == 0, stderr
-    code, _, stderr = invoke("stitch", a, b, *common, "--out", tmp_path / "stitched")
-    assert code == 0, stderr
-    n_whole = len(pd.read_csv(whole / "crossings.csv"))
-    n_stitched = len(pd.read_csv(tmp_path / "stitched" / "crossings.csv"))
-    assert abs(n_stitched - n_whole) <= 1, (n_stitched, n_whole)
-
-
 def test_process_bad_input(world: Path, tmp_path: Path) -> None:
     out = tmp_path / "out"
     code, _, stderr = invoke("process", tmp_path / "missing.mp4", "--camera", world / "camera_truth.json",

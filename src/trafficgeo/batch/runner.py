@@ -118,7 +118,8 @@ class BatchReport:
 @dataclass(frozen=True)
 class BatchProgress:
     """The state of a run for a progress display: task counts, ``video_hours`` processed so far (detect tasks
-    done), ``elapsed_s`` of wall time and ``speed`` = hours of video per hour of wall time (0 at the start)."""
+    done), ``elapsed_s`` of wall time, ``speed`` = hours of video per hour of wall time (0 at the start) and the
+    Dask ``dashboard`` link (None when serial or not served)."""
 
     total: int
     done: int
@@ -128,6 +129,7 @@ class BatchProgress:
     video_hours: float
     elapsed_s: float
     speed: float
+    dashboard: str | None = None
 
 
 def worker_threads() -> int:
@@ -262,6 +264,7 @@ class _Book:
         self.finished_utc: dict[str, str] = {}
         self.waiting = [t for t in tasks]  # plan order
         self.t0 = time.perf_counter()
+        self.dashboard: str | None = None
 
     def video_hours(self) -> float:
         total_s = 0.0
@@ -307,7 +310,8 @@ class _Book:
         elapsed = time.perf_counter() - self.t0
         hours = self.video_hours()
         return BatchProgress(len(self.tasks), counts["done"], counts["skipped"], counts["failed"], counts["running"],
-                             hours, elapsed, hours / (elapsed / 3600.0) if elapsed > 0 and hours > 0 else 0.0)
+                             hours, elapsed, hours / (elapsed / 3600.0) if elapsed > 0 and hours > 0 else 0.0,
+                             self.dashboard)
 
     def report_progress(self) -> None:
         if self.progress is not None:
@@ -492,6 +496,7 @@ def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options
                 cluster = start_local_cluster(options)
                 client = distributed.Client(cluster, set_as_default=False)
             dashboard = client.dashboard_link if _has_dashboard(client, local=cluster is not None) else None
+            book.dashboard = dashboard
             window = options.window or 2 * max(1, sum(client.nthreads().values()))
             allowed_deaths = _allowed_failures(client)
             book.write_status()

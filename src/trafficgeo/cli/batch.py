@@ -60,14 +60,18 @@ def run(
                TextColumn("{task.completed}/{task.total} tasks, {task.fields[line]}"))
     with Progress(*columns, console=console, transient=True) as bar:
         shown = bar.add_task("batch", total=len(manifest.tasks), line="starting")
+        shown_link: list[str] = []  # the dashboard link, printed once as soon as the cluster serves it
 
         def tick(state) -> None:
+            if state.dashboard and not shown_link:
+                shown_link.append(state.dashboard)
+                console.print(f"dashboard: {state.dashboard}")
             bar.update(shown, completed=state.done + state.skipped + state.failed,
                        line=f"{state.failed} failed, {state.running} running, "
                             f"{state.speed:.2f} h of video per hour")
 
         report = run_batch(manifest, out, options, progress=tick)
-    if report.dashboard:
+    if report.dashboard and not shown_link:
         console.print(f"dashboard: {report.dashboard}")
     for outcome in report.outcomes:
         if outcome.status == "failed":
