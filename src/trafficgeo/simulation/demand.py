@@ -1,0 +1,302 @@
+"""SUMO demand that reproduces observed counts: edge data, candidate routes, routeSampler, vehicle types.
+
+Times: observed time ``t`` (s, the run's clock) is SUMO time ``t + time_offset_s``. The observed crossings are
+counted per ``interval_s`` over ``[begin_s, end_s)`` (:func:`trafficgeo.traffic.lines.aggregate_counts`); each
+line x lane x direction count goes to the SUMO edge it maps to (:mod:`trafficgeo.simulation.mapping`), the lanes of
+an edge are summed and, when several lines observe one edge, their sums are averaged (routeSampler wants one
+``entered`` count per edge and interval). ``routeSampler.py --optimize full`` picks vehicles on candidate routes
+(``randomTrips.py`` on the network, or the user's routes) so that the counts per edge and interval are met, with
+departure times spread over each interval *of the observation*. Each vehicle's departure is then moved earlier by
+its expected travel time from the start of its route to the first observed line on it (distance / the observed
+mean speed on that edge), so that it crosses the line in the interval it was counted in.
+
+Vehicle types: one ``vType`` per observed class (ids ``car``, ``truck``, ...: the names
+:func:`trafficgeo.traffic.boxes.dimensions_for` knows), in a ``vTypeDistribution`` ``observed`` with the class
+shares of the observed crossings; length the median observed length (else the class's typical length); desired
+speeds (``speedFactor``, a truncated normal) from the observed spot speeds of the class relative to the speed limit
+of the SUMO lane where each was seen. Vehicles depart at their desired speed, on the lane drawn from the observed
+lane shares of their first observed edge when the route starts there (else ``random``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+import pandas as pd
+
+from trafficgeo.errors import InputError
+from trafficgeo.simulation.mapping import LaneMapping
+from trafficgeo.simulation.tools import run_sumo_tool
+from trafficgeo.traffic.boxes import dimensions_for
+from trafficgeo.traffic.lines import aggregate_counts
+from trafficgeo.traffic.validation import ObservedRun
+
+__all__ = ["DemandCounts", "VehicleType", "candidate_routes", "edge_counts", "observed_vehicle_types",
+           "sample_routes", "write_edge_data"]
+
+SUMO_VCLASS = {"car": "passenger", "van": "delivery", "truck": "truck", "bus": "bus", "motorcycle": "motorcycle",
+               "bicycle": "bicycle"}
+_TOOL_TIMEOUT_S = 600.0
+
+
+@dataclass(frozen=True)
+class DemandCounts:
+    """Observed counts on the SUMO network: ``lanes`` per line, lane, direction and interval with the mapped
+    ``sumo_edge``/``sumo_lane``; ``edges`` per SUMO edge and interval (``entered``, vehicles)."""
+
+    lanes: pd.DataFrame
+    edges: pd.DataFrame
+    interval_s: float
+    begin_s: float
+    end_s: float
+
+
+@dataclass(frozen=True)
+class VehicleType:
+    """A SUMO vehicle type from the observed vehicles of one class."""
+
+    name: str  # class name, also the vType id
+    share: float  # of the observed crossings
+    length_m: float
+    width_m: float
+    speed_factor: tuple[float, float, float, float]  # normc(mean, deviation, min, max) of the speed limit
+    observed: int  # crossings of the class
+
+    def xml(self) -> str:
+        vclass = SUMO_VCLASS.get(self.name, "passenger")
+        sf = "normc({})".format(",".join(f"{v:.4f}" for v in self.speed_factor))
+        return (f'        <vType id={quoteattr(self.name)} vClass="{vclass}" length="{self.length_m:.2f}" '
+                f'width="{self.width_m:.2f}" speedFactor="{sf}" sigma="0" probability="{self.share:.6f}"/>\n')
+
+
+def _mapped_crossings(observed: ObservedRun, mapping: LaneMapping, begin_s: float, end_s: float) -> pd.DataFrame:
+    cr = observed.crossings.copy()
+    cr["line"] = cr["line"].astype(str)
+    cr["lane"] = cr["lane"].fillna("").astype(str)
+    cr["direction"] = cr["direction"].astype(int)
+    cr = cr[(cr["time"] >= begin_s) & (cr["time"] < end_s)]
+    m = mapping.table[["line", "lane", "direction", "sumo_edge", "sumo_lane", "pos_m"]]
+    return cr.merge(m, on=["line", "lane", "direction"], how="inner")
+
+
+def edge_counts(observed: ObservedRun, mapping: LaneMapping, interval_s: float, begin_s: float,
+                end_s: float) -> DemandCounts:
+    """Observed crossings of ``[begin_s, end_s)`` counted per ``interval_s`` (s) and mapped to SUMO edges."""
+    cr = _mapped_crossings(observed, mapping, begin_s, end_s)
+    counts = aggregate_counts(cr, interval_s, begin_s, end_s)
+    keys = ["line", "lane", "direction"]
+    if len(counts):
+        counts = counts.assign(lane=counts["lane"].astype(str), line=counts["line"].astype(str),
+                               direction=counts["direction"].astype(int))
+    lanes = counts[[*keys, "interval_start", "interval_end", "count"]].merge(
+        mapping.table[[*keys, "sumo_edge", "sumo_lane", "pos_m"]], on=keys, how="inner")
+    per_line = lanes.groupby(["sumo_edge", "line", "interval_start", "interval_end"], sort=True)["count"].sum()
+    edges = per_line.groupby(level=["sumo_edge", "interval_start", "interval_end"]).mean().reset_index()
+    edges["entered"] = np.round(edges["count"]).astype(int)
+    return DemandCounts(lanes, edges.drop(columns="count"), float(interval_s), float(begin_s), float(end_s))
+
+
+def write_edge_data(path: str | os.PathLike[str], counts: DemandCounts) -> None:
+    """SUMO edge data (``<data><interval begin end><edge id entered/>``), the input of routeSampler."""
+    from trafficgeo.io.atomic import write_text_atomic
+
+    out = ["<data>\n"]
+    for k, ((b, e), g) in enumerate(counts.edges.groupby(["interval_start", "interval_end"], sort=True)):
+        out.append(f'    <interval id="observed_{k}" begin="{b:.3f}" end="{e:.3f}">\n')
+        out += [f'        <edge id={quoteattr(str(r.sumo_edge))} entered="{int(r.entered)}"/>\n'
+                for r in g.itertuples()]
+        out.append("    </interval>\n")
+    out.append("</data>\n")
+    write_text_atomic(path, "".join(out))
+
+
+def candidate_routes(net: Path, out: Path, *, seed: int, trips: int = 500) -> Path:
+    """Candidate routes by ``randomTrips.py`` (``trips`` trips routed by duarouter; one-edge trips allowed at the
+    fringe, so that a network of a single road has routes); returns ``out``."""
+    run_sumo_tool("randomTrips.py", ["-n", str(net), "-o", str(out.with_suffix(".trips.xml")), "-r", str(out),
+                                     "--seed", str(seed), "-b", "0", "-e", str(trips), "-p", "1", "--allow-fringe",
+                                     "--validate"],
+                  _TOOL_TIMEOUT_S, cwd=out.parent)
+    if not out.is_file():
+        raise InputError(f"net {net}: randomTrips.py wrote no candidate routes; give routes (a .rou.xml)",
+                         parameters=("net",))
+    return out
+
+
+def route_edges(path: Path) -> list[list[str]]:
+    """The edge lists of the routes in a route file (``<route edges>``, inside vehicles or not)."""
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError) as exc:
+        raise InputError(f"routes {path}: not a readable SUMO route file ({exc}); give a .rou.xml",
+                         parameters=("routes",)) from None
+    return [r.get("edges", "").split() for r in root.iter("route") if r.get("edges")]
+
+
+def check_route_coverage(routes: Path, counts: DemandCounts) -> None:
+    """Every counted edge must be on a candidate route, or routeSampler cannot meet its count."""
+    on_routes = {e for edges in route_edges(routes) for e in edges}
+    counted = counts.edges.loc[counts.edges["entered"] > 0, "sumo_edge"].astype(str)
+    missing = sorted(set(counted) - on_routes)
+    if missing:
+        raise InputError(f"routes {routes}: no candidate route passes the counted edge(s) {', '.join(missing[:5])}; "
+                         "give routes through them (a .rou.xml)", parameters=("routes",))
+
+
+def observed_vehicle_types(observed: ObservedRun, mapping: LaneMapping, begin_s: float,
+                           end_s: float) -> list[VehicleType]:
+    """One :class:`VehicleType` per observed class (module docstring)."""
+    cr = _mapped_crossings(observed, mapping, begin_s, end_s)
+    if not len(cr):
+        raise InputError(f"{observed.folder}: no vehicle crossed a counting line between {begin_s:g} and {end_s:g} s; "
+                         "give a run with counts (or other begin_s/end_s)", parameters=("begin_s", "end_s"))
+    limit = {c.lane: c.speed_limit_mps for c in mapping.crossings}
+    cls = cr["class"].fillna("").astype(str).str.lower().replace("", "car").to_numpy()
+    factor = cr["speed_kmh"].to_numpy(np.float64) / 3.6 / cr["sumo_lane"].map(limit).to_numpy(np.float64)
+    lengths = cr["length_m"].to_numpy(np.float64) if "length_m" in cr else np.full(len(cr), np.nan)
+    all_f = factor[np.isfinite(factor) & (factor > 0)]
+    out = []
+    for name in sorted(set(cls)):
+        sel = cls == name
+        f = factor[sel]
+        f = f[np.isfinite(f) & (f > 0)]
+        if f.size < 2:
+            f = all_f if all_f.size >= 2 else np.array([0.9, 1.1])
+        mean, dev = float(f.mean()), float(f.std(ddof=1))
+        dims = dimensions_for([name])[0]
+        ln = lengths[sel]
+        ln = ln[np.isfinite(ln) & (ln > 0)]
+        out.append(VehicleType(name, float(sel.mean()), float(np.median(ln)) if ln.size else float(dims[0]),
+                               float(dims[1]), (mean, dev, max(0.2, mean - 3 * dev), mean + 3 * dev), int(sel.sum())))
+    return out
+
+
+@dataclass(frozen=True)
+class SampledDemand:
+    """The vehicles of the demand, one entry each: departure (SUMO time, s), route edges, and what was drawn from
+    an observed vehicle (class, departure lane index or "random", speed factor; "" / NaN when none)."""
+
+    depart_s: np.ndarray
+    routes: list[list[str]]
+    vclass: list[str]
+    depart_lane: list[str]
+    speed_factor: np.ndarray
+    time_offset_s: float
+    max_lag_s: float
+
+
+def sample_routes(routes: Path, edge_data: Path, out: Path, *, seed: int) -> Path:
+    """``routeSampler.py --optimize full`` on candidate ``routes`` and the counts in ``edge_data``."""
+    run_sumo_tool("routeSampler.py", ["-r", str(routes), "-d", str(edge_data), "-o", str(out), "--optimize", "full",
+                                      "-s", str(seed), "--prefix", "v", "--threads", "1"],
+                  _TOOL_TIMEOUT_S, cwd=out.parent)
+    return out
+
+
+def _observed_pools(observed: ObservedRun, mapping: LaneMapping, counts: DemandCounts
+                    ) -> dict[tuple[str, float], pd.DataFrame]:
+    """The observed vehicles at the first line of each mapped edge, per (edge, interval start): lane index, class,
+    speed factor (spot speed / the lane's speed limit)."""
+    cr = _mapped_crossings(observed, mapping, counts.begin_s, counts.end_s)
+    first_line = mapping.table.sort_values("pos_m").groupby("sumo_edge")["line"].first()
+    cr = cr[cr["line"] == cr["sumo_edge"].map(first_line)]
+    limit = {c.lane: c.speed_limit_mps for c in mapping.crossings}
+    starts = np.sort(counts.edges["interval_start"].unique())
+    k = np.clip(np.searchsorted(starts, cr["time"].to_numpy(np.float64), side="right") - 1, 0, None)
+    factor = cr["speed_kmh"].to_numpy(np.float64) / 3.6 / cr["sumo_lane"].map(limit).to_numpy(np.float64)
+    table = pd.DataFrame({"edge": cr["sumo_edge"].astype(str).to_numpy(), "start": starts[k] if len(starts) else [],
+                          "lane": cr["sumo_lane"].astype(str).str.rpartition("_")[2].to_numpy(),
+                          "vclass": cr["class"].fillna("").astype(str).str.lower().replace("", "car").to_numpy(),
+                          "speed_factor": np.clip(factor, 0.2, 2.0)})
+    return {(str(e), float(t)): g.reset_index(drop=True) for (e, t), g in table.groupby(["edge", "start"])}
+
+
+def place_departures(sampled: Path, net_lengths: dict[str, float], observed: ObservedRun, mapping: LaneMapping,
+                     counts: DemandCounts, *, seed: int) -> SampledDemand:
+    """Read routeSampler's vehicles; move each departure earlier by its travel time to the first observed line on
+    its route; give it the class, speed factor and (when its route starts on that edge) lane of an observed
+    vehicle of that line and interval (drawn without replacement while there are enough)."""
+    try:
+        root = ET.parse(sampled).getroot()
+    except (ET.ParseError, OSError) as exc:
+        raise InputError(f"routeSampler output {sampled} is not readable ({exc})") from None
+    cr = _mapped_crossings(observed, mapping, counts.begin_s, counts.end_s)
+    speed = {str(k): float(v) for k, v in (cr.groupby("sumo_edge")["speed_kmh"].mean() / 3.6).items()
+             if np.isfinite(v) and v > 0.5}
+    first_pos = mapping.table.groupby("sumo_edge")["pos_m"].min().to_dict()
+    starts = np.sort(counts.edges["interval_start"].unique())
+    depart, edges_of, lag, key_of, at_start = [], [], [], [], []
+    for veh in root.iter("vehicle"):
+        route = veh.find("route")
+        edges = (route.get("edges", "") if route is not None else "").split()
+        if not edges:
+            continue
+        t = float(veh.get("depart", "0"))
+        dist, k_first = 0.0, None
+        for k, e in enumerate(edges):
+            if e in first_pos:
+                dist += float(first_pos[e])
+                k_first = k
+                break
+            dist += net_lengths.get(e, 0.0)
+        v = speed.get(edges[k_first], 13.9) if k_first is not None else 13.9
+        lag.append(dist / v if k_first is not None else 0.0)
+        depart.append(t)
+        edges_of.append(edges)
+        start = float(starts[max(0, np.searchsorted(starts, t, side="right") - 1)]) if len(starts) else np.nan
+        key_of.append((edges[k_first], start) if k_first is not None else None)
+        at_start.append(k_first == 0)
+    vclass, lanes, factor = _draw_observed(key_of, at_start, _observed_pools(observed, mapping, counts),
+                                           np.random.default_rng(seed))
+    lag_a = np.asarray(lag, dtype=np.float64)
+    max_lag = float(lag_a.max()) if lag_a.size else 0.0
+    offset = 10.0 * math.ceil(max(0.0, max_lag + 10.0 - counts.begin_s) / 10.0)
+    return SampledDemand(np.asarray(depart, dtype=np.float64) + offset - lag_a, edges_of, vclass, lanes, factor,
+                         offset, max_lag)
+
+
+def _draw_observed(keys: list[tuple[str, float] | None], at_start: list[bool],
+                   pools: dict[tuple[str, float], pd.DataFrame], rng: np.random.Generator
+                   ) -> tuple[list[str], list[str], np.ndarray]:
+    """For the vehicles of each (edge, interval): observed vehicles of the pool in a random order (then drawn
+    again at random when the pool is smaller)."""
+    n = len(keys)
+    vclass, lanes, factor = [""] * n, ["random"] * n, np.full(n, np.nan)
+    groups: dict[tuple[str, float], list[int]] = {}
+    for i, k in enumerate(keys):
+        if k is not None and k in pools:
+            groups.setdefault(k, []).append(i)
+    for k, idx in sorted(groups.items()):
+        pool = pools[k]
+        order = rng.permutation(len(pool))
+        if len(idx) > len(pool):
+            order = np.concatenate([order, rng.integers(0, len(pool), len(idx) - len(pool))])
+        for i, j in zip(idx, order[: len(idx)], strict=True):
+            vclass[i] = str(pool.at[j, "vclass"])
+            factor[i] = float(pool.at[j, "speed_factor"])
+            if at_start[i]:
+                lanes[i] = str(pool.at[j, "lane"])
+    return vclass, lanes, factor
+
+
+def demand_xml(types: list[VehicleType], demand: SampledDemand) -> str:
+    """The route file: the observed vehicle types, then the vehicles sorted by departure."""
+    out = ["<routes>\n", '    <vTypeDistribution id="observed">\n', *(t.xml() for t in types),
+           "    </vTypeDistribution>\n"]
+    known = {t.name for t in types}
+    order = np.argsort(demand.depart_s, kind="stable")
+    for n, i in enumerate(order):
+        vtype = demand.vclass[i] if demand.vclass[i] in known else "observed"
+        factor = demand.speed_factor[i]
+        sf = f' speedFactor="{factor:.4f}"' if np.isfinite(factor) else ""
+        out.append(f'    <vehicle id="v{n}" type={quoteattr(vtype)} depart="{demand.depart_s[i]:.2f}" '
+                   f'departLane="{demand.depart_lane[i]}" departSpeed="desired"{sf}>\n'
+                   f'        <route edges="{" ".join(demand.routes[i])}"/>\n    </vehicle>\n')
+    out.append("</routes>\n")
+    return "".join(out)

@@ -1,0 +1,129 @@
+"""``sumo-validate`` and the whole loop: run a scenario's SUMO simulation and compare it with the observed run.
+
+The comparison is :func:`trafficgeo.traffic.validation.compare_with_simulation` (GEH per line x lane x direction x
+interval, spot speeds per line and lane with the KS distance, travel times between the first and the last line)
+and is written by :func:`~trafficgeo.traffic.validation.write_comparison` (``compare_counts.csv``,
+``compare_speeds.csv``, ``simulated_crossings.csv``, ``compare_summary.json``: the files the HTML report's
+"Observed vs simulated" part reads). The observed counts are re-counted per the scenario's interval over its
+period ``[begin_s, end_s)``, the intervals its demand was fitted to; the simulated vehicles are counted at the same
+lines, lanes and intervals, SUMO time moved back by the scenario's ``time_offset_s``.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from trafficgeo.simulation.scenario import Scenario, SimulationOutputs, build_scenario, read_scenario, run_scenario
+from trafficgeo.traffic.compare import GEH_LIMIT
+from trafficgeo.traffic.lines import aggregate_counts
+from trafficgeo.traffic.validation import (
+    Comparison,
+    ObservedRun,
+    compare_with_simulation,
+    read_observed_run,
+    simulated_points,
+    write_comparison,
+)
+
+__all__ = ["GEH_TARGET_SHARE", "LoopResult", "Validation", "close_loop", "validate_scenario"]
+
+GEH_TARGET_SHARE = 0.85  # the usual calibration target: GEH < 5 for at least 85 % of the counts
+
+
+@dataclass(frozen=True)
+class Validation:
+    """A scenario's simulation against the observed run: the :class:`Comparison` and its headline figures."""
+
+    scenario: Scenario
+    comparison: Comparison
+    share_geh_below_5: float  # of the line x lane x direction x interval counts
+    mean_geh: float
+    counts: int  # rows of the count comparison
+    target_met: bool  # share_geh_below_5 >= GEH_TARGET_SHARE
+    max_abs_speed_difference_kmh: float  # over lines and lanes with vehicles on both sides (NaN: none)
+    travel_time_difference_s: float  # simulated - observed mean, first to last line (NaN: fewer than 2 lines)
+    simulation: SimulationOutputs
+    written: list[Path]
+
+
+@dataclass(frozen=True)
+class LoopResult:
+    """:func:`close_loop`: the scenario built, its validation, and the wall time of each part (s)."""
+
+    scenario: Scenario
+    validation: Validation
+    build_s: float
+    run_and_compare_s: float
+
+    @property
+    def share_geh_below_5(self) -> float:
+        return self.validation.share_geh_below_5
+
+
+def observed_at_interval(observed: ObservedRun, interval_s: float, begin_s: float, end_s: float) -> ObservedRun:
+    """The run with its crossings limited to ``[begin_s, end_s)`` and counted per ``interval_s`` (s)."""
+    cr = observed.crossings
+    cr = cr[(cr["time"] >= begin_s) & (cr["time"] < end_s)].reset_index(drop=True)
+    names = [ln.name for ln in observed.lines]
+    counts = aggregate_counts(cr[cr["line"].astype(str).isin(names)], interval_s, begin_s, end_s)
+    return replace(observed, period=(begin_s, end_s), interval_s=interval_s, counts=counts, crossings=cr)
+
+
+def validate_scenario(scenario: Scenario | str | os.PathLike[str], run: ObservedRun | str | os.PathLike[str], *,
+                      out_dir: str | os.PathLike[str] | None = None) -> Validation:
+    """Run SUMO on ``scenario`` (a folder of ``sumo-demand``) and compare it with ``run`` (a run folder); the
+    comparison tables go to ``out_dir`` (default the scenario folder)."""
+    from trafficgeo.io.run_manifest import check_writable_folder
+
+    sc = scenario if isinstance(scenario, Scenario) else read_scenario(scenario)
+    out = Path(out_dir) if out_dir is not None else sc.folder
+    check_writable_folder(out, "out_dir")
+    observed = run if isinstance(run, ObservedRun) else read_observed_run(run)
+    sim = run_scenario(sc)
+    obs = observed_at_interval(observed, sc.interval_s, sc.begin_s, sc.end_s)
+    points = simulated_points(sim.fcd, observed.crs, net=sc.net, net_crs=sc.net_crs, time_offset_s=sc.time_offset_s)
+    comparison = compare_with_simulation(obs, points)
+    written = write_comparison(out, comparison, observed.crs)
+    table = comparison.counts
+    share = float((table["geh"] < GEH_LIMIT).mean()) if len(table) else float("nan")
+    speeds = comparison.speeds
+    both = speeds[(speeds["observed_n"] > 0) & (speeds["simulated_n"] > 0)]
+    tt = comparison.travel_times or {}
+    return Validation(sc, comparison, share, float(table["geh"].mean()) if len(table) else float("nan"), len(table),
+                      bool(share >= GEH_TARGET_SHARE), float(np.abs(both["mean_difference_kmh"]).max())
+                      if len(both) else float("nan"), float(tt.get("mean_difference_s", np.nan)), sim, written)
+
+
+def close_loop(run: str | os.PathLike[str], net: str | os.PathLike[str], out_dir: str | os.PathLike[str], *,
+               interval_s: float = 900.0, begin_s: float | None = None, end_s: float | None = None,
+               routes: str | os.PathLike[str] | None = None, net_crs: str | None = None, seed: int = 0) -> LoopResult:
+    """Observed counts of ``run`` -> SUMO demand on ``net`` -> simulation -> comparison, all in ``out_dir``
+    (:func:`~trafficgeo.simulation.scenario.build_scenario` then :func:`validate_scenario`).
+
+    >>> loop = close_loop("run", "road.net.xml", "scenario", interval_s=60)   # doctest: +SKIP
+    >>> loop.share_geh_below_5 >= 0.85                                          # doctest: +SKIP
+    True
+    """
+    t = time.perf_counter()
+    sc = build_scenario(run, net, out_dir, interval_s=interval_s, begin_s=begin_s, end_s=end_s, routes=routes,
+                        net_crs=net_crs, seed=seed)
+    built = time.perf_counter()
+    val = validate_scenario(sc, run)
+    return LoopResult(sc, val, built - t, time.perf_counter() - built)
+
+
+def lane_speed_table(validation: Validation) -> pd.DataFrame:
+    """Per line and lane: observed and simulated vehicles, mean speeds (km/h), their difference and the KS
+    distance."""
+    s = validation.comparison.speeds
+    return s[["line", "lane", "observed_n", "simulated_n", "observed_mean_kmh", "simulated_mean_kmh",
+              "mean_difference_kmh", "ks_statistic"]].copy()
+
+
+__all__ += ["lane_speed_table", "observed_at_interval"]
