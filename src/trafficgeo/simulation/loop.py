@@ -19,7 +19,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from trafficgeo.simulation.scenario import Scenario, SimulationOutputs, build_scenario, read_scenario, run_scenario
+from trafficgeo.simulation.scenario import (
+    SimulationOutputs,
+    SumoScenario,
+    build_sumo_scenario,
+    read_sumo_scenario,
+    run_scenario,
+)
 from trafficgeo.traffic.compare import GEH_LIMIT
 from trafficgeo.traffic.lines import aggregate_counts
 from trafficgeo.traffic.validation import (
@@ -31,16 +37,16 @@ from trafficgeo.traffic.validation import (
     write_comparison,
 )
 
-__all__ = ["GEH_TARGET_SHARE", "LoopResult", "Validation", "close_loop", "validate_scenario"]
+__all__ = ["GEH_TARGET_SHARE", "SumoLoopResult", "SumoValidation", "close_sumo_loop", "validate_sumo_scenario"]
 
 GEH_TARGET_SHARE = 0.85  # the usual calibration target: GEH < 5 for at least 85 % of the counts
 
 
 @dataclass(frozen=True)
-class Validation:
+class SumoValidation:
     """A scenario's simulation against the observed run: the :class:`Comparison` and its headline figures."""
 
-    scenario: Scenario
+    scenario: SumoScenario
     comparison: Comparison
     share_geh_below_5: float  # of the line x lane x direction x interval counts
     mean_geh: float
@@ -53,11 +59,11 @@ class Validation:
 
 
 @dataclass(frozen=True)
-class LoopResult:
-    """:func:`close_loop`: the scenario built, its validation, and the wall time of each part (s)."""
+class SumoLoopResult:
+    """:func:`close_sumo_loop`: the scenario built, its validation, and the wall time of each part (s)."""
 
-    scenario: Scenario
-    validation: Validation
+    scenario: SumoScenario
+    validation: SumoValidation
     build_s: float
     run_and_compare_s: float
 
@@ -75,13 +81,14 @@ def observed_at_interval(observed: ObservedRun, interval_s: float, begin_s: floa
     return replace(observed, period=(begin_s, end_s), interval_s=interval_s, counts=counts, crossings=cr)
 
 
-def validate_scenario(scenario: Scenario | str | os.PathLike[str], run: ObservedRun | str | os.PathLike[str], *,
-                      out_dir: str | os.PathLike[str] | None = None) -> Validation:
+def validate_sumo_scenario(scenario: SumoScenario | str | os.PathLike[str],
+                           run: ObservedRun | str | os.PathLike[str], *,
+                           out_dir: str | os.PathLike[str] | None = None) -> SumoValidation:
     """Run SUMO on ``scenario`` (a folder of ``sumo-demand``) and compare it with ``run`` (a run folder); the
     comparison tables go to ``out_dir`` (default the scenario folder)."""
     from trafficgeo.io.run_manifest import check_writable_folder
 
-    sc = scenario if isinstance(scenario, Scenario) else read_scenario(scenario)
+    sc = scenario if isinstance(scenario, SumoScenario) else read_sumo_scenario(scenario)
     out = Path(out_dir) if out_dir is not None else sc.folder
     check_writable_folder(out, "out_dir")
     observed = run if isinstance(run, ObservedRun) else read_observed_run(run)
@@ -95,30 +102,31 @@ def validate_scenario(scenario: Scenario | str | os.PathLike[str], run: Observed
     speeds = comparison.speeds
     both = speeds[(speeds["observed_n"] > 0) & (speeds["simulated_n"] > 0)]
     tt = comparison.travel_times or {}
-    return Validation(sc, comparison, share, float(table["geh"].mean()) if len(table) else float("nan"), len(table),
+    return SumoValidation(sc, comparison, share, float(table["geh"].mean()) if len(table) else float("nan"), len(table),
                       bool(share >= GEH_TARGET_SHARE), float(np.abs(both["mean_difference_kmh"]).max())
                       if len(both) else float("nan"), float(tt.get("mean_difference_s", np.nan)), sim, written)
 
 
-def close_loop(run: str | os.PathLike[str], net: str | os.PathLike[str], out_dir: str | os.PathLike[str], *,
-               interval_s: float = 900.0, begin_s: float | None = None, end_s: float | None = None,
-               routes: str | os.PathLike[str] | None = None, net_crs: str | None = None, seed: int = 0) -> LoopResult:
+def close_sumo_loop(run: str | os.PathLike[str], net: str | os.PathLike[str], out_dir: str | os.PathLike[str], *,
+                    interval_s: float = 900.0, begin_s: float | None = None, end_s: float | None = None,
+                    routes: str | os.PathLike[str] | None = None, net_crs: str | None = None,
+                    seed: int = 0) -> SumoLoopResult:
     """Observed counts of ``run`` -> SUMO demand on ``net`` -> simulation -> comparison, all in ``out_dir``
-    (:func:`~trafficgeo.simulation.scenario.build_scenario` then :func:`validate_scenario`).
+    (:func:`~trafficgeo.simulation.scenario.build_sumo_scenario` then :func:`validate_sumo_scenario`).
 
-    >>> loop = close_loop("run", "road.net.xml", "scenario", interval_s=60)   # doctest: +SKIP
+    >>> loop = close_sumo_loop("run", "road.net.xml", "scenario", interval_s=60)   # doctest: +SKIP
     >>> loop.share_geh_below_5 >= 0.85                                          # doctest: +SKIP
     True
     """
     t = time.perf_counter()
-    sc = build_scenario(run, net, out_dir, interval_s=interval_s, begin_s=begin_s, end_s=end_s, routes=routes,
-                        net_crs=net_crs, seed=seed)
+    sc = build_sumo_scenario(run, net, out_dir, interval_s=interval_s, begin_s=begin_s, end_s=end_s, routes=routes,
+                             net_crs=net_crs, seed=seed)
     built = time.perf_counter()
-    val = validate_scenario(sc, run)
-    return LoopResult(sc, val, built - t, time.perf_counter() - built)
+    val = validate_sumo_scenario(sc, run)
+    return SumoLoopResult(sc, val, built - t, time.perf_counter() - built)
 
 
-def lane_speed_table(validation: Validation) -> pd.DataFrame:
+def lane_speed_table(validation: SumoValidation) -> pd.DataFrame:
     """Per line and lane: observed and simulated vehicles, mean speeds (km/h), their difference and the KS
     distance."""
     s = validation.comparison.speeds

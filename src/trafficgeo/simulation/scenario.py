@@ -46,8 +46,15 @@ from trafficgeo.simulation.tools import run_sumo_program
 from trafficgeo.traffic.lines import check_interval
 from trafficgeo.traffic.validation import ObservedRun, read_observed_run
 
-__all__ = ["SCENARIO_MANIFEST", "Scenario", "SimulationOutputs", "build_scenario", "mapping_table", "read_scenario",
-           "run_scenario"]
+__all__ = [
+    "SCENARIO_MANIFEST",
+    "SimulationOutputs",
+    "SumoScenario",
+    "build_sumo_scenario",
+    "mapping_table",
+    "read_sumo_scenario",
+    "run_scenario",
+]
 
 SCENARIO_MANIFEST = "scenario_run.json"
 FORMAT = "trafficgeo-sumo-scenario/1"
@@ -55,7 +62,7 @@ FCD_ATTRIBUTES = "x,y,angle,type,speed,lane"
 
 
 @dataclass(frozen=True)
-class Scenario:
+class SumoScenario:
     """A scenario folder (module docstring) and what it was built from; times in seconds."""
 
     folder: Path
@@ -126,10 +133,10 @@ def _outputs_add(file: str, interval_s: float, begin_sumo_s: float, end_sumo_s: 
             "</additional>\n")
 
 
-def build_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str], out_dir: str | os.PathLike[str], *,
-                   interval_s: float = 900.0, begin_s: float | None = None, end_s: float | None = None,
-                   routes: str | os.PathLike[str] | None = None, net_crs: str | None = None, step_s: float = 0.5,
-                   seed: int = 0) -> Scenario:
+def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str], out_dir: str | os.PathLike[str],
+                        *, interval_s: float = 900.0, begin_s: float | None = None, end_s: float | None = None,
+                        routes: str | os.PathLike[str] | None = None, net_crs: str | None = None,
+                        step_s: float = 0.5, seed: int = 0) -> SumoScenario:
     """SUMO demand reproducing the observed counts of ``run`` (a run folder) on ``net`` (a ``.net.xml``), counted
     per ``interval_s`` over ``[begin_s, end_s)`` (observed time, s; default the run's period), on candidate
     ``routes`` (a route file; default randomTrips.py), written as a runnable scenario into ``out_dir`` (module
@@ -187,7 +194,7 @@ def build_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str], out
         write_csv_atomic(out / "mapping.csv", mapping.table, float_format="%.3f")
         write_csv_atomic(out / "observed_lane_counts.csv", counts.lanes, float_format="%.3f")
         written += [out / "mapping.csv", out / "observed_lane_counts.csv"]
-        scenario = Scenario(out, Path(run).resolve(), Path(net).resolve(), net_crs, interval, b, e, offset, step_s,
+        scenario = SumoScenario(out, Path(run).resolve(), Path(net).resolve(), net_crs, interval, b, e, offset, step_s,
                             int(seed), len(demand.depart_s), [_type_doc(t) for t in types],
                             time.perf_counter() - started)
         write_json_atomic(out / "scenario.json", _scenario_doc(scenario, net_rel, routes, counts, demand.max_lag_s))
@@ -203,7 +210,7 @@ def _type_doc(t: VehicleType) -> dict:
             "observed": t.observed}
 
 
-def _scenario_doc(s: Scenario, net_rel: str, routes, counts: DemandCounts, max_lag_s: float) -> dict:
+def _scenario_doc(s: SumoScenario, net_rel: str, routes, counts: DemandCounts, max_lag_s: float) -> dict:
     return {"format": FORMAT, "run": str(s.run), "net": net_rel, "net_crs": s.net_crs, "interval_s": s.interval_s,
             "begin_s": s.begin_s, "end_s": s.end_s, "time_offset_s": s.time_offset_s, "step_s": s.step_s,
             "seed": s.seed, "vehicles": s.vehicles, "observed_vehicles_per_edge": int(counts.edges["entered"].sum()),
@@ -211,8 +218,8 @@ def _scenario_doc(s: Scenario, net_rel: str, routes, counts: DemandCounts, max_l
             "candidates.rou.xml (randomTrips.py)", "vehicle_types": s.vehicle_types}
 
 
-def read_scenario(folder: str | os.PathLike[str]) -> Scenario:
-    """A scenario folder written by :func:`build_scenario` (checked against its manifest)."""
+def read_sumo_scenario(folder: str | os.PathLike[str]) -> SumoScenario:
+    """A scenario folder written by :func:`build_sumo_scenario` (checked against its manifest)."""
     from trafficgeo.io.run_manifest import verify_outputs
 
     d = Path(folder)
@@ -224,7 +231,7 @@ def read_scenario(folder: str | os.PathLike[str]) -> Scenario:
         doc = json.loads((d / "scenario.json").read_text(encoding="utf-8"))
         if doc.get("format") != FORMAT:
             raise KeyError("format")
-        return Scenario(d, Path(doc["run"]), (d / doc["net"]).resolve(), doc["net_crs"], float(doc["interval_s"]),
+        return SumoScenario(d, Path(doc["run"]), (d / doc["net"]).resolve(), doc["net_crs"], float(doc["interval_s"]),
                         float(doc["begin_s"]), float(doc["end_s"]), float(doc["time_offset_s"]), float(doc["step_s"]),
                         int(doc["seed"]), int(doc["vehicles"]), list(doc["vehicle_types"]))
     except (KeyError, TypeError, ValueError):
@@ -241,7 +248,7 @@ class SimulationOutputs:
     run_s: float
 
 
-def run_scenario(scenario: Scenario) -> SimulationOutputs:
+def run_scenario(scenario: SumoScenario) -> SimulationOutputs:
     """Run SUMO headless on the scenario; ``fcd.xml`` and ``simulated.edgedata.xml`` land in its folder only when
     SUMO succeeded."""
     from trafficgeo.io.atomic import write_text_atomic
@@ -267,7 +274,7 @@ def run_scenario(scenario: Scenario) -> SimulationOutputs:
                              time.perf_counter() - started)
 
 
-def mapping_table(scenario: Scenario) -> pd.DataFrame:
+def mapping_table(scenario: SumoScenario) -> pd.DataFrame:
     """The scenario's ``mapping.csv``."""
     return pd.read_csv(scenario.folder / "mapping.csv", dtype={"line": str, "lane": str}, keep_default_na=False)
 
