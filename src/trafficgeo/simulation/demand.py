@@ -3,12 +3,15 @@
 Times: observed time ``t`` (s, the run's clock) is SUMO time ``t + time_offset_s``. The observed crossings are
 counted per ``interval_s`` over ``[begin_s, end_s)`` (:func:`trafficgeo.traffic.lines.aggregate_counts`); each
 line x lane x direction count goes to the SUMO edge it maps to (:mod:`trafficgeo.simulation.mapping`), the lanes of
-an edge are summed and, when several lines observe one edge, their sums are averaged (routeSampler wants one
-``entered`` count per edge and interval). ``routeSampler.py --optimize full`` picks vehicles on candidate routes
+an edge are summed and, when several lines observe one edge, the first line along it gives its count
+(routeSampler wants one ``entered`` count per edge and interval; the others are reproduced by the simulation, or
+not, between the lines). ``routeSampler.py --optimize full`` picks vehicles on candidate routes
 (``randomTrips.py`` on the network, or the user's routes) so that the counts per edge and interval are met, with
 departure times spread over each interval *of the observation*. Each vehicle's departure is then moved earlier by
 its expected travel time from the start of its route to the first observed line on it (distance / the observed
-mean speed on that edge), so that it crosses the line in the interval it was counted in.
+mean speed on that edge), so that it crosses the line in the interval it was counted in. A vehicle whose route
+starts on the edge of that line enters :data:`ENTRY_M` before the line (not at the start of the edge), so that it
+reaches the line on the lane and at the speed it was given.
 
 Vehicle types: one ``vType`` per observed class (ids ``car``, ``truck``, ...: the names
 :func:`trafficgeo.traffic.boxes.dimensions_for` knows), in a ``vTypeDistribution`` ``observed`` with the class
@@ -43,6 +46,7 @@ __all__ = ["DemandCounts", "VehicleType", "candidate_routes", "edge_counts", "ob
 SUMO_VCLASS = {"car": "passenger", "van": "delivery", "truck": "truck", "bus": "bus", "motorcycle": "motorcycle",
                "bicycle": "bicycle"}
 _TOOL_TIMEOUT_S = 600.0
+ENTRY_M = 30.0  # m before the first observed line where a vehicle whose route starts on that edge is inserted
 
 
 @dataclass(frozen=True)
@@ -96,10 +100,15 @@ def edge_counts(observed: ObservedRun, mapping: LaneMapping, interval_s: float, 
                                direction=counts["direction"].astype(int))
     lanes = counts[[*keys, "interval_start", "interval_end", "count"]].merge(
         mapping.table[[*keys, "sumo_edge", "sumo_lane", "pos_m"]], on=keys, how="inner")
-    per_line = lanes.groupby(["sumo_edge", "line", "interval_start", "interval_end"], sort=True)["count"].sum()
-    edges = per_line.groupby(level=["sumo_edge", "interval_start", "interval_end"]).mean().reset_index()
-    edges["entered"] = np.round(edges["count"]).astype(int)
-    return DemandCounts(lanes, edges.drop(columns="count"), float(interval_s), float(begin_s), float(end_s))
+    first = lanes[lanes["line"] == lanes["sumo_edge"].map(first_lines(mapping))]
+    edges = first.groupby(["sumo_edge", "interval_start", "interval_end"], sort=True)["count"].sum().reset_index()
+    edges = edges.rename(columns={"count": "entered"}).astype({"entered": int})
+    return DemandCounts(lanes, edges, float(interval_s), float(begin_s), float(end_s))
+
+
+def first_lines(mapping: LaneMapping) -> pd.Series:
+    """SUMO edge -> the first counting line along it (smallest lane position): the one its demand is fitted to."""
+    return mapping.table.sort_values(["pos_m", "line"], kind="stable").groupby("sumo_edge")["line"].first()
 
 
 def write_edge_data(path: str | os.PathLike[str], counts: DemandCounts) -> None:
@@ -187,6 +196,7 @@ class SampledDemand:
     vclass: list[str]
     depart_lane: list[str]
     speed_factor: np.ndarray
+    depart_pos_m: np.ndarray  # front bumper on the first edge (NaN: SUMO's default)
     time_offset_s: float
     max_lag_s: float
 
@@ -204,8 +214,7 @@ def _observed_pools(observed: ObservedRun, mapping: LaneMapping, counts: DemandC
     """The observed vehicles at the first line of each mapped edge, per (edge, interval start): lane index, class,
     speed factor (spot speed / the lane's speed limit)."""
     cr = _mapped_crossings(observed, mapping, counts.begin_s, counts.end_s)
-    first_line = mapping.table.sort_values("pos_m").groupby("sumo_edge")["line"].first()
-    cr = cr[cr["line"] == cr["sumo_edge"].map(first_line)]
+    cr = cr[cr["line"] == cr["sumo_edge"].map(first_lines(mapping))]
     limit = {c.lane: c.speed_limit_mps for c in mapping.crossings}
     starts = np.sort(counts.edges["interval_start"].unique())
     k = np.clip(np.searchsorted(starts, cr["time"].to_numpy(np.float64), side="right") - 1, 0, None)
@@ -231,7 +240,7 @@ def place_departures(sampled: Path, net_lengths: dict[str, float], observed: Obs
              if np.isfinite(v) and v > 0.5}
     first_pos = mapping.table.groupby("sumo_edge")["pos_m"].min().to_dict()
     starts = np.sort(counts.edges["interval_start"].unique())
-    depart, edges_of, lag, key_of, at_start = [], [], [], [], []
+    depart, edges_of, lag, key_of, at_start, depart_pos = [], [], [], [], [], []
     for veh in root.iter("vehicle"):
         route = veh.find("route")
         edges = (route.get("edges", "") if route is not None else "").split()
@@ -245,8 +254,10 @@ def place_departures(sampled: Path, net_lengths: dict[str, float], observed: Obs
                 k_first = k
                 break
             dist += net_lengths.get(e, 0.0)
+        entry = max(0.0, float(first_pos[edges[0]]) - ENTRY_M) if k_first == 0 else np.nan
         v = speed.get(edges[k_first], 13.9) if k_first is not None else 13.9
-        lag.append(dist / v if k_first is not None else 0.0)
+        lag.append((dist - (entry if k_first == 0 else 0.0)) / v if k_first is not None else 0.0)
+        depart_pos.append(entry)
         depart.append(t)
         edges_of.append(edges)
         start = float(starts[max(0, np.searchsorted(starts, t, side="right") - 1)]) if len(starts) else np.nan
@@ -258,7 +269,7 @@ def place_departures(sampled: Path, net_lengths: dict[str, float], observed: Obs
     max_lag = float(lag_a.max()) if lag_a.size else 0.0
     offset = 10.0 * math.ceil(max(0.0, max_lag + 10.0 - counts.begin_s) / 10.0)
     return SampledDemand(np.asarray(depart, dtype=np.float64) + offset - lag_a, edges_of, vclass, lanes, factor,
-                         offset, max_lag)
+                         np.asarray(depart_pos, dtype=np.float64), offset, max_lag)
 
 
 def _draw_observed(keys: list[tuple[str, float] | None], at_start: list[bool],
@@ -295,6 +306,8 @@ def demand_xml(types: list[VehicleType], demand: SampledDemand) -> str:
         vtype = demand.vclass[i] if demand.vclass[i] in known else "observed"
         factor = demand.speed_factor[i]
         sf = f' speedFactor="{factor:.4f}"' if np.isfinite(factor) else ""
+        pos = demand.depart_pos_m[i]
+        sf += f' departPos="{pos:.2f}"' if np.isfinite(pos) else ""
         out.append(f'    <vehicle id="v{n}" type={quoteattr(vtype)} depart="{demand.depart_s[i]:.2f}" '
                    f'departLane="{demand.depart_lane[i]}" departSpeed="desired"{sf}>\n'
                    f'        <route edges="{" ".join(demand.routes[i])}"/>\n    </vehicle>\n')

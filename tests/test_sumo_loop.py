@@ -1,0 +1,199 @@
+"""Closing the loop with SUMO (trafficgeo.simulation): observed counts -> sumo-demand -> SUMO -> sumo-validate.
+
+The observed run is written from the true trajectories of a SUMO world (trafficgeo.synth.observed_run), so the
+truth is a real SUMO simulation: the demand built from its counts must reproduce them in a new SUMO run.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import trafficgeo as tg
+from cli_support import invoke
+from trafficgeo.errors import InputError
+from trafficgeo.simulation.mapping import MappingError, map_observations
+from trafficgeo.synth.observed_run import truth_run_folder
+from trafficgeo.synth.sumo_scene import Demand, RoadSpec
+from trafficgeo.synth.sumo_world import run_sumo_world
+from trafficgeo.traffic.validation import read_observed_run
+
+pytestmark = pytest.mark.slow  # SUMO, randomTrips and routeSampler run (about 20 s in all)
+
+ROAD = RoadSpec()  # EPSG:2949, 2 lanes per direction, 50 km/h
+STATIONS = (-100.0, 100.0)  # two counting lines across the road, 200 m apart
+DURATION_S = 300.0
+INTERVAL_S = 300.0
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    base = tmp_path_factory.mktemp("sumo_loop")
+    sumo = run_sumo_world(base / "world", ROAD, Demand(600.0), duration_s=DURATION_S, step_s=0.5, seed=1)
+    truth_run_folder(base / "run", sumo.trajectories, ROAD, stations_m=STATIONS, interval_s=60.0)
+    # the same observation in another CRS than the network's (UTM 19N on WGS 84, the net is MTM 7 on NAD83(CSRS))
+    truth_run_folder(base / "run_utm", sumo.trajectories, ROAD, stations_m=STATIONS, interval_s=60.0,
+                     crs="EPSG:32619")
+    return {"base": base, "net": sumo.net, "run": base / "run", "run_utm": base / "run_utm"}
+
+
+def _check_fit(loop: tg.SumoLoopResult) -> None:
+    table = loop.validation.comparison.counts
+    assert len(table) == 2 * 4  # 2 lines x 4 lanes (2 per direction) x 1 interval
+    assert (table["geh"] < 5).all(), table
+    assert loop.share_geh_below_5 == 1.0 and loop.validation.target_met
+    # every observed vehicle is simulated within a few percent (routeSampler meets the edge counts)
+    obs, sim = int(table["observed"].sum()), int(table["simulated"].sum())
+    assert obs > 350 and abs(sim - obs) <= 0.05 * obs, (obs, sim)
+    # speeds per line and lane within 2.5 km/h (measured: at most 1.9), travel times within 1 s (measured 0.25)
+    speeds = loop.validation.comparison.speeds
+    assert len(speeds) == 8 and (speeds["mean_difference_kmh"].abs() <= 2.5).all(), speeds
+    assert abs(loop.validation.travel_time_difference_s) < 1.0
+
+
+def test_round_trip_reproduces_the_observed_counts(world: dict[str, Path], tmp_path: Path) -> None:
+    loop = tg.close_sumo_loop(world["run"], world["net"], tmp_path / "scenario", interval_s=INTERVAL_S, seed=0)
+    _check_fit(loop)
+    sc = loop.scenario
+    for name in ("scenario.sumocfg", "demand.rou.xml", "counts.edgedata.xml", "candidates.rou.xml", "mapping.csv",
+                 "scenario.json", "fcd.xml", "simulated.edgedata.xml", "compare_counts.csv", "compare_summary.json"):
+        assert (sc.folder / name).is_file(), name
+    # the edge data routeSampler got: the lanes of each edge summed at the first line along it (d1 runs towards
+    # increasing stations, d2 the other way), i.e. the observed vehicles in each direction, all simulated
+    cr = pd.read_csv(world["run"] / "crossings.csv", dtype={"lane": str, "line": str})
+    first = {"d1": ("s-100", -1), "d2": ("s100", 1)}
+    edge_text = (sc.folder / "counts.edgedata.xml").read_text()
+    total = 0
+    for edge, (line, direction) in first.items():
+        n = int(((cr["line"] == line) & (cr["direction"] == direction)).sum())
+        assert f'<edge id="{edge}" entered="{n}"/>' in edge_text
+        total += n
+    assert sc.vehicles == total  # routeSampler --optimize full meets the counts exactly here
+    # vehicle types from the observed mix: shares sum to 1, classes of the world
+    shares = {t["class"]: t["share"] for t in sc.vehicle_types}
+    assert set(shares) <= {"car", "van", "truck", "bus"} and sum(shares.values()) == pytest.approx(1.0)
+    assert shares["car"] > 0.6
+    # deterministic for a seed: the same demand again
+    again = tg.build_sumo_scenario(world["run"], world["net"], tmp_path / "again", interval_s=INTERVAL_S, seed=0)
+    assert (again.folder / "demand.rou.xml").read_bytes() == (sc.folder / "demand.rou.xml").read_bytes()
+
+
+def test_a_run_in_another_crs_than_the_network(world: dict[str, Path], tmp_path: Path) -> None:
+    observed = read_observed_run(world["run_utm"])
+    assert observed.crs.to_epsg() == 32619
+    mapping = map_observations(observed, world["net"])
+    # lane d<direction>_<k> (k = 1 innermost) is SUMO lane d<direction>_<lanes - k> (SUMO counts from the right)
+    got = dict(zip(mapping.table["lane"], mapping.table["sumo_lane"], strict=True))
+    assert got == {"d1_1": "d1_1", "d1_2": "d1_0", "d2_1": "d2_1", "d2_2": "d2_0"}
+    # the line at station -100 m is 140 m along d1 (which starts 40 m before the 400 m road) and 340 m along d2
+    pos = mapping.table.groupby(["line", "sumo_edge"])["pos_m"].first()
+    assert pos[("s-100", "d1")] == pytest.approx(140.0, abs=1.5) and pos[("s-100", "d2")] == pytest.approx(340, abs=1.5)
+    loop = tg.close_sumo_loop(world["run_utm"], world["net"], tmp_path / "scenario", interval_s=INTERVAL_S)
+    _check_fit(loop)
+
+
+def test_sumo_validate_feeds_the_report_of_a_run_folder(world: dict[str, Path], tmp_path: Path) -> None:
+    from trafficgeo.report.inputs import find_inputs
+
+    run = tmp_path / "run"
+    shutil.copytree(world["run"], run)
+    code, stdout, stderr = invoke("sumo-demand", run, "--net", world["net"], "--out", tmp_path / "sc", "--interval",
+                                  150, "--seed", 3)
+    assert code == 0, stderr
+    assert "SUMO time = observed time +" in " ".join(stdout.split())
+    code, stdout, stderr = invoke("sumo-validate", tmp_path / "sc", run, "--out", run)
+    assert code == 0, stderr
+    assert "target >= 85% met" in " ".join(stdout.split())
+    table = pd.read_csv(run / "compare_counts.csv")
+    assert len(table) == 16 and set(table["interval_start"]) == {0.0, 150.0}  # the scenario's intervals
+    summary = json.loads((run / "compare_summary.json").read_text())
+    assert summary["counts"]["rows"] == 16
+    inputs = find_inputs(run)
+    assert inputs.traffic and inputs.traffic[0].compare  # the HTML report shows "Observed vs simulated"
+
+
+def test_a_line_off_the_network_is_one_line_error_with_a_table(world: dict[str, Path], tmp_path: Path) -> None:
+    # a second world's road 2 km east: its counting lines cross no edge of the first world's network
+    far = RoadSpec(origin=(ROAD.origin[0] + 2000.0, ROAD.origin[1], ROAD.origin[2]))
+    sumo = run_sumo_world(tmp_path / "far", far, Demand(300.0), duration_s=30.0, step_s=0.5, seed=2)
+    truth_run_folder(tmp_path / "run", sumo.trajectories, far, stations_m=(0.0,), interval_s=30.0)
+    with pytest.raises(MappingError, match=r"^net .*counting line 's0' crosses no edge of the network") as info:
+        map_observations(read_observed_run(tmp_path / "run"), world["net"])
+    assert "\n" not in str(info.value)
+    assert set(info.value.table["problem"]) == {"crosses no SUMO edge in this direction"}
+    out = tmp_path / "scenario"
+    code, stdout, stderr = invoke("sumo-demand", tmp_path / "run", "--net", world["net"], "--out", out)
+    assert code == 2 and stderr.count("\n") == 1 and "error: --net " in stderr
+    assert "counting lines on the SUMO network" in stdout and "s0" in stdout  # the table
+    assert not out.exists()
+
+
+def _empty_run(tmp: Path, world: dict[str, Path]) -> Path:
+    """A run whose lines no vehicle crossed (only its first 1 s of truth)."""
+    d = tmp / "empty_run"
+    shutil.copytree(world["run"], d)
+    summary = json.loads((d / "summary.json").read_text())
+    from trafficgeo.io.run_manifest import publish_outputs
+
+    cr = pd.read_csv(d / "crossings.csv")
+    cr.iloc[:0].to_csv(d / "crossings.csv", index=False)
+    c = pd.read_csv(d / "counts.csv")
+    c.iloc[:0].to_csv(d / "counts.csv", index=False)
+    publish_outputs(d, [d / n for n in ("summary.json", "counts.csv", "crossings.csv", "trajectories.gpkg")],
+                    command="analyze")
+    assert summary["period_s"] == [0.0, DURATION_S]
+    return d
+
+
+BAD = {
+    "missing_net": (lambda t, w: [w["run"], "--net", t / "nope.net.xml"], "--net "),
+    "zero_interval": (lambda t, w: [w["run"], "--net", w["net"], "--interval", 0], "--interval 0"),
+    "nan_interval": (lambda t, w: [w["run"], "--net", w["net"], "--interval", "nan"], "--interval nan"),
+    "begin_after_end": (lambda t, w: [w["run"], "--net", w["net"], "--begin", 200, "--end", 100], "--begin 200"),
+    "not_a_run": (lambda t, w: [t, "--net", w["net"]], "no summary.json"),
+    "empty_run": (lambda t, w: [_empty_run(t, w), "--net", w["net"]], "no vehicle counted"),
+    "missing_routes": (lambda t, w: [w["run"], "--net", w["net"], "--routes", t / "r.rou.xml"], "--routes "),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_input_exits_2_with_one_line_and_nothing_written(case: str, world: dict[str, Path],
+                                                              tmp_path: Path) -> None:
+    make, expect = BAD[case]
+    out = tmp_path / "scenario"
+    code, _stdout, stderr = invoke("sumo-demand", *make(tmp_path, world), "--out", out)
+    assert code == 2, stderr
+    assert stderr.startswith("trafficgeo: error: ") and stderr.count("\n") == 1, stderr
+    assert expect in stderr, stderr
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".sumo")]  # no work folder left behind
+
+
+def test_sumo_validate_bad_input(world: dict[str, Path], tmp_path: Path) -> None:
+    code, _, stderr = invoke("sumo-validate", tmp_path / "nope", world["run"])
+    assert code == 2 and "SCENARIO" in stderr and "sumo-demand" in stderr
+    with pytest.raises(InputError, match=r"^scenario .*nope: no scenario\.json"):
+        tg.validate_sumo_scenario(tmp_path / "nope", tmp_path)
+
+
+def test_departure_lanes_and_speeds_come_from_observed_vehicles(world: dict[str, Path], tmp_path: Path) -> None:
+    sc = tg.build_sumo_scenario(world["run"], world["net"], tmp_path / "sc", interval_s=INTERVAL_S)
+    text = (sc.folder / "demand.rou.xml").read_text()
+    import xml.etree.ElementTree as ET
+
+    veh = ET.fromstring(text).findall("vehicle")
+    assert len(veh) == sc.vehicles > 180
+    factors = np.array([float(v.get("speedFactor")) for v in veh])
+    observed = pd.read_csv(world["run"] / "crossings.csv")
+    obs_factor = observed["speed_kmh"].to_numpy() / ROAD.speed_limit_kmh
+    assert abs(np.median(factors) - np.median(obs_factor)) < 0.03
+    depart = np.array([float(v.get("depart")) for v in veh])
+    assert np.all(np.diff(depart) >= 0) and depart.min() >= 0  # sorted, after the start of the simulation
+    assert {v.get("departLane") for v in veh} <= {"0", "1"}  # every route starts on an observed edge
+    # inserted 30 m before the first line along their edge (at 140 m on both edges)
+    assert {v.get("departPos") for v in veh} == {"110.00"}
