@@ -133,6 +133,69 @@ def test_a_line_off_the_network_is_one_line_error_with_a_table(world: dict[str, 
     assert not out.exists()
 
 
+def _net(folder: Path, world: dict[str, Path], nodes: dict[str, tuple[float, float]],
+         edges: list[tuple[str, str, str, int]]) -> Path:
+    """A network with the world's location (same netOffset and projection) from nodes (x, y relative to the road's
+    origin) and edges (id, from, to, lanes), built by netconvert."""
+    from trafficgeo.simulation.tools import run_sumo_program
+
+    folder.mkdir(parents=True, exist_ok=True)
+    location = next(ln for ln in (world["net"].parent / "road.nod.xml").read_text().splitlines() if "<location" in ln)
+    (folder / "n.nod.xml").write_text("<nodes>\n" + location + "\n" + "".join(
+        f'<node id="{n}" x="{x!r}" y="{y!r}"/>\n' for n, (x, y) in nodes.items()) + "</nodes>\n")
+    (folder / "n.edg.xml").write_text("<edges>\n" + "".join(
+        f'<edge id="{e}" from="{a}" to="{b}" numLanes="{k}" speed="{ROAD.speed_limit!r}" width="3.5" '
+        'spreadType="right"/>\n' for e, a, b, k in edges) + "</edges>\n")
+    run_sumo_program("netconvert", ["--node-files", str(folder / "n.nod.xml"), "--edge-files",
+                                    str(folder / "n.edg.xml"), "--offset.disable-normalization", "--no-turnarounds",
+                                    "-o", str(folder / "net.net.xml")], 60.0)
+    return folder / "net.net.xml"
+
+
+def _along(station: float, offset: float = 0.0) -> tuple[float, float]:
+    """x, y relative to the origin of a point ``station`` m along the road axis and ``offset`` m right of it."""
+    a = np.radians(ROAD.azimuth_deg)
+    return (float(station * np.sin(a) + offset * np.cos(a)), float(station * np.cos(a) - offset * np.sin(a)))
+
+
+def test_a_network_of_several_edges_with_a_side_road(world: dict[str, Path], tmp_path: Path) -> None:
+    """The road cut in two at a junction (station 0) with a side road: routes of two edges (and some through the
+    side road) are the candidates; the demand must pass both lines with one vehicle, not two."""
+    net = _net(tmp_path / "net", world, {"A": _along(-240), "M": _along(0), "B": _along(240), "S": _along(0, 200)},
+               [("a1", "A", "M", 2), ("b1", "M", "B", 2), ("b2", "B", "M", 2), ("a2", "M", "A", 2),
+                ("sin", "S", "M", 1), ("sout", "M", "S", 1)])
+    loop = tg.close_sumo_loop(world["run"], net, tmp_path / "scenario", interval_s=INTERVAL_S)
+    mapping = pd.read_csv(loop.scenario.folder / "mapping.csv", dtype=str, keep_default_na=False)
+    assert dict(zip(mapping["line"] + mapping["lane"], mapping["sumo_edge"], strict=True)) == {
+        "s-100d1_1": "a1", "s-100d1_2": "a1", "s-100d2_1": "a2", "s-100d2_2": "a2",
+        "s100d1_1": "b1", "s100d1_2": "b1", "s100d2_1": "b2", "s100d2_2": "b2"}
+    routes = (loop.scenario.folder / "demand.rou.xml").read_text()
+    through = routes.count('edges="a1 b1"') + routes.count('edges="b2 a2"')
+    assert through >= 0.9 * loop.scenario.vehicles  # measured: 199 of 204
+    _check_fit(loop)
+
+
+def test_a_line_over_two_parallel_edges_without_lanes_is_ambiguous(world: dict[str, Path], tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    # two one-way carriageways side by side in direction 1, as two edges; a run without lane polygons
+    # (lane centres 2.75 and 6.25 m right of the axis, both under the lines, which span 8 m either side)
+    net = _net(tmp_path / "net", world, {"A": _along(-240, 1), "B": _along(240, 1), "C": _along(-240, 4.5),
+                                         "D": _along(240, 4.5)}, [("east", "A", "B", 1), ("west", "C", "D", 1)])
+    observed = read_observed_run(world["run"])
+    crossings = observed.crossings.assign(lane="")
+    no_lanes = replace(observed, lanes=None, crossings=crossings,
+                       counts=observed.counts.assign(lane="").drop_duplicates(
+                           ["line", "lane", "direction", "interval_start"]))
+    with pytest.raises(MappingError, match=r"^net .*: line 's-100' lane '\(none\)' direction -1: ambiguous: lanes of "
+                       r"edges east, west \(4 of 4 line/lane/direction groups not mapped\)") as info:
+        map_observations(no_lanes, net)
+    problems = info.value.table.set_index(["line", "direction"])["problem"]
+    assert problems[("s100", -1)] == "ambiguous: lanes of edges east, west"
+    assert problems[("s100", 1)] == "crosses no SUMO edge in this direction"  # no edge of direction 2 here
+    assert "\n" not in str(info.value)
+
+
 def _empty_run(tmp: Path, world: dict[str, Path]) -> Path:
     """A run whose lines no vehicle crossed (only its first 1 s of truth)."""
     d = tmp / "empty_run"

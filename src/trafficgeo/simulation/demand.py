@@ -40,12 +40,14 @@ from trafficgeo.traffic.boxes import dimensions_for
 from trafficgeo.traffic.lines import aggregate_counts
 from trafficgeo.traffic.validation import ObservedRun
 
-__all__ = ["DemandCounts", "VehicleType", "candidate_routes", "edge_counts", "observed_vehicle_types",
-           "sample_routes", "write_edge_data"]
+__all__ = ["DemandCounts", "SampledDemand", "VehicleType", "candidate_routes", "candidates_for", "demand_xml",
+           "edge_counts", "observed_vehicle_types", "place_departures", "sample_routes", "uncovered_edges",
+           "write_edge_data"]
 
 SUMO_VCLASS = {"car": "passenger", "van": "delivery", "truck": "truck", "bus": "bus", "motorcycle": "motorcycle",
                "bicycle": "bicycle"}
 _TOOL_TIMEOUT_S = 600.0
+MINIMIZE_VEHICLES = 0.9  # routeSampler: prefer routes through several counting locations (one vehicle, not two)
 ENTRY_M = 30.0  # m before the first observed line where a vehicle whose route starts on that edge is inserted
 
 
@@ -148,14 +150,30 @@ def route_edges(path: Path) -> list[list[str]]:
     return [r.get("edges", "").split() for r in root.iter("route") if r.get("edges")]
 
 
-def check_route_coverage(routes: Path, counts: DemandCounts) -> None:
-    """Every counted edge must be on a candidate route, or routeSampler cannot meet its count."""
+def uncovered_edges(routes: Path, counts: DemandCounts) -> list[str]:
+    """Counted edges on no candidate route (routeSampler could not meet their counts)."""
     on_routes = {e for edges in route_edges(routes) for e in edges}
     counted = counts.edges.loc[counts.edges["entered"] > 0, "sumo_edge"].astype(str)
-    missing = sorted(set(counted) - on_routes)
-    if missing:
-        raise InputError(f"routes {routes}: no candidate route passes the counted edge(s) {', '.join(missing[:5])}; "
-                         "give routes through them (a .rou.xml)", parameters=("routes",))
+    return sorted(set(counted) - on_routes)
+
+
+def candidates_for(net: Path, routes: Path | None, work: Path, counts: DemandCounts, *, seed: int) -> Path:
+    """The user's ``routes``, checked to pass every counted edge; or randomTrips.py candidates (500 trips, then
+    5000 if some counted edge is on none of them)."""
+    if routes is not None:
+        missing = uncovered_edges(routes, counts)
+        if missing:
+            raise InputError(f"routes {routes}: no route passes the counted edge(s) {', '.join(missing[:5])}; give "
+                             "routes through them", parameters=("routes",))
+        return routes
+    for trips in (500, 5000):
+        cand = candidate_routes(net, work / "candidates.rou.xml", seed=seed, trips=trips)
+        missing = uncovered_edges(cand, counts)
+        if not missing:
+            return cand
+    raise InputError(f"net {net}: none of {trips} random trips (randomTrips.py) passes the counted edge(s) "
+                     f"{', '.join(missing[:5])}; give candidate routes through them (`routes`, a .rou.xml)",
+                     parameters=("net", "routes"))
 
 
 def observed_vehicle_types(observed: ObservedRun, mapping: LaneMapping, begin_s: float,
@@ -204,7 +222,8 @@ class SampledDemand:
 def sample_routes(routes: Path, edge_data: Path, out: Path, *, seed: int) -> Path:
     """``routeSampler.py --optimize full`` on candidate ``routes`` and the counts in ``edge_data``."""
     run_sumo_tool("routeSampler.py", ["-r", str(routes), "-d", str(edge_data), "-o", str(out), "--optimize", "full",
-                                      "-s", str(seed), "--prefix", "v", "--threads", "1"],
+                                      "-s", str(seed), "--prefix", "v", "--threads", "1",
+                                      "--minimize-vehicles", repr(MINIMIZE_VEHICLES)],
                   _TOOL_TIMEOUT_S, cwd=out.parent)
     return out
 

@@ -8,12 +8,14 @@ the line from its left to its right is in direction +1, the other way -1, the co
 
 An observed group (line, lane, direction) is mapped to the SUMO lanes crossing its line in its direction
 
-* whose crossing point lies in the group's lane polygon (the run's lanes), or else
-* nearest to the median of its observed crossing points, within :data:`MAX_DISTANCE_M`;
+* whose crossing point lies in the group's lane polygon (the run's lanes), or else the one nearest to the median
+  of its observed crossing points, within :data:`MAX_DISTANCE_M`;
+* all of them when the run has no lanes (lane "");
 
-all of them must belong to one edge. A group that crosses no edge in its direction, or lanes of two edges, is a
-problem: :class:`MappingError` (an :class:`~trafficgeo.errors.InputError`) says so in one line and carries the
-table of every group (:attr:`MappingError.table`).
+all of them must belong to one edge (the group's SUMO lane: the one nearest to its observed crossings). A group that
+crosses no edge in its direction, or lanes of two edges, is a problem: :class:`MappingError` (an
+:class:`~trafficgeo.errors.InputError`) says so in one line and carries the table of every group
+(:attr:`MappingError.table`).
 """
 
 from __future__ import annotations
@@ -203,11 +205,11 @@ def map_observations(observed: ObservedRun, net: str | os.PathLike[str], *,
         chosen: list[SumoLaneCrossing] = []
         if g.lane in lane_poly:
             chosen = [c for c in cands if lane_poly[g.lane].contains(shapely.Point(c.x_net, c.y_net))]
-        if not chosen and cands and np.isfinite(gx[i]):
-            d = np.array([np.hypot(c.x_net - gx[i], c.y_net - gy[i]) for c in cands])
-            chosen = [cands[int(np.argmin(d))]] if d.min() <= MAX_DISTANCE_M else []
-        if not chosen and cands and not np.isfinite(gx[i]) and len({c.edge for c in cands}) == 1:
-            chosen = cands  # no crossing to place it (a group with zero counts): the only edge there
+            if not chosen and cands and np.isfinite(gx[i]):  # the SUMO lane is beside the drawn one: the nearest
+                d = np.array([np.hypot(c.x_net - gx[i], c.y_net - gy[i]) for c in cands])
+                chosen = [cands[int(np.argmin(d))]] if d.min() <= MAX_DISTANCE_M else []
+        else:  # no lane polygon: every SUMO lane of this direction under the line
+            chosen = cands
         edges = sorted({c.edge for c in chosen})
         problem = ""
         if not cands:

@@ -32,8 +32,7 @@ from trafficgeo.errors import InputError
 from trafficgeo.simulation.demand import (
     DemandCounts,
     VehicleType,
-    candidate_routes,
-    check_route_coverage,
+    candidates_for,
     demand_xml,
     edge_counts,
     observed_vehicle_types,
@@ -172,9 +171,8 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
     work = Path(tempfile.mkdtemp(prefix=".sumo-demand-", dir=parent)).resolve()
     try:
         write_edge_data(work / "counts.edgedata.xml", counts)
-        cand = Path(routes).resolve() if routes is not None else candidate_routes(
-            Path(net).resolve(), work / "candidates.rou.xml", seed=seed)
-        check_route_coverage(cand, counts)
+        cand = candidates_for(Path(net).resolve(), Path(routes).resolve() if routes is not None else None, work,
+                              counts, seed=seed)
         sampled = sample_routes(cand, work / "counts.edgedata.xml", work / "sampled.rou.xml", seed=seed)
         demand = place_departures(sampled, mapping.edge_lengths_m, observed, mapping, counts, seed=seed)
         offset = demand.time_offset_s
