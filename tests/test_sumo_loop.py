@@ -196,6 +196,19 @@ def test_a_line_over_two_parallel_edges_without_lanes_is_ambiguous(world: dict[s
     assert "\n" not in str(info.value)
 
 
+def test_a_wrong_way_vehicle_is_left_out_with_a_warning(world: dict[str, Path]) -> None:
+    from dataclasses import replace
+
+    observed = read_observed_run(world["run"])
+    cr = observed.crossings
+    wrong = cr[(cr["line"] == "s-100") & (cr["lane"] == "d1_1")].head(1).assign(direction=1, track_id="ghost")
+    mapping = map_observations(replace(observed, crossings=pd.concat([cr, wrong], ignore_index=True)), world["net"])
+    assert mapping.warnings == ("line 's-100' lane 'd1_1' direction +1: no SUMO lane of this direction under the "
+                                "observed lane; "
+                                "its 1 vehicle(s) left out",)
+    assert len(mapping.mapped) == 8 and len(mapping.table) == 9
+
+
 def _empty_run(tmp: Path, world: dict[str, Path]) -> Path:
     """A run whose lines no vehicle crossed (only its first 1 s of truth)."""
     d = tmp / "empty_run"

@@ -51,6 +51,8 @@ def sumo_demand(
     except MappingError as exc:
         _print_mapping_problem(exc)
         raise
+    for text in sc.warnings:
+        console.print(f"[yellow]warning:[/yellow] {text}")
     classes = ", ".join(f"{t['class']} {t['share']:.0%}" for t in sc.vehicle_types)
     console.print(f"{sc.vehicles} vehicles ({classes}) over {sc.begin_s:g}-{sc.end_s:g} s in {sc.interval_s:g} s "
                   f"intervals; SUMO time = observed time + {sc.time_offset_s:g} s; built in {sc.build_s:.1f} s")

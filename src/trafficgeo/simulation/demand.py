@@ -87,7 +87,7 @@ def _mapped_crossings(observed: ObservedRun, mapping: LaneMapping, begin_s: floa
     cr["lane"] = cr["lane"].fillna("").astype(str)
     cr["direction"] = cr["direction"].astype(int)
     cr = cr[(cr["time"] >= begin_s) & (cr["time"] < end_s)]
-    m = mapping.table[["line", "lane", "direction", "sumo_edge", "sumo_lane", "pos_m"]]
+    m = mapping.mapped[["line", "lane", "direction", "sumo_edge", "sumo_lane", "pos_m"]]
     return cr.merge(m, on=["line", "lane", "direction"], how="inner")
 
 
@@ -101,7 +101,7 @@ def edge_counts(observed: ObservedRun, mapping: LaneMapping, interval_s: float, 
         counts = counts.assign(lane=counts["lane"].astype(str), line=counts["line"].astype(str),
                                direction=counts["direction"].astype(int))
     lanes = counts[[*keys, "interval_start", "interval_end", "count"]].merge(
-        mapping.table[[*keys, "sumo_edge", "sumo_lane", "pos_m"]], on=keys, how="inner")
+        mapping.mapped[[*keys, "sumo_edge", "sumo_lane", "pos_m"]], on=keys, how="inner")
     first = lanes[lanes["line"] == lanes["sumo_edge"].map(first_lines(mapping))]
     edges = first.groupby(["sumo_edge", "interval_start", "interval_end"], sort=True)["count"].sum().reset_index()
     edges = edges.rename(columns={"count": "entered"}).astype({"entered": int})
@@ -110,7 +110,7 @@ def edge_counts(observed: ObservedRun, mapping: LaneMapping, interval_s: float, 
 
 def first_lines(mapping: LaneMapping) -> pd.Series:
     """SUMO edge -> the first counting line along it (smallest lane position): the one its demand is fitted to."""
-    return mapping.table.sort_values(["pos_m", "line"], kind="stable").groupby("sumo_edge")["line"].first()
+    return mapping.mapped.sort_values(["pos_m", "line"], kind="stable").groupby("sumo_edge")["line"].first()
 
 
 def write_edge_data(path: str | os.PathLike[str], counts: DemandCounts) -> None:
@@ -257,7 +257,7 @@ def place_departures(sampled: Path, net_lengths: dict[str, float], observed: Obs
     cr = _mapped_crossings(observed, mapping, counts.begin_s, counts.end_s)
     speed = {str(k): float(v) for k, v in (cr.groupby("sumo_edge")["speed_kmh"].mean() / 3.6).items()
              if np.isfinite(v) and v > 0.5}
-    first_pos = mapping.table.groupby("sumo_edge")["pos_m"].min().to_dict()
+    first_pos = mapping.mapped.groupby("sumo_edge")["pos_m"].min().to_dict()
     starts = np.sort(counts.edges["interval_start"].unique())
     depart, edges_of, lag, key_of, at_start, depart_pos = [], [], [], [], [], []
     for veh in root.iter("vehicle"):

@@ -8,14 +8,16 @@ the line from its left to its right is in direction +1, the other way -1, the co
 
 An observed group (line, lane, direction) is mapped to the SUMO lanes crossing its line in its direction
 
-* whose crossing point lies in the group's lane polygon (the run's lanes), or else the one nearest to the median
-  of its observed crossing points, within :data:`MAX_DISTANCE_M`;
+* whose crossing point lies in the group's lane polygon (the run's lanes), or, when no SUMO lane (of either
+  direction) crosses the line there, the one nearest to the median of its observed crossing points, within
+  :data:`MAX_DISTANCE_M`;
 * all of them when the run has no lanes (lane "");
 
 all of them must belong to one edge (the group's SUMO lane: the one nearest to its observed crossings). A group that
 crosses no edge in its direction, or lanes of two edges, is a problem: :class:`MappingError` (an
 :class:`~trafficgeo.errors.InputError`) says so in one line and carries the table of every group
-(:attr:`MappingError.table`).
+(:attr:`MappingError.table`). A group of very few vehicles (at most :data:`MINOR_VEHICLES`, or :data:`MINOR_SHARE`
+of its line's: a wrong-way track, a vehicle on the shoulder) is left out with a warning instead.
 """
 
 from __future__ import annotations
@@ -38,6 +40,8 @@ from trafficgeo.traffic.validation import ObservedRun
 __all__ = ["MAX_DISTANCE_M", "LaneMapping", "MappingError", "SumoLaneCrossing", "map_observations",
            "net_lane_crossings"]
 
+MINOR_VEHICLES = 2  # an unmapped group of at most this many vehicles (or MINOR_SHARE of its line's) is left out
+MINOR_SHARE = 0.02
 MAX_DISTANCE_M = 5.0  # m: farthest a SUMO lane crossing may be from a group's observed crossings without a polygon
 MAPPING_COLUMNS = ["line", "lane", "direction", "sumo_edge", "sumo_lane", "pos_m", "x_net", "y_net", "problem"]
 
@@ -78,10 +82,16 @@ class LaneMapping:
     crossings: list[SumoLaneCrossing]
     location: NetLocation
     edge_lengths_m: dict[str, float]  # every non-internal edge of the network
+    warnings: tuple[str, ...] = ()  # groups left out (too few vehicles to stop the mapping)
+
+    @property
+    def mapped(self) -> pd.DataFrame:
+        """The rows of ``table`` that map to a SUMO edge."""
+        return self.table[self.table["problem"] == ""]
 
     def edge_of(self) -> dict[tuple[str, str, int], str]:
-        """(line, lane, direction) -> SUMO edge id."""
-        t = self.table
+        """(line, lane, direction) -> SUMO edge id, of the mapped groups."""
+        t = self.mapped
         return {(str(r.line), str(r.lane), int(r.direction)): str(r.sumo_edge) for r in t.itertuples()}
 
 
@@ -160,20 +170,22 @@ def net_lane_crossings(net: str | os.PathLike[str], lines: list[CountLine], run_
 
 
 def _groups(observed: ObservedRun) -> pd.DataFrame:
-    """Observed (line, lane, direction) groups with the median crossing point (run CRS)."""
+    """Observed (line, lane, direction) groups with the median crossing point (run CRS) and their ``vehicles``."""
     names = [ln.name for ln in observed.lines]
     cr = observed.crossings[observed.crossings["line"].astype(str).isin(names)]
     keys = ["line", "lane", "direction"]
     if len(cr):
         g = cr.assign(line=cr["line"].astype(str), lane=cr["lane"].fillna("").astype(str),
                       direction=cr["direction"].astype(int)).groupby(keys, sort=True)
-        med = g[["x", "y"]].median().reset_index()
+        med = g[["x", "y"]].median().join(g.size().rename("vehicles")).reset_index()
     else:
-        med = pd.DataFrame(columns=[*keys, "x", "y"])
+        med = pd.DataFrame(columns=[*keys, "x", "y", "vehicles"])
     counts = observed.counts[observed.counts["line"].astype(str).isin(names)]
     seen = counts.assign(line=counts["line"].astype(str), lane=counts["lane"].fillna("").astype(str),
                          direction=counts["direction"].astype(int))[keys].drop_duplicates()
-    return seen.merge(med, on=keys, how="outer").sort_values(keys, kind="stable").reset_index(drop=True)
+    out = seen.merge(med, on=keys, how="outer").sort_values(keys, kind="stable").reset_index(drop=True)
+    out["vehicles"] = out["vehicles"].fillna(0).astype(int)
+    return out
 
 
 def map_observations(observed: ObservedRun, net: str | os.PathLike[str], *,
@@ -204,8 +216,10 @@ def map_observations(observed: ObservedRun, net: str | os.PathLike[str], *,
         cands = [c for c in crossings if c.line == g.line and c.direction == g.direction]
         chosen: list[SumoLaneCrossing] = []
         if g.lane in lane_poly:
-            chosen = [c for c in cands if lane_poly[g.lane].contains(shapely.Point(c.x_net, c.y_net))]
-            if not chosen and cands and np.isfinite(gx[i]):  # the SUMO lane is beside the drawn one: the nearest
+            under = [c for c in crossings if c.line == g.line
+                     and lane_poly[g.lane].contains(shapely.Point(c.x_net, c.y_net))]
+            chosen = [c for c in under if c.direction == g.direction]
+            if not under and cands and np.isfinite(gx[i]):  # the SUMO lane is beside the drawn one: the nearest
                 d = np.array([np.hypot(c.x_net - gx[i], c.y_net - gy[i]) for c in cands])
                 chosen = [cands[int(np.argmin(d))]] if d.min() <= MAX_DISTANCE_M else []
         else:  # no lane polygon: every SUMO lane of this direction under the line
@@ -234,10 +248,19 @@ def map_observations(observed: ObservedRun, net: str | os.PathLike[str], *,
             raise MappingError(f"net {net}: counting line {line.name!r} crosses no edge of the network (in "
                                f"{crs_label(loc.crs)} + netOffset {loc.offset}); check that the network covers the "
                                "camera's view and its CRS (net_crs)", table)
-    bad = table[table["problem"] != ""]
+    # a handful of vehicles in a direction or lane the network does not have (a wrong-way track, a vehicle on the
+    # shoulder) is left out with a warning, not an error
+    line_total = groups.groupby("line")["vehicles"].transform("sum").to_numpy()
+    minor = (table["problem"] != "").to_numpy() & (groups["vehicles"].to_numpy() <= np.maximum(
+        MINOR_VEHICLES, MINOR_SHARE * line_total))
+    warnings = tuple(f"line {r.line!r} lane {r.lane or '(none)'!r} direction {int(r.direction):+d}: {r.problem}; its "
+                     f"{int(n)} vehicle(s) left out" for r, n in zip(table[minor].itertuples(),
+                                                                      groups["vehicles"].to_numpy()[minor],
+                                                                      strict=True))
+    bad = table[(table["problem"] != "").to_numpy() & ~minor]
     if len(bad):
         r = bad.iloc[0]
         raise MappingError(f"net {net}: line {r['line']!r} lane {r['lane'] or '(none)'!r} direction "
                            f"{int(r['direction']):+d}: {r['problem']} ({len(bad)} of {len(table)} line/lane/direction "
                            "groups not mapped); check the network and its CRS (net_crs)", table)
-    return LaneMapping(net, table, crossings, loc, lengths)
+    return LaneMapping(net, table, crossings, loc, lengths, warnings)

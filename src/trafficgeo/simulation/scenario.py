@@ -77,6 +77,7 @@ class SumoScenario:
     vehicles: int = 0
     vehicle_types: list[dict] = field(default_factory=list)
     build_s: float = 0.0  # wall time of sumo-demand
+    warnings: tuple[str, ...] = ()  # observations left out of the demand (see mapping.py)
 
     @property
     def sumocfg(self) -> Path:
@@ -193,8 +194,8 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
         write_csv_atomic(out / "observed_lane_counts.csv", counts.lanes, float_format="%.3f")
         written += [out / "mapping.csv", out / "observed_lane_counts.csv"]
         scenario = SumoScenario(out, Path(run).resolve(), Path(net).resolve(), net_crs, interval, b, e, offset, step_s,
-                            int(seed), len(demand.depart_s), [_type_doc(t) for t in types],
-                            time.perf_counter() - started)
+                                 int(seed), len(demand.depart_s), [_type_doc(t) for t in types],
+                                 time.perf_counter() - started, mapping.warnings)
         write_json_atomic(out / "scenario.json", _scenario_doc(scenario, net_rel, routes, counts, demand.max_lag_s))
         written.append(out / "scenario.json")
         publish_outputs(out, written, command="sumo-demand", name=SCENARIO_MANIFEST)
@@ -213,7 +214,8 @@ def _scenario_doc(s: SumoScenario, net_rel: str, routes, counts: DemandCounts, m
             "begin_s": s.begin_s, "end_s": s.end_s, "time_offset_s": s.time_offset_s, "step_s": s.step_s,
             "seed": s.seed, "vehicles": s.vehicles, "observed_vehicles_per_edge": int(counts.edges["entered"].sum()),
             "max_lag_s": max_lag_s, "routes": str(Path(routes).resolve()) if routes is not None else
-            "candidates.rou.xml (randomTrips.py)", "vehicle_types": s.vehicle_types}
+            "candidates.rou.xml (randomTrips.py)", "vehicle_types": s.vehicle_types,
+            "warnings": list(s.warnings)}
 
 
 def read_sumo_scenario(folder: str | os.PathLike[str]) -> SumoScenario:
@@ -229,9 +231,10 @@ def read_sumo_scenario(folder: str | os.PathLike[str]) -> SumoScenario:
         doc = json.loads((d / "scenario.json").read_text(encoding="utf-8"))
         if doc.get("format") != FORMAT:
             raise KeyError("format")
-        return SumoScenario(d, Path(doc["run"]), (d / doc["net"]).resolve(), doc["net_crs"], float(doc["interval_s"]),
-                        float(doc["begin_s"]), float(doc["end_s"]), float(doc["time_offset_s"]), float(doc["step_s"]),
-                        int(doc["seed"]), int(doc["vehicles"]), list(doc["vehicle_types"]))
+        return SumoScenario(d, Path(doc["run"]), (d / doc["net"]).resolve(), doc["net_crs"],
+                            float(doc["interval_s"]), float(doc["begin_s"]), float(doc["end_s"]),
+                            float(doc["time_offset_s"]), float(doc["step_s"]), int(doc["seed"]), int(doc["vehicles"]),
+                            list(doc["vehicle_types"]), warnings=tuple(doc.get("warnings", ())))
     except (KeyError, TypeError, ValueError):
         raise InputError(f"scenario {d}: scenario.json is not one written by 'trafficgeo sumo-demand'; run it again",
                          parameters=("scenario",)) from None
