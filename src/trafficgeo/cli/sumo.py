@@ -73,6 +73,8 @@ def sumo_validate(
     from trafficgeo.simulation.loop import GEH_TARGET_SHARE, validate_sumo_scenario
 
     val = validate_sumo_scenario(scenario, run, out_dir=out)
+    if val.unobserved:
+        console.print(f"not compared (no vehicle observed there): {', '.join(val.unobserved)}")
     print_comparison(val.comparison, console)
     verdict = "met" if val.target_met else "NOT met"
     console.print(f"GEH < 5 for {val.share_geh_below_5:.1%} of {val.counts} counts: target >= "

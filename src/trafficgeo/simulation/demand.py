@@ -11,7 +11,8 @@ departure times spread over each interval *of the observation*. Each vehicle's d
 its expected travel time from the start of its route to the first observed line on it (distance / the observed
 mean speed on that edge), so that it crosses the line in the interval it was counted in. A vehicle whose route
 starts on the edge of that line enters :data:`ENTRY_M` before the line (not at the start of the edge), so that it
-reaches the line on the lane and at the speed it was given.
+reaches the line on the lane and at the speed it was given. Demand starts :func:`warmup_s` before the observation,
+at the rate of its first interval, so that the vehicles already on the road when it begins are simulated too.
 
 Vehicle types: one ``vType`` per observed class (ids ``car``, ``truck``, ...: the names
 :func:`trafficgeo.traffic.boxes.dimensions_for` knows), in a ``vTypeDistribution`` ``observed`` with the class
@@ -48,6 +49,7 @@ SUMO_VCLASS = {"car": "passenger", "van": "delivery", "truck": "truck", "bus": "
                "bicycle": "bicycle"}
 _TOOL_TIMEOUT_S = 600.0
 MINIMIZE_VEHICLES = 0.9  # routeSampler: prefer routes through several counting locations (one vehicle, not two)
+WARMUP_MIN_S = 30.0  # s of demand at least before the observation begins (see warmup_s)
 ENTRY_M = 30.0  # m before the first observed line where a vehicle whose route starts on that edge is inserted
 
 
@@ -61,6 +63,7 @@ class DemandCounts:
     interval_s: float
     begin_s: float
     end_s: float
+    warmup_s: float = 0.0  # the first row of ``edges`` per edge is a warm-up interval [begin_s - warmup_s, begin_s)
 
 
 @dataclass(frozen=True)
@@ -105,7 +108,24 @@ def edge_counts(observed: ObservedRun, mapping: LaneMapping, interval_s: float, 
     first = lanes[lanes["line"] == lanes["sumo_edge"].map(first_lines(mapping))]
     edges = first.groupby(["sumo_edge", "interval_start", "interval_end"], sort=True)["count"].sum().reset_index()
     edges = edges.rename(columns={"count": "entered"}).astype({"entered": int})
-    return DemandCounts(lanes, edges, float(interval_s), float(begin_s), float(end_s))
+    warmup = warmup_s(mapping, cr)
+    first_iv = edges[edges["interval_start"] == edges["interval_start"].min()] if len(edges) else edges
+    pre = first_iv.assign(entered=np.round(first_iv["entered"] * warmup / (first_iv["interval_end"]
+                                                                            - first_iv["interval_start"])).astype(int),
+                          interval_start=begin_s - warmup, interval_end=begin_s)
+    edges = pd.concat([pre, edges], ignore_index=True) if len(pre) else edges
+    return DemandCounts(lanes, edges, float(interval_s), float(begin_s), float(end_s), warmup)
+
+
+def warmup_s(mapping: LaneMapping, crossings: pd.DataFrame) -> float:
+    """Seconds of demand before the observation begins, so that vehicles already between the lines at its start
+    are there: 1.5 x the longest distance between two mapped line crossings at the slowest observed mean speed of
+    an edge, plus 10 s, rounded up to 10 s; at least 30 s."""
+    pts = mapping.mapped[["x_net", "y_net"]].to_numpy(np.float64)
+    span = float(np.max(np.hypot(*(pts[:, None, :] - pts[None, :, :]).transpose(2, 0, 1)))) if len(pts) else 0.0
+    speed = crossings.groupby("sumo_edge")["speed_kmh"].mean() / 3.6 if len(crossings) else pd.Series(dtype=float)
+    v = float(speed[speed > 0.5].min()) if (speed > 0.5).any() else 10.0
+    return max(WARMUP_MIN_S, 10.0 * math.ceil((1.5 * span / v + 10.0) / 10.0))
 
 
 def first_lines(mapping: LaneMapping) -> pd.Series:
@@ -113,18 +133,22 @@ def first_lines(mapping: LaneMapping) -> pd.Series:
     return mapping.mapped.sort_values(["pos_m", "line"], kind="stable").groupby("sumo_edge")["line"].first()
 
 
-def write_edge_data(path: str | os.PathLike[str], counts: DemandCounts) -> None:
-    """SUMO edge data (``<data><interval begin end><edge id entered/>``), the input of routeSampler."""
-    from trafficgeo.io.atomic import write_text_atomic
-
+def _edge_data_xml(edges: pd.DataFrame) -> str:
     out = ["<data>\n"]
-    for k, ((b, e), g) in enumerate(counts.edges.groupby(["interval_start", "interval_end"], sort=True)):
+    for k, ((b, e), g) in enumerate(edges.groupby(["interval_start", "interval_end"], sort=True)):
         out.append(f'    <interval id="observed_{k}" begin="{b:.3f}" end="{e:.3f}">\n')
         out += [f'        <edge id={quoteattr(str(r.sumo_edge))} entered="{int(r.entered)}"/>\n'
                 for r in g.itertuples()]
         out.append("    </interval>\n")
     out.append("</data>\n")
-    write_text_atomic(path, "".join(out))
+    return "".join(out)
+
+
+def write_edge_data(path: str | os.PathLike[str], counts: DemandCounts) -> None:
+    """SUMO edge data (``<data><interval begin end><edge id entered/>``), the input of routeSampler."""
+    from trafficgeo.io.atomic import write_text_atomic
+
+    write_text_atomic(path, _edge_data_xml(counts.edges))
 
 
 def candidate_routes(net: Path, out: Path, *, seed: int, trips: int = 500) -> Path:
@@ -219,12 +243,31 @@ class SampledDemand:
     max_lag_s: float
 
 
-def sample_routes(routes: Path, edge_data: Path, out: Path, *, seed: int) -> Path:
-    """``routeSampler.py --optimize full`` on candidate ``routes`` and the counts in ``edge_data``."""
-    run_sumo_tool("routeSampler.py", ["-r", str(routes), "-d", str(edge_data), "-o", str(out), "--optimize", "full",
-                                      "-s", str(seed), "--prefix", "v", "--threads", "1",
-                                      "--minimize-vehicles", repr(MINIMIZE_VEHICLES)],
-                  _TOOL_TIMEOUT_S, cwd=out.parent)
+def _segments(edges: pd.DataFrame) -> list[pd.DataFrame]:
+    """The edge counts cut into runs of consecutive intervals of one length (routeSampler spreads counts over a
+    regular grid of intervals; a shorter first or last interval, or the warm-up, gets a run of its own)."""
+    iv = edges[["interval_start", "interval_end"]].drop_duplicates().sort_values("interval_start")
+    lengths = np.round((iv["interval_end"] - iv["interval_start"]).to_numpy(), 6)
+    run = np.concatenate([[0], np.cumsum(lengths[1:] != lengths[:-1])])
+    starts = iv["interval_start"].to_numpy()
+    return [edges[edges["interval_start"].isin(starts[run == k])] for k in range(int(run[-1]) + 1)] if len(iv) else []
+
+
+def sample_routes(routes: Path, counts: DemandCounts, work: Path, *, seed: int) -> list[Path]:
+    """``routeSampler.py --optimize full`` on candidate ``routes`` for the counts, one run per run of equally long
+    intervals (:func:`_segments`, explicit begin, end and interval); returns the route files it wrote."""
+    out = []
+    for k, seg in enumerate(_segments(counts.edges)):
+        b, e = float(seg["interval_start"].min()), float(seg["interval_end"].max())
+        length = float((seg["interval_end"] - seg["interval_start"]).iloc[0])
+        data, sampled = work / f"counts_{k}.edgedata.xml", work / f"sampled_{k}.rou.xml"
+        data.write_text(_edge_data_xml(seg), encoding="utf-8")
+        run_sumo_tool("routeSampler.py", ["-r", str(routes), "-d", str(data), "-o", str(sampled), "--optimize",
+                                          "full", "-s", str(seed + k), "--prefix", f"s{k}_", "--threads", "1",
+                                          "--minimize-vehicles", repr(MINIMIZE_VEHICLES), "-b", f"{b:.3f}", "-e",
+                                          f"{e:.3f}", "-i", f"{length:.3f}"],
+                      _TOOL_TIMEOUT_S, cwd=work)
+        out.append(sampled)
     return out
 
 
@@ -242,25 +285,31 @@ def _observed_pools(observed: ObservedRun, mapping: LaneMapping, counts: DemandC
                           "lane": cr["sumo_lane"].astype(str).str.rpartition("_")[2].to_numpy(),
                           "vclass": cr["class"].fillna("").astype(str).str.lower().replace("", "car").to_numpy(),
                           "speed_factor": np.clip(factor, 0.2, 2.0)})
-    return {(str(e), float(t)): g.reset_index(drop=True) for (e, t), g in table.groupby(["edge", "start"])}
+    pools = {(str(e), float(t)): g.reset_index(drop=True) for (e, t), g in table.groupby(["edge", "start"])}
+    for edge in {e for e, _ in pools}:  # the warm-up draws from the first interval's vehicles
+        first = min(t for e, t in pools if e == edge)
+        pools[(edge, counts.begin_s - counts.warmup_s)] = pools[(edge, first)]
+    return pools
 
 
-def place_departures(sampled: Path, net_lengths: dict[str, float], observed: ObservedRun, mapping: LaneMapping,
+def place_departures(sampled: list[Path], net_lengths: dict[str, float], observed: ObservedRun, mapping: LaneMapping,
                      counts: DemandCounts, *, seed: int) -> SampledDemand:
     """Read routeSampler's vehicles; move each departure earlier by its travel time to the first observed line on
     its route; give it the class, speed factor and (when its route starts on that edge) lane of an observed
     vehicle of that line and interval (drawn without replacement while there are enough)."""
-    try:
-        root = ET.parse(sampled).getroot()
-    except (ET.ParseError, OSError) as exc:
-        raise InputError(f"routeSampler output {sampled} is not readable ({exc})") from None
+    vehicles = []
+    for path in sampled:
+        try:
+            vehicles += list(ET.parse(path).getroot().iter("vehicle"))
+        except (ET.ParseError, OSError) as exc:
+            raise InputError(f"routeSampler output {path} is not readable ({exc})") from None
     cr = _mapped_crossings(observed, mapping, counts.begin_s, counts.end_s)
     speed = {str(k): float(v) for k, v in (cr.groupby("sumo_edge")["speed_kmh"].mean() / 3.6).items()
              if np.isfinite(v) and v > 0.5}
     first_pos = mapping.mapped.groupby("sumo_edge")["pos_m"].min().to_dict()
     starts = np.sort(counts.edges["interval_start"].unique())
     depart, edges_of, lag, key_of, at_start, depart_pos = [], [], [], [], [], []
-    for veh in root.iter("vehicle"):
+    for veh in vehicles:
         route = veh.find("route")
         edges = (route.get("edges", "") if route is not None else "").split()
         if not edges:
@@ -286,7 +335,7 @@ def place_departures(sampled: Path, net_lengths: dict[str, float], observed: Obs
                                            np.random.default_rng(seed))
     lag_a = np.asarray(lag, dtype=np.float64)
     max_lag = float(lag_a.max()) if lag_a.size else 0.0
-    offset = 10.0 * math.ceil(max(0.0, max_lag + 10.0 - counts.begin_s) / 10.0)
+    offset = 10.0 * math.ceil(max(0.0, max_lag + 10.0 - (counts.begin_s - counts.warmup_s)) / 10.0)
     return SampledDemand(np.asarray(depart, dtype=np.float64) + offset - lag_a, edges_of, vclass, lanes, factor,
                          np.asarray(depart_pos, dtype=np.float64), offset, max_lag)
 

@@ -6,7 +6,9 @@ and is written by :func:`~trafficgeo.traffic.validation.write_comparison` (``com
 ``compare_speeds.csv``, ``simulated_crossings.csv``, ``compare_summary.json``: the files the HTML report's
 "Observed vs simulated" part reads). The observed counts are re-counted per the scenario's interval over its
 period ``[begin_s, end_s)``, the intervals its demand was fitted to; the simulated vehicles are counted at the same
-lines, lanes and intervals, SUMO time moved back by the scenario's ``time_offset_s``.
+lines, lanes and intervals, SUMO time moved back by the scenario's ``time_offset_s``. A line, or a direction of a
+line, where no vehicle at all was observed is not compared (out of the camera's view is not a count of zero); the
+validation lists them (``unobserved``).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from trafficgeo.simulation.scenario import (
     read_sumo_scenario,
     run_scenario,
 )
-from trafficgeo.traffic.compare import GEH_LIMIT
+from trafficgeo.traffic.compare import GEH_LIMIT, count_summary
 from trafficgeo.traffic.lines import aggregate_counts
 from trafficgeo.traffic.validation import (
     Comparison,
@@ -56,6 +58,7 @@ class SumoValidation:
     travel_time_difference_s: float  # simulated - observed mean, first to last line (NaN: fewer than 2 lines)
     simulation: SimulationOutputs
     written: list[Path]
+    unobserved: tuple[str, ...] = ()  # "line L direction +1" where no vehicle was observed: not compared
 
 
 @dataclass(frozen=True)
@@ -81,6 +84,27 @@ def observed_at_interval(observed: ObservedRun, interval_s: float, begin_s: floa
     return replace(observed, period=(begin_s, end_s), interval_s=interval_s, counts=counts, crossings=cr)
 
 
+def _compare_where_observed(obs: ObservedRun, points: pd.DataFrame) -> tuple[Comparison, tuple[str, ...]]:
+    """:func:`compare_with_simulation` at the lines, and in the directions of a line, where at least one vehicle was
+    observed: a line or a side of it without any is taken as not seen (out of view), not as a count of zero."""
+    cr = obs.crossings
+    seen = set(zip(cr["line"].astype(str), cr["direction"].astype(int), strict=True))
+    lines = [ln for ln in obs.lines if any(name == ln.name for name, _ in seen)]
+    unseen = [f"line {ln.name} (both directions)" for ln in obs.lines if ln not in lines]
+    cmp = compare_with_simulation(obs, points, lines=lines or obs.lines)
+    keys = list(zip(cmp.counts["line"].astype(str), cmp.counts["direction"].astype(int), strict=True))
+    keep = np.array([k in seen for k in keys], dtype=bool)
+    unseen += sorted({f"line {line} direction {d:+d}" for (line, d), ok in zip(keys, keep, strict=True) if not ok})
+    if keep.all():
+        return cmp, tuple(unseen)
+    table = cmp.counts[keep].reset_index(drop=True)
+    sc = cmp.simulated_crossings
+    sim_keep = np.array([k in seen for k in zip(sc["line"].astype(str), sc["direction"].astype(int), strict=True)],
+                        dtype=bool)
+    return replace(cmp, counts=table, count_summary=count_summary(table),
+                   simulated_crossings=sc[sim_keep].reset_index(drop=True)), tuple(unseen)
+
+
 def validate_sumo_scenario(scenario: SumoScenario | str | os.PathLike[str],
                            run: ObservedRun | str | os.PathLike[str], *,
                            out_dir: str | os.PathLike[str] | None = None) -> SumoValidation:
@@ -95,7 +119,7 @@ def validate_sumo_scenario(scenario: SumoScenario | str | os.PathLike[str],
     sim = run_scenario(sc)
     obs = observed_at_interval(observed, sc.interval_s, sc.begin_s, sc.end_s)
     points = simulated_points(sim.fcd, observed.crs, net=sc.net, net_crs=sc.net_crs, time_offset_s=sc.time_offset_s)
-    comparison = compare_with_simulation(obs, points)
+    comparison, unobserved = _compare_where_observed(obs, points)
     written = write_comparison(out, comparison, observed.crs)
     table = comparison.counts
     share = float((table["geh"] < GEH_LIMIT).mean()) if len(table) else float("nan")
@@ -104,7 +128,8 @@ def validate_sumo_scenario(scenario: SumoScenario | str | os.PathLike[str],
     tt = comparison.travel_times or {}
     return SumoValidation(sc, comparison, share, float(table["geh"].mean()) if len(table) else float("nan"), len(table),
                       bool(share >= GEH_TARGET_SHARE), float(np.abs(both["mean_difference_kmh"]).max())
-                      if len(both) else float("nan"), float(tt.get("mean_difference_s", np.nan)), sim, written)
+                      if len(both) else float("nan"), float(tt.get("mean_difference_s", np.nan)), sim, written,
+                      unobserved)
 
 
 def close_sumo_loop(run: str | os.PathLike[str], net: str | os.PathLike[str], out_dir: str | os.PathLike[str], *,

@@ -174,7 +174,7 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
         write_edge_data(work / "counts.edgedata.xml", counts)
         cand = candidates_for(Path(net).resolve(), Path(routes).resolve() if routes is not None else None, work,
                               counts, seed=seed)
-        sampled = sample_routes(cand, work / "counts.edgedata.xml", work / "sampled.rou.xml", seed=seed)
+        sampled = sample_routes(cand, counts, work, seed=seed)
         demand = place_departures(sampled, mapping.edge_lengths_m, observed, mapping, counts, seed=seed)
         offset = demand.time_offset_s
         out.mkdir(parents=True, exist_ok=True)
