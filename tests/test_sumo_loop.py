@@ -276,3 +276,25 @@ def test_departure_lanes_and_speeds_come_from_observed_vehicles(world: dict[str,
     assert {v.get("departLane") for v in veh} <= {"0", "1"}  # every route starts on an observed edge
     # inserted 30 m before the first line along their edge (at 140 m on both edges)
     assert {v.get("departPos") for v in veh} == {"110.00"}
+
+
+def test_user_routes_and_the_run_a_scenario_belongs_to(world: dict[str, Path], tmp_path: Path) -> None:
+    sc = tg.build_sumo_scenario(world["run"], world["net"], tmp_path / "sc", interval_s=INTERVAL_S)
+    # validating against other observations (here the run in UTM: other crossings) is refused before SUMO runs
+    with pytest.raises(InputError, match=r"^run .*run_utm: not the observations scenario .* was built from"):
+        tg.validate_sumo_scenario(sc.folder, world["run_utm"], out_dir=tmp_path / "cmp")
+    assert not (tmp_path / "cmp").exists() and not (sc.folder / "fcd.xml").exists()
+    # the user's candidate routes instead of randomTrips.py
+    routes = tmp_path / "mine.rou.xml"
+    routes.write_text('<routes>\n    <route id="r1" edges="d1"/>\n    <route id="r2" edges="d2"/>\n</routes>\n')
+    code, _, stderr = invoke("sumo-demand", world["run"], "--net", world["net"], "--routes", routes, "--out",
+                             tmp_path / "mine", "--interval", INTERVAL_S)
+    assert code == 0, stderr
+    doc = json.loads((tmp_path / "mine" / "scenario.json").read_text())
+    assert doc["routes"] == str(routes.resolve()) and doc["vehicles"] == sc.vehicles
+    assert not (tmp_path / "mine" / "candidates.rou.xml").exists()
+    routes.write_text('<routes>\n    <route id="r1" edges="d1"/>\n</routes>\n')
+    code, _, stderr = invoke("sumo-demand", world["run"], "--net", world["net"], "--routes", routes, "--out",
+                             tmp_path / "one_way")
+    assert code == 2 and "error: --routes " in stderr and "no route passes the counted edge(s) d2" in stderr
+    assert not (tmp_path / "one_way").exists()

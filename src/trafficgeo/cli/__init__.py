@@ -223,7 +223,7 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "workers": "--workers", "threads_per_worker": "--threads", "retries": "--retries", "scheduler": "--scheduler",
          "max_window_s": "--max-window", "name_pattern": "--name-pattern",
          "lanes": "--lanes", "lines": "--lines", "net": "--net", "net_crs": "--net-crs", "routes": "--routes",
-         "begin_s": "--begin", "seed": "--seed", "step_s": "--step", "scenario": "SCENARIO"}
+         "begin_s": "--begin", "seed": "--seed", "scenario": "SCENARIO"}
 
 
 def main(argv: list[str] | None = None) -> Any:

@@ -21,11 +21,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from trafficgeo.errors import InputError
 from trafficgeo.simulation.scenario import (
     SimulationOutputs,
     SumoScenario,
     build_sumo_scenario,
     read_sumo_scenario,
+    run_fingerprint,
     run_scenario,
 )
 from trafficgeo.traffic.compare import GEH_LIMIT, count_summary
@@ -116,6 +118,10 @@ def validate_sumo_scenario(scenario: SumoScenario | str | os.PathLike[str],
     out = Path(out_dir) if out_dir is not None else sc.folder
     check_writable_folder(out, "out_dir")
     observed = run if isinstance(run, ObservedRun) else read_observed_run(run)
+    if sc.run_fingerprint and run_fingerprint(observed.folder) != sc.run_fingerprint:
+        raise InputError(f"run {observed.folder}: not the observations scenario {sc.folder} was built from ({sc.run}); "
+                         "give that run, or build the scenario again with 'trafficgeo sumo-demand'",
+                         parameters=("run",))
     sim = run_scenario(sc)
     obs = observed_at_interval(observed, sc.interval_s, sc.begin_s, sc.end_s)
     points = simulated_points(sim.fcd, observed.crs, net=sc.net, net_crs=sc.net_crs, time_offset_s=sc.time_offset_s)
@@ -134,10 +140,11 @@ def validate_sumo_scenario(scenario: SumoScenario | str | os.PathLike[str],
 
 def close_sumo_loop(run: str | os.PathLike[str], net: str | os.PathLike[str], out_dir: str | os.PathLike[str], *,
                     interval_s: float = 900.0, begin_s: float | None = None, end_s: float | None = None,
-                    routes: str | os.PathLike[str] | None = None, net_crs: str | None = None,
-                    seed: int = 0) -> SumoLoopResult:
+                    routes: str | os.PathLike[str] | None = None, net_crs: str | None = None, seed: int = 0,
+                    comparison_dir: str | os.PathLike[str] | None = None) -> SumoLoopResult:
     """Observed counts of ``run`` -> SUMO demand on ``net`` -> simulation -> comparison, all in ``out_dir``
-    (:func:`~trafficgeo.simulation.scenario.build_sumo_scenario` then :func:`validate_sumo_scenario`).
+    (:func:`~trafficgeo.simulation.scenario.build_sumo_scenario` then :func:`validate_sumo_scenario`); the
+    comparison tables in ``comparison_dir`` instead when given (the run folder: its HTML report shows them).
 
     >>> loop = close_sumo_loop("run", "road.net.xml", "scenario", interval_s=60)   # doctest: +SKIP
     >>> loop.share_geh_below_5 >= 0.85                                          # doctest: +SKIP
@@ -147,7 +154,7 @@ def close_sumo_loop(run: str | os.PathLike[str], net: str | os.PathLike[str], ou
     sc = build_sumo_scenario(run, net, out_dir, interval_s=interval_s, begin_s=begin_s, end_s=end_s, routes=routes,
                              net_crs=net_crs, seed=seed)
     built = time.perf_counter()
-    val = validate_sumo_scenario(sc, run)
+    val = validate_sumo_scenario(sc, run, out_dir=comparison_dir)
     return SumoLoopResult(sc, val, built - t, time.perf_counter() - built)
 
 

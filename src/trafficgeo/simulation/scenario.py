@@ -52,6 +52,7 @@ __all__ = [
     "build_sumo_scenario",
     "mapping_table",
     "read_sumo_scenario",
+    "run_fingerprint",
     "run_scenario",
 ]
 
@@ -78,6 +79,7 @@ class SumoScenario:
     vehicle_types: list[dict] = field(default_factory=list)
     build_s: float = 0.0  # wall time of sumo-demand
     warnings: tuple[str, ...] = ()  # observations left out of the demand (see mapping.py)
+    run_fingerprint: str = ""  # SHA-256 of the run's crossings.csv and counts.csv (from its manifest)
 
     @property
     def sumocfg(self) -> Path:
@@ -195,7 +197,7 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
         written += [out / "mapping.csv", out / "observed_lane_counts.csv"]
         scenario = SumoScenario(out, Path(run).resolve(), Path(net).resolve(), net_crs, interval, b, e, offset, step_s,
                                  int(seed), len(demand.depart_s), [_type_doc(t) for t in types],
-                                 time.perf_counter() - started, mapping.warnings)
+                                 time.perf_counter() - started, mapping.warnings, run_fingerprint(observed.folder))
         write_json_atomic(out / "scenario.json", _scenario_doc(scenario, net_rel, routes, counts, demand.max_lag_s))
         written.append(out / "scenario.json")
         publish_outputs(out, written, command="sumo-demand", name=SCENARIO_MANIFEST)
@@ -215,7 +217,19 @@ def _scenario_doc(s: SumoScenario, net_rel: str, routes, counts: DemandCounts, m
             "seed": s.seed, "vehicles": s.vehicles, "observed_vehicles_per_edge": int(counts.edges["entered"].sum()),
             "max_lag_s": max_lag_s, "routes": str(Path(routes).resolve()) if routes is not None else
             "candidates.rou.xml (randomTrips.py)", "vehicle_types": s.vehicle_types,
-            "warnings": list(s.warnings)}
+            "warnings": list(s.warnings), "run_fingerprint": s.run_fingerprint}
+
+
+def run_fingerprint(run: str | os.PathLike[str]) -> str:
+    """What identifies a run's observations: the SHA-256 of its crossings.csv and counts.csv in its manifest (a copy
+    of the folder has the same; a new analysis has another)."""
+    from trafficgeo.io.run_manifest import MANIFEST
+
+    try:
+        files = json.loads((Path(run) / MANIFEST).read_text(encoding="utf-8"))["files"]
+        return f'{files["crossings.csv"]["sha256"]}:{files["counts.csv"]["sha256"]}'
+    except (OSError, ValueError, KeyError, TypeError):
+        return ""
 
 
 def read_sumo_scenario(folder: str | os.PathLike[str]) -> SumoScenario:
@@ -234,7 +248,8 @@ def read_sumo_scenario(folder: str | os.PathLike[str]) -> SumoScenario:
         return SumoScenario(d, Path(doc["run"]), (d / doc["net"]).resolve(), doc["net_crs"],
                             float(doc["interval_s"]), float(doc["begin_s"]), float(doc["end_s"]),
                             float(doc["time_offset_s"]), float(doc["step_s"]), int(doc["seed"]), int(doc["vehicles"]),
-                            list(doc["vehicle_types"]), warnings=tuple(doc.get("warnings", ())))
+                            list(doc["vehicle_types"]), warnings=tuple(doc.get("warnings", ())),
+                            run_fingerprint=str(doc.get("run_fingerprint", "")))
     except (KeyError, TypeError, ValueError):
         raise InputError(f"scenario {d}: scenario.json is not one written by 'trafficgeo sumo-demand'; run it again",
                          parameters=("scenario",)) from None
