@@ -14,12 +14,15 @@ starts on the edge of that line enters :data:`ENTRY_M` before the line (not at t
 reaches the line on the lane and at the speed it was given. Demand starts :func:`warmup_s` before the observation,
 at the rate of its first interval, so that the vehicles already on the road when it begins are simulated too.
 
-Vehicle types: one ``vType`` per observed class (ids ``car``, ``truck``, ...: the names
-:func:`trafficgeo.traffic.boxes.dimensions_for` knows), in a ``vTypeDistribution`` ``observed`` with the class
-shares of the observed crossings; length the median observed length (else the class's typical length); desired
-speeds (``speedFactor``, a truncated normal) from the observed spot speeds of the class relative to the speed limit
-of the SUMO lane where each was seen. Vehicles depart at their desired speed, on the lane drawn from the observed
-lane shares of their first observed edge when the route starts there (else ``random``).
+Vehicles: each takes the class, the desired speed (``speedFactor`` = observed spot speed / the speed limit of the
+SUMO lane where it was seen) and, when its route starts on that edge, the lane of an observed vehicle at the first
+line of its first observed edge in its interval (drawn without replacement while there are enough), and departs at
+its desired speed. Drivers keep their desired speed (``sigma="0"``: no random dawdling), so that free-flowing
+simulated vehicles pass the lines at the observed speeds. Vehicle types: one ``vType`` per observed class (ids
+``car``, ``truck``, ...: the names :func:`trafficgeo.traffic.boxes.dimensions_for` knows, so that the comparison
+finds their lengths), length the median observed length (else the class's typical length), in a
+``vTypeDistribution`` ``observed`` with the class shares of the observed crossings and a truncated normal
+``speedFactor`` from the class's speeds, for vehicles that no observed vehicle was drawn for.
 """
 
 from __future__ import annotations

@@ -41,7 +41,8 @@ from trafficgeo.traffic.validation import (
     write_comparison,
 )
 
-__all__ = ["GEH_TARGET_SHARE", "SumoLoopResult", "SumoValidation", "close_sumo_loop", "validate_sumo_scenario"]
+__all__ = ["GEH_TARGET_SHARE", "SumoLoopResult", "SumoValidation", "close_sumo_loop", "lane_speed_table",
+           "observed_at_interval", "validate_sumo_scenario"]
 
 GEH_TARGET_SHARE = 0.85  # the usual calibration target: GEH < 5 for at least 85 % of the counts
 
@@ -165,5 +166,3 @@ def lane_speed_table(validation: SumoValidation) -> pd.DataFrame:
     return s[["line", "lane", "observed_n", "simulated_n", "observed_mean_kmh", "simulated_mean_kmh",
               "mean_difference_kmh", "ks_statistic"]].copy()
 
-
-__all__ += ["lane_speed_table", "observed_at_interval"]

@@ -59,6 +59,7 @@ __all__ = [
 SCENARIO_MANIFEST = "scenario_run.json"
 FORMAT = "trafficgeo-sumo-scenario/1"
 FCD_ATTRIBUTES = "x,y,angle,type,speed,lane"
+_SIMULATION_OUTPUTS = ("fcd.xml", "simulated.edgedata.xml")  # what run_scenario writes into the folder
 
 
 @dataclass(frozen=True)
@@ -149,7 +150,7 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
         TrafficgeoError: a SUMO tool failed.
     """
     from trafficgeo.io.atomic import write_csv_atomic, write_json_atomic, write_text_atomic
-    from trafficgeo.io.run_manifest import begin_outputs, check_writable_folder, publish_outputs
+    from trafficgeo.io.run_manifest import COMPARE_MANIFEST, begin_outputs, check_writable_folder, publish_outputs
 
     started = time.perf_counter()
     out = Path(out_dir)
@@ -181,6 +182,8 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
         offset = demand.time_offset_s
         out.mkdir(parents=True, exist_ok=True)
         begin_outputs(out, SCENARIO_MANIFEST)
+        for stale in (*_SIMULATION_OUTPUTS, "candidates.rou.xml", COMPARE_MANIFEST):  # of an earlier scenario here
+            (out / stale).unlink(missing_ok=True)
         net_rel = os.path.relpath(Path(net).resolve(), out.resolve())
         files = {"scenario.sumocfg": _sumocfg(net_rel, e + offset, step_s, seed, max(0.0, b + offset - 5.0)),
                  "demand.rou.xml": demand_xml(types, demand),
@@ -282,7 +285,7 @@ def run_scenario(scenario: SumoScenario) -> SimulationOutputs:
         run_sumo_program("sumo", ["-c", str(scenario.sumocfg.resolve()), "--fcd-output", str(work / "fcd.xml"),
                                   "--additional-files", str(work / "outputs.add.xml")],
                          120.0 + 0.05 * steps, cwd=scenario.folder)
-        for name in ("fcd.xml", "simulated.edgedata.xml"):
+        for name in _SIMULATION_OUTPUTS:
             os.replace(work / name, scenario.folder / name)
     finally:
         shutil.rmtree(work, ignore_errors=True)
