@@ -50,7 +50,7 @@ class MappingError(InputError):
     """Observations that cross no SUMO edge, or an ambiguous one; ``table`` lists every group (see the module)."""
 
     def __init__(self, message: str, table: pd.DataFrame) -> None:
-        super().__init__(message, parameters=("net",))
+        super().__init__(message, parameters=("net", "net_crs"))
         self.table = table
 
 
@@ -113,7 +113,8 @@ def _to_net(x: np.ndarray, y: np.ndarray, run_crs: pyproj.CRS | None, loc: NetLo
     if (run_crs is None) != (loc.crs is None):
         raise InputError(f"net {net}: the run is in {crs_label(run_crs)} but the network has "
                          f"{'no projection' if loc.crs is None else 'a projection'}; give net_crs (the CRS of the "
-                         "network's coordinates) or rebuild the network with netconvert --proj", parameters=("net",))
+                         "network's coordinates) or rebuild the network with netconvert --proj",
+                         parameters=("net", "net_crs"))
     if run_crs is not None and loc.crs is not None and not _same_projection(run_crs, loc.crs):
         x, y = transform_xy(x, y, run_crs, loc.crs)
     return np.asarray(x, dtype=np.float64) + loc.offset[0], np.asarray(y, dtype=np.float64) + loc.offset[1]
@@ -125,9 +126,10 @@ def _geometry_to_net(geom: shapely.Geometry, run_crs, loc: NetLocation, net: Pat
 
 def net_lane_crossings(net: str | os.PathLike[str], lines: list[CountLine], run_crs: pyproj.CRS | None, *,
                        net_crs: str | pyproj.CRS | None = None
-                       ) -> tuple[list[SumoLaneCrossing], NetLocation, dict[str, float]]:
+                       ) -> tuple[list[SumoLaneCrossing], NetLocation, dict[str, float], tuple[float, ...]]:
     """Every SUMO lane (of non-internal edges) whose centre line crosses a counting line (given in ``run_crs``), the
-    network's location and the length (m) of each of its edges."""
+    network's location, the length (m) of each of its edges and the bounding box of its lanes (xmin, ymin, xmax,
+    ymax in network coordinates)."""
     net = Path(net)
     loc = _location(net, net_crs, "net")
     sumo_net = _sumolib_net(net)
@@ -166,7 +168,8 @@ def net_lane_crossings(net: str | os.PathLike[str], lines: list[CountLine], run_
                 c = p[i] + s[i] * (q[i] - p[i])
                 out.append(SumoLaneCrossing(line.name, int(sign[i]), edge, lane, float(arr[i, 4] + s[i] * arr[i, 5]),
                                             float(c[0]), float(c[1]), speed))
-    return out, loc, lengths
+    bbox = (*np.minimum(p.min(axis=0), q.min(axis=0)), *np.maximum(p.max(axis=0), q.max(axis=0)))
+    return out, loc, lengths, tuple(float(v) for v in bbox)
 
 
 def _groups(observed: ObservedRun) -> pd.DataFrame:
@@ -203,7 +206,7 @@ def map_observations(observed: ObservedRun, net: str | os.PathLike[str], *,
     if not observed.lines:
         raise InputError(f"{observed.folder}: the run has no counting lines (trajectories.gpkg, layer count_lines); "
                          "run analyze with --lines")
-    crossings, loc, lengths = net_lane_crossings(net, observed.lines, observed.crs, net_crs=net_crs)
+    crossings, loc, lengths, bbox = net_lane_crossings(net, observed.lines, observed.crs, net_crs=net_crs)
     groups = _groups(observed)
     lane_poly = {}
     if observed.lanes is not None:
@@ -245,9 +248,12 @@ def map_observations(observed: ObservedRun, net: str | os.PathLike[str], *,
     table = pd.DataFrame(rows, columns=MAPPING_COLUMNS)
     for line in observed.lines:
         if not any(c.line == line.name for c in crossings):
-            raise MappingError(f"net {net}: counting line {line.name!r} crosses no edge of the network (in "
-                               f"{crs_label(loc.crs)} + netOffset {loc.offset}); check that the network covers the "
-                               "camera's view and its CRS (net_crs)", table)
+            mid = _geometry_to_net(line.geometry, observed.crs, loc, net).centroid
+            x0, y0, x1, y1 = bbox
+            raise MappingError(f"net {net}: counting line {line.name!r} crosses no edge of the network (it is at "
+                               f"{mid.x:.0f}, {mid.y:.0f} in network coordinates, the lanes span x {x0:.0f}..{x1:.0f}, "
+                               f"y {y0:.0f}..{y1:.0f}); check that the network covers the camera's view and its CRS "
+                               "(net_crs), and that the line is not inside a junction", table)
     # a handful of vehicles in a direction or lane the network does not have (a wrong-way track, a vehicle on the
     # shoulder) is left out with a warning, not an error
     line_total = groups.groupby("line")["vehicles"].transform("sum").to_numpy()
