@@ -55,6 +55,13 @@ _API: dict[str, str] = {
     "compare_with_sumo": "trafficgeo.traffic.validation",
     "Comparison": "trafficgeo.traffic.validation",
     "export_fcd": "trafficgeo.traffic.validation",
+    # closing the loop with SUMO
+    "build_sumo_scenario": "trafficgeo.simulation.scenario",
+    "SumoScenario": "trafficgeo.simulation.scenario",
+    "validate_sumo_scenario": "trafficgeo.simulation.loop",
+    "SumoValidation": "trafficgeo.simulation.loop",
+    "close_sumo_loop": "trafficgeo.simulation.loop",
+    "SumoLoopResult": "trafficgeo.simulation.loop",
     # video
     "process_video": "trafficgeo.video.run",
     "ProcessResult": "trafficgeo.video.run",
@@ -96,12 +103,17 @@ __all__ = [
     "ProcessResult",
     "RunFolder",
     "RunOptions",
+    "SumoLoopResult",
+    "SumoScenario",
+    "SumoValidation",
     "TrafficResult",
     "TrafficgeoError",
     "TrajectoryOptions",
     "__version__",
     "analyze_tracks",
+    "build_sumo_scenario",
     "calibrate",
+    "close_sumo_loop",
     "compare_with_sumo",
     "export_fcd",
     "georeference",
@@ -119,6 +131,7 @@ __all__ = [
     "run_batch",
     "stitch",
     "summarize_dataset",
+    "validate_sumo_scenario",
 ]
 
 
@@ -142,6 +155,8 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.camera.model import Camera
     from trafficgeo.geo.mapping import GroundPoints, georeference
     from trafficgeo.geo.surface import ConstantSurface
+    from trafficgeo.simulation.loop import SumoLoopResult, SumoValidation, close_sumo_loop, validate_sumo_scenario
+    from trafficgeo.simulation.scenario import SumoScenario, build_sumo_scenario
     from trafficgeo.traffic.analyze import TrafficResult, analyze_tracks
     from trafficgeo.traffic.lanes import Lanes
     from trafficgeo.traffic.lines import CountLine

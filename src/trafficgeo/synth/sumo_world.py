@@ -51,7 +51,6 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import subprocess
 import tempfile
 import warnings
 from dataclasses import dataclass
@@ -61,8 +60,9 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from trafficgeo.crs import parse_crs
-from trafficgeo.errors import InputError, TrafficgeoError
+from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_open, write_text_atomic
+from trafficgeo.simulation.tools import run_sumo_program, sumo_binary
 from trafficgeo.synth.sumo_scene import _MARGIN_M, VEHICLE_CLASSES, Demand, RoadSpec, _finite, _positive
 
 __all__ = [
@@ -133,66 +133,9 @@ WARMUP_S = 60.0  # simulated before the trajectories start: SUMO time = trajecto
 LANE_CHANGE_DURATION_S = 3.0  # lane changes drift across over this time (SUMO's default is an instant jump)
 
 
-#: variables the eclipse-sumo package sets in ``os.environ`` on import when they are unset; its PROJ database is
-#: older than pyproj's and rasterio's, so a process that inherits PROJ_DATA from it (a Dask worker, a subprocess)
-#: fails to transform coordinates. SUMO's own programs get them through :func:`_sumo_env` only.
-_SUMO_IMPORT_VARIABLES = ("SUMO_HOME", "PROJ_LIB", "PROJ_DATA")
-
-
-def _sumo_home() -> Path:
-    before = {k: os.environ.get(k) for k in _SUMO_IMPORT_VARIABLES}
-    try:
-        import sumo  # the eclipse-sumo wheel
-    except ImportError:
-        raise InputError("SUMO is not installed (Python package eclipse-sumo missing); "
-                         "install it with: pip install eclipse-sumo") from None
-    finally:
-        for k, v in before.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-    return Path(sumo.SUMO_HOME)
-
-
-def sumo_binary(name: str) -> str:
-    """Path of a SUMO program (``sumo``, ``netconvert``, ``duarouter``, ...) from the eclipse-sumo wheel."""
-    folder = _sumo_home() / "bin"
-    exe = folder / (f"{name}.exe" if os.name == "nt" else name)
-    if not exe.is_file():
-        raise InputError(f"SUMO program {name!r} not found in {folder}; "
-                         "reinstall SUMO with: pip install --force-reinstall eclipse-sumo")
-    return str(exe)
-
-
-def _sumo_env() -> dict[str, str]:
-    """Environment for SUMO subprocesses: SUMO_HOME of the wheel, and its own PROJ database (PROJ_LIB)."""
-    home = _sumo_home()
-    env = dict(os.environ)
-    env["SUMO_HOME"] = str(home)
-    proj = home / "data" / "proj"
-    if (proj / "proj.db").is_file():
-        env["PROJ_LIB"] = str(proj)  # otherwise SUMO's PROJ prints "Cannot find proj.db"
-    return env
-
-
-def _tail(text: str, lines: int = 4) -> str:
-    kept = [ln.strip() for ln in text.splitlines() if ln.strip()][-lines:]
-    return " | ".join(kept) if kept else "(no output)"
-
-
 def _run_tool(name: str, args: list[str], timeout_s: float) -> None:
     """Run a SUMO program headless; TrafficgeoError with its output tail on failure or timeout."""
-    cmd = [sumo_binary(name), *args]
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, env=_sumo_env(), timeout=timeout_s, check=False)
-    except subprocess.TimeoutExpired:
-        raise TrafficgeoError(f"SUMO {name} did not finish within {timeout_s:.0f} s") from None
-    except OSError as exc:
-        raise TrafficgeoError(f"cannot start SUMO {name} ({cmd[0]}): {exc}") from exc
-    if proc.returncode != 0:
-        raise TrafficgeoError(f"SUMO {name} failed with exit code {proc.returncode}: "
-                              f"{_tail(proc.stderr or proc.stdout)}")
+    run_sumo_program(name, args, timeout_s)
 
 
 def _copy_without_header(src: Path, dst: Path) -> str | None:

@@ -1,0 +1,82 @@
+"""SUMO commands: sumo-demand (observed counts -> a runnable SUMO scenario) and sumo-validate (run it, compare with
+the observation); thin wrappers over :mod:`trafficgeo.simulation`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from trafficgeo.cli import app, console
+
+
+def _print_mapping_problem(exc: Exception) -> None:
+    """The table of a MappingError (every line x lane x direction and what it maps to), before the one-line error."""
+    from rich.table import Table
+
+    table = getattr(exc, "table", None)
+    if table is None or not len(table):
+        return
+    t = Table(title="counting lines on the SUMO network")
+    for col in ("line", "lane", "direction", "SUMO edge", "SUMO lane", "problem"):
+        t.add_column(col)
+    for r in table.itertuples():
+        t.add_row(str(r.line), str(r.lane) or "-", f"{int(r.direction):+d}", str(r.sumo_edge) or "-",
+                  str(r.sumo_lane) or "-", str(r.problem) or "ok")
+    console.print(t)
+
+
+@app.command("sumo-demand")
+def sumo_demand(
+    run: Annotated[Path, typer.Argument(help="output folder of 'trafficgeo analyze' or 'process' (a run folder)")],
+    net: Annotated[Path, typer.Option(help="the SUMO network to simulate (.net.xml, georeferenced)")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="scenario folder to write")],
+    interval: Annotated[float, typer.Option(help="counting interval the demand reproduces (s)")] = 900.0,
+    begin: Annotated[float | None, typer.Option(help="start of the observed period to use (s, the run's time)")] = None,
+    end: Annotated[float | None, typer.Option(help="end of the observed period to use (s)")] = None,
+    routes: Annotated[Path | None, typer.Option(help="candidate routes (.rou.xml); default: randomTrips.py on the "
+                                                "network")] = None,
+    net_crs: Annotated[str | None, typer.Option(help="CRS of the network's projection when its PROJ string is not "
+                                                "enough, e.g. EPSG:2949")] = None,
+    seed: Annotated[int, typer.Option(help="random seed (routes, sampling, SUMO)")] = 0,
+) -> None:
+    """Observed counts -> SUMO demand (routeSampler) and a runnable scenario (scenario.sumocfg, opens in sumo-gui)."""
+    from trafficgeo.simulation.mapping import MappingError
+    from trafficgeo.simulation.scenario import build_sumo_scenario
+
+    try:
+        sc = build_sumo_scenario(run, net, out, interval_s=interval, begin_s=begin, end_s=end, routes=routes,
+                                 net_crs=net_crs, seed=seed)
+    except MappingError as exc:
+        _print_mapping_problem(exc)
+        raise
+    for text in sc.warnings:
+        console.print(f"[yellow]warning:[/yellow] {text}")
+    classes = ", ".join(f"{t['class']} {t['share']:.0%}" for t in sc.vehicle_types)
+    console.print(f"{sc.vehicles} vehicles ({classes}) over {sc.begin_s:g}-{sc.end_s:g} s in {sc.interval_s:g} s "
+                  f"intervals; SUMO time = observed time + {sc.time_offset_s:g} s; built in {sc.build_s:.1f} s")
+    console.print(f"wrote {sc.sumocfg} (sumo-gui -c {sc.sumocfg.name}); check it with: trafficgeo sumo-validate "
+                  f"{out} {run}")
+
+
+@app.command("sumo-validate")
+def sumo_validate(
+    scenario: Annotated[Path, typer.Argument(help="scenario folder of 'trafficgeo sumo-demand'")],
+    run: Annotated[Path, typer.Argument(help="the run folder the scenario was built from")],
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="folder for the comparison tables (default: "
+                                             "SCENARIO; a run folder shows them in its HTML report)")] = None,
+) -> None:
+    """Run SUMO headless on the scenario and compare it with the observation: counts (GEH), speeds (KS), travel
+    times."""
+    from trafficgeo.report.traffic import print_comparison
+    from trafficgeo.simulation.loop import GEH_TARGET_SHARE, validate_sumo_scenario
+
+    val = validate_sumo_scenario(scenario, run, out_dir=out)
+    if val.unobserved:
+        console.print(f"not compared (no vehicle observed there): {', '.join(val.unobserved)}")
+    print_comparison(val.comparison, console)
+    verdict = "met" if val.target_met else "NOT met"
+    console.print(f"GEH < 5 for {val.share_geh_below_5:.1%} of {val.counts} counts: target >= "
+                  f"{GEH_TARGET_SHARE:.0%} {verdict}; SUMO ran {val.simulation.run_s:.1f} s")
+    console.print(f"wrote {', '.join(p.name for p in val.written)} in {out or scenario}")

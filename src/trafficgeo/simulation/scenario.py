@@ -1,0 +1,299 @@
+"""``sumo-demand``: a runnable SUMO scenario from an observed run and a network, and running SUMO on it.
+
+A scenario folder holds (all written atomically, its manifest ``scenario_run.json`` last):
+
+* ``scenario.sumocfg`` - net (the user's, by relative path), ``demand.rou.xml``, ``outputs.add.xml``; opens in
+  sumo-gui as it is;
+* ``demand.rou.xml`` - observed vehicle types and the sampled vehicles (:mod:`trafficgeo.simulation.demand`);
+* ``outputs.add.xml`` - edge data per counting interval (``simulated.edgedata.xml``); FCD goes to ``fcd.xml``;
+* ``counts.edgedata.xml`` - the observed counts per edge and interval given to routeSampler;
+* ``candidates.rou.xml`` - the candidate routes (randomTrips.py), unless the user gave routes;
+* ``mapping.csv`` - line x lane x direction -> SUMO edge/lane; ``observed_lane_counts.csv`` - the counts used;
+* ``scenario.json`` - what :func:`run_scenario` and ``sumo-validate`` need: the run, net, net CRS, interval,
+  observed period ``[begin_s, end_s)``, ``time_offset_s`` (SUMO time = observed time + time_offset_s), step, seed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from trafficgeo.crs import parse_crs
+from trafficgeo.errors import InputError
+from trafficgeo.simulation.demand import (
+    DemandCounts,
+    VehicleType,
+    candidates_for,
+    demand_xml,
+    edge_counts,
+    observed_vehicle_types,
+    place_departures,
+    sample_routes,
+    write_edge_data,
+)
+from trafficgeo.simulation.mapping import map_observations
+from trafficgeo.simulation.tools import run_sumo_program
+from trafficgeo.traffic.lines import check_interval
+from trafficgeo.traffic.validation import ObservedRun, read_observed_run
+
+__all__ = [
+    "SCENARIO_MANIFEST",
+    "SimulationOutputs",
+    "SumoScenario",
+    "build_sumo_scenario",
+    "mapping_table",
+    "read_sumo_scenario",
+    "run_fingerprint",
+    "run_scenario",
+]
+
+SCENARIO_MANIFEST = "scenario_run.json"
+FORMAT = "trafficgeo-sumo-scenario/1"
+FCD_ATTRIBUTES = "x,y,angle,type,speed,lane"
+_SIMULATION_OUTPUTS = ("fcd.xml", "simulated.edgedata.xml")  # what run_scenario writes into the folder
+
+
+@dataclass(frozen=True)
+class SumoScenario:
+    """A scenario folder (module docstring) and what it was built from; times in seconds."""
+
+    folder: Path
+    run: Path
+    net: Path
+    net_crs: str | None
+    interval_s: float
+    begin_s: float  # observed time
+    end_s: float
+    time_offset_s: float  # SUMO time = observed time + time_offset_s
+    step_s: float
+    seed: int
+    vehicles: int = 0
+    vehicle_types: list[dict] = field(default_factory=list)
+    build_s: float = 0.0  # wall time of sumo-demand
+    warnings: tuple[str, ...] = ()  # observations left out of the demand (see mapping.py)
+    run_fingerprint: str = ""  # SHA-256 of the run's crossings.csv and counts.csv (from its manifest)
+
+    @property
+    def sumocfg(self) -> Path:
+        return self.folder / "scenario.sumocfg"
+
+
+def _check_options(observed: ObservedRun, interval_s: float, begin_s: float | None, end_s: float | None,
+                   step_s: float, seed: int) -> tuple[float, float, float]:
+    interval = check_interval(interval_s)
+    t0, t1 = observed.period
+    b = t0 if begin_s is None else float(begin_s)
+    e = t1 if end_s is None else float(end_s)
+    if not (math.isfinite(b) and math.isfinite(e) and t0 - 1e-9 <= b < e <= t1 + 1e-9):
+        raise InputError(f"begin_s {b:g} / end_s {e:g}: need {t0:g} <= begin_s < end_s <= {t1:g} (the observed "
+                         "period of the run, s)", parameters=("begin_s", "end_s"))
+    if not (math.isfinite(step_s) and 0 < step_s <= 1.0):
+        raise InputError(f"step_s {step_s:g}: the SUMO step must be in (0, 1] s, e.g. 0.5", parameters=("step_s",))
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**31:
+        raise InputError(f"seed {seed!r}: give an integer in [0, 2^31)", parameters=("seed",))
+    return interval, b, e
+
+
+def _sumocfg(net_rel: str, end_sumo_s: float, step_s: float, seed: int, fcd_begin_s: float) -> str:
+    return ("<configuration>\n"
+            "    <input>\n"
+            f'        <net-file value="{net_rel}"/>\n'
+            '        <route-files value="demand.rou.xml"/>\n'
+            '        <additional-files value="outputs.add.xml"/>\n'
+            "    </input>\n"
+            "    <time>\n"
+            '        <begin value="0"/>\n'
+            f'        <end value="{end_sumo_s:.3f}"/>\n'
+            f'        <step-length value="{step_s:g}"/>\n'
+            "    </time>\n"
+            "    <output>\n"
+            '        <fcd-output value="fcd.xml"/>\n'
+            f'        <fcd-output.attributes value="{FCD_ATTRIBUTES}"/>\n'
+            f'        <device.fcd.begin value="{fcd_begin_s:.3f}"/>\n'
+            "    </output>\n"
+            "    <random_number>\n"
+            f'        <seed value="{seed}"/>\n'
+            "    </random_number>\n"
+            "    <report>\n"
+            '        <no-step-log value="true"/>\n'
+            "    </report>\n"
+            "</configuration>\n")
+
+
+def _outputs_add(file: str, interval_s: float, begin_sumo_s: float, end_sumo_s: float) -> str:
+    return ("<additional>\n"
+            f'    <edgeData id="simulated" file="{file}" period="{interval_s:g}" begin="{begin_sumo_s:.3f}" '
+            f'end="{end_sumo_s:.3f}" excludeEmpty="true"/>\n'
+            "</additional>\n")
+
+
+def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str], out_dir: str | os.PathLike[str],
+                        *, interval_s: float = 900.0, begin_s: float | None = None, end_s: float | None = None,
+                        routes: str | os.PathLike[str] | None = None, net_crs: str | None = None,
+                        step_s: float = 0.5, seed: int = 0) -> SumoScenario:
+    """SUMO demand reproducing the observed counts of ``run`` (a run folder) on ``net`` (a ``.net.xml``), counted
+    per ``interval_s`` over ``[begin_s, end_s)`` (observed time, s; default the run's period), on candidate
+    ``routes`` (a route file; default randomTrips.py), written as a runnable scenario into ``out_dir`` (module
+    docstring). Deterministic for a ``seed``.
+
+    Raises:
+        InputError: bad options, run or network; a line crossing no edge (:class:`MappingError` with its table).
+        TrafficgeoError: a SUMO tool failed.
+    """
+    from trafficgeo.io.atomic import write_csv_atomic, write_json_atomic, write_text_atomic
+    from trafficgeo.io.run_manifest import COMPARE_MANIFEST, begin_outputs, check_writable_folder, publish_outputs
+
+    started = time.perf_counter()
+    out = Path(out_dir)
+    check_writable_folder(out, "out_dir")
+    if not Path(net).is_file():
+        raise InputError(f"net {net}: SUMO network file not found; give the .net.xml of the network to simulate",
+                         parameters=("net",))
+    if routes is not None and not Path(routes).is_file():
+        raise InputError(f"routes {routes}: route file not found; give a SUMO .rou.xml or leave it out",
+                         parameters=("routes",))
+    observed = read_observed_run(run)
+    interval, b, e = _check_options(observed, interval_s, begin_s, end_s, step_s, seed)
+    if net_crs is not None:
+        parse_crs(net_crs)
+    mapping = map_observations(observed, net, net_crs=net_crs)
+    counts = edge_counts(observed, mapping, interval, b, e)
+    if not len(counts.edges) or int(counts.edges["entered"].sum()) == 0:
+        raise InputError(f"{observed.folder}: no vehicle counted between {b:g} and {e:g} s; give a run with counts",
+                         parameters=("begin_s", "end_s"))
+    types = observed_vehicle_types(observed, mapping, b, e)
+    parent = next(p for p in [out, *out.parents] if p.is_dir())
+    work = Path(tempfile.mkdtemp(prefix=".sumo-demand-", dir=parent)).resolve()
+    try:
+        write_edge_data(work / "counts.edgedata.xml", counts)
+        cand = candidates_for(Path(net).resolve(), Path(routes).resolve() if routes is not None else None, work,
+                              counts, seed=seed)
+        sampled = sample_routes(cand, counts, work, seed=seed)
+        demand = place_departures(sampled, mapping.edge_lengths_m, observed, mapping, counts, seed=seed)
+        offset = demand.time_offset_s
+        out.mkdir(parents=True, exist_ok=True)
+        begin_outputs(out, SCENARIO_MANIFEST)
+        for stale in (*_SIMULATION_OUTPUTS, "candidates.rou.xml", COMPARE_MANIFEST):  # of an earlier scenario here
+            (out / stale).unlink(missing_ok=True)
+        net_rel = os.path.relpath(Path(net).resolve(), out.resolve())
+        files = {"scenario.sumocfg": _sumocfg(net_rel, e + offset, step_s, seed, max(0.0, b + offset - 5.0)),
+                 "demand.rou.xml": demand_xml(types, demand),
+                 "outputs.add.xml": _outputs_add("simulated.edgedata.xml", interval, b + offset, e + offset)}
+        for name, text in files.items():
+            write_text_atomic(out / name, text)
+        written = [out / n for n in files]
+        for name in ("counts.edgedata.xml", *(["candidates.rou.xml"] if routes is None else [])):
+            shutil.copyfile(work / name, work / f"{name}.copy")
+            os.replace(work / f"{name}.copy", out / name)
+            written.append(out / name)
+        write_csv_atomic(out / "mapping.csv", mapping.table, float_format="%.3f")
+        write_csv_atomic(out / "observed_lane_counts.csv", counts.lanes, float_format="%.3f")
+        written += [out / "mapping.csv", out / "observed_lane_counts.csv"]
+        scenario = SumoScenario(out, Path(run).resolve(), Path(net).resolve(), net_crs, interval, b, e, offset, step_s,
+                                 int(seed), len(demand.depart_s), [_type_doc(t) for t in types],
+                                 time.perf_counter() - started, mapping.warnings, run_fingerprint(observed.folder))
+        write_json_atomic(out / "scenario.json", _scenario_doc(scenario, net_rel, routes, counts, demand.max_lag_s))
+        written.append(out / "scenario.json")
+        publish_outputs(out, written, command="sumo-demand", name=SCENARIO_MANIFEST)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return scenario
+
+
+def _type_doc(t: VehicleType) -> dict:
+    return {"class": t.name, "share": t.share, "length_m": t.length_m, "speed_factor": list(t.speed_factor),
+            "observed": t.observed}
+
+
+def _scenario_doc(s: SumoScenario, net_rel: str, routes, counts: DemandCounts, max_lag_s: float) -> dict:
+    return {"format": FORMAT, "run": str(s.run), "net": net_rel, "net_crs": s.net_crs, "interval_s": s.interval_s,
+            "begin_s": s.begin_s, "end_s": s.end_s, "time_offset_s": s.time_offset_s, "step_s": s.step_s,
+            "seed": s.seed, "vehicles": s.vehicles, "observed_vehicles_per_edge": int(counts.edges["entered"].sum()),
+            "max_lag_s": max_lag_s, "routes": str(Path(routes).resolve()) if routes is not None else
+            "candidates.rou.xml (randomTrips.py)", "vehicle_types": s.vehicle_types,
+            "warnings": list(s.warnings), "run_fingerprint": s.run_fingerprint}
+
+
+def run_fingerprint(run: str | os.PathLike[str]) -> str:
+    """What identifies a run's observations: the SHA-256 of its crossings.csv and counts.csv in its manifest (a copy
+    of the folder has the same; a new analysis has another)."""
+    from trafficgeo.io.run_manifest import MANIFEST
+
+    try:
+        files = json.loads((Path(run) / MANIFEST).read_text(encoding="utf-8"))["files"]
+        return f'{files["crossings.csv"]["sha256"]}:{files["counts.csv"]["sha256"]}'
+    except (OSError, ValueError, KeyError, TypeError):
+        return ""
+
+
+def read_sumo_scenario(folder: str | os.PathLike[str]) -> SumoScenario:
+    """A scenario folder written by :func:`build_sumo_scenario` (checked against its manifest)."""
+    from trafficgeo.io.run_manifest import verify_outputs
+
+    d = Path(folder)
+    if not (d / "scenario.json").is_file():
+        raise InputError(f"scenario {d}: no scenario.json; give the folder written by 'trafficgeo sumo-demand'",
+                         parameters=("scenario",))
+    verify_outputs(d, require=("scenario.json", "scenario.sumocfg", "demand.rou.xml"), name=SCENARIO_MANIFEST)
+    try:
+        doc = json.loads((d / "scenario.json").read_text(encoding="utf-8"))
+        if doc.get("format") != FORMAT:
+            raise KeyError("format")
+        return SumoScenario(d, Path(doc["run"]), (d / doc["net"]).resolve(), doc["net_crs"],
+                            float(doc["interval_s"]), float(doc["begin_s"]), float(doc["end_s"]),
+                            float(doc["time_offset_s"]), float(doc["step_s"]), int(doc["seed"]), int(doc["vehicles"]),
+                            list(doc["vehicle_types"]), warnings=tuple(doc.get("warnings", ())),
+                            run_fingerprint=str(doc.get("run_fingerprint", "")))
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"scenario {d}: scenario.json is not one written by 'trafficgeo sumo-demand'; run it again",
+                         parameters=("scenario",)) from None
+
+
+@dataclass(frozen=True)
+class SimulationOutputs:
+    """What a SUMO run of a scenario wrote (into the scenario folder) and how long it took (s)."""
+
+    fcd: Path
+    edge_data: Path
+    run_s: float
+
+
+def run_scenario(scenario: SumoScenario) -> SimulationOutputs:
+    """Run SUMO headless on the scenario; ``fcd.xml`` and ``simulated.edgedata.xml`` land in its folder only when
+    SUMO succeeded."""
+    from trafficgeo.io.atomic import write_text_atomic
+
+    if not scenario.net.is_file():
+        raise InputError(f"scenario {scenario.folder}: its network {scenario.net} is gone; give it back or run "
+                         "'trafficgeo sumo-demand' again", parameters=("scenario",))
+    started = time.perf_counter()
+    work = Path(tempfile.mkdtemp(prefix=".sumo-run-", dir=scenario.folder)).resolve()
+    try:
+        b, e = scenario.begin_s + scenario.time_offset_s, scenario.end_s + scenario.time_offset_s
+        write_text_atomic(work / "outputs.add.xml",
+                          _outputs_add(str(work / "simulated.edgedata.xml"), scenario.interval_s, b, e))
+        steps = e / scenario.step_s
+        run_sumo_program("sumo", ["-c", str(scenario.sumocfg.resolve()), "--fcd-output", str(work / "fcd.xml"),
+                                  "--additional-files", str(work / "outputs.add.xml")],
+                         120.0 + 0.05 * steps, cwd=scenario.folder)
+        for name in _SIMULATION_OUTPUTS:
+            os.replace(work / name, scenario.folder / name)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return SimulationOutputs(scenario.folder / "fcd.xml", scenario.folder / "simulated.edgedata.xml",
+                             time.perf_counter() - started)
+
+
+def mapping_table(scenario: SumoScenario) -> pd.DataFrame:
+    """The scenario's ``mapping.csv``."""
+    return pd.read_csv(scenario.folder / "mapping.csv", dtype={"line": str, "lane": str}, keep_default_na=False)
+
