@@ -468,6 +468,9 @@ def test_demo_writes_its_files(tmp_path: Path) -> None:
     assert "gcps" in read_json(out / "report.json")
     words = " ".join(stdout.split())
     assert "estimate vs truth" in words and "traffic: measured vs truth" in words and "GEH" in words
+    # the loop closed on the video's counts, its scenario left for sumo-gui
+    assert "The loop closed" in words and "against the truth" in words
+    assert (out / "sumo" / "scenario.sumocfg").is_file() and (out / "video" / "compare_counts.csv").is_file()
     # A second run reuses the cached world.
     code, stdout, stderr = invoke("demo", "--out", out, "--quick", "--duration", "2")
     assert code == 0, stderr
