@@ -13,7 +13,9 @@ folder, then in its sub-folders (then beside the camera JSON), unless given expl
   on the DEM (``dem.tif``, ``--dem``) or on the GCP plane; ``site.gpkg`` for the footprint;
 * an orthophoto (``ortho.tif``, ``--ortho``) behind the plan views, reprojected on the fly when its CRS differs;
 * traffic runs: every folder (the run folder or a sub-folder) with the outputs of ``analyze``/``process``
-  (``summary.json`` with ``vehicles.csv``/``trajectories.csv``, ``counts.csv``, ``crossings.csv``, ``process.json``).
+  (``summary.json`` with ``vehicles.csv``/``trajectories.csv``, ``counts.csv``, ``crossings.csv``, ``process.json``);
+  a comparison with SUMO in it (``compare_counts.csv``...) is part of its traffic section, or, when
+  ``sumo-validate`` wrote it (``compare_simulation.json``), a Simulation section of its own.
 
 Units: pixels (px) in the image; positions in the CRS's units (m or ft) relative to a local origin on the plan
 views; ground errors and distances in metres; speeds in km/h; times in seconds.
@@ -34,7 +36,8 @@ from trafficgeo.report.context import ReportContext, load_context, read_backgrou
 from trafficgeo.report.inputs import ReportInputs, TrafficRun, find_inputs
 from trafficgeo.report.render import render_page
 from trafficgeo.report.sections import accuracy_section, calibration_sections
-from trafficgeo.report.traffic_sections import traffic_section
+from trafficgeo.report.simulation_section import simulation_section
+from trafficgeo.report.traffic_sections import read_table, traffic_section
 
 __all__ = ["ReportInputs", "ReportPage", "TrafficRun", "build_page", "build_report", "find_inputs", "read_background",
            "write_report_html"]
@@ -89,6 +92,9 @@ def build_page(run_dir: str | Path, *, camera: str | Path | None = None,
                "folder or its sub-folders: run 'trafficgeo analyze' or 'process' with --out in it")
     for k, run in enumerate(inputs.traffic):
         sections.append(traffic_section(b, run, k + 1))
+        compare = read_table(run.folder / "compare_counts.csv") if run.compare and run.simulation else None
+        if compare is not None and len(compare):
+            sections.append(simulation_section(b, run, k + 1, compare))
     left = list(dict.fromkeys(b.left_out))
     html = render_page(title or f"trafficgeo report: {inputs.run_dir.resolve().name}", _header(b, about), sections,
                        left)

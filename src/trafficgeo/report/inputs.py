@@ -12,7 +12,7 @@ from typing import Any
 
 from trafficgeo.calibration.report import REPORT_FORMAT, CalibrationReport
 from trafficgeo.errors import InputError
-from trafficgeo.io.run_manifest import COMPARE_MANIFEST, MANIFEST, RunIncompleteError, verify_outputs
+from trafficgeo.io.run_manifest import COMPARE_MANIFEST, MANIFEST, RunIncompleteError, RunManifest, verify_outputs
 
 CAMERA_NAMES = ("camera.json",)
 REPORT_NAMES = ("report.json", "calibration_report.json", "calibration.json")
@@ -34,6 +34,7 @@ class TrafficRun:
     process: dict[str, Any] | None = None
     compare: bool = False  # compare-sumo results are in the folder and match their manifest
     compare_problem: str | None = None  # why compare-sumo results in the folder are not used
+    simulation: dict[str, Any] | None = None  # sumo-validate's record: the comparison is of a trafficgeo scenario
 
 
 @dataclass(frozen=True)
@@ -125,16 +126,31 @@ def _traffic_runs(dirs: list[Path]) -> tuple[TrafficRun, ...]:
             if not isinstance(summary, dict):
                 raise InputError(f"{d / 'summary.json'}: not a summary written by 'trafficgeo analyze'")
             process = read_json(d / "process.json") if manifest.has("process.json") else None
-            compare, problem = False, None
+            compare, problem, simulation = False, None, None
             if (d / "compare_counts.csv").is_file():
                 try:
-                    compare = verify_outputs(d, ("compare_counts.csv",), name=COMPARE_MANIFEST).has(
-                        "compare_counts.csv")
+                    found = verify_outputs(d, ("compare_counts.csv",), name=COMPARE_MANIFEST)
+                    compare = found.has("compare_counts.csv")
+                    simulation = _simulation_record(d, found)
                 except RunIncompleteError:
                     problem = ("compare-sumo results incomplete or from an earlier run of this folder; run "
                                "'trafficgeo compare-sumo' again")
-            runs.append(TrafficRun(d, summary, process if isinstance(process, dict) else None, compare, problem))
+            runs.append(TrafficRun(d, summary, process if isinstance(process, dict) else None, compare, problem,
+                                   simulation))
     return tuple(runs)
+
+
+def _simulation_record(d: Path, manifest: RunManifest) -> dict[str, Any] | None:
+    """``sumo-validate``'s record of the scenario it simulated, when the folder's comparison is from it (the
+    comparison manifest lists the record); None for a plain ``compare-sumo`` comparison."""
+    from trafficgeo.simulation.loop import SIMULATION_FORMAT, SIMULATION_RECORD
+
+    if manifest.command != "sumo-validate" or not manifest.has(SIMULATION_RECORD):
+        return None
+    doc = read_json(d / SIMULATION_RECORD)
+    if not isinstance(doc, dict) or doc.get("format") != SIMULATION_FORMAT:
+        raise InputError(f"{d / SIMULATION_RECORD}: not a record written by 'trafficgeo sumo-validate'; run it again")
+    return doc
 
 
 def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,

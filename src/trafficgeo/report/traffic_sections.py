@@ -118,7 +118,10 @@ def traffic_section(b: ReportContext, run: TrafficRun, k: int) -> Section:
     if counts is not None and len(counts):
         parts.append(_counts_table(counts))
     compare = read_table(run.folder / "compare_counts.csv") if run.compare else None
-    if compare is not None and len(compare):
+    if compare is not None and len(compare) and run.simulation is not None:
+        parts.append((Text("The comparison with the SUMO simulation of this run (trafficgeo sumo-validate) is in "
+                           "the Simulation section.", "note"),))
+    elif compare is not None and len(compare):
         parts.append(_comparison(b, run, compare))
     elif run.compare_problem is not None:
         b.skip(f"observed against simulated ({name})", run.compare_problem)
@@ -137,8 +140,22 @@ def _comparison(b: ReportContext, run: TrafficRun, compare: pd.DataFrame) -> Par
                         f'{num(100.0 * float(counts.get("share_geh_below_5", float("nan"))), 1)} % with GEH < 5 '
                         f'(the usual acceptance target is 85 %); observed {counts.get("total_observed", "")} '
                         f'vehicles, simulated {counts.get("total_simulated", "")}.'))
-    out.append(figure(F.observed_vs_simulated(compare), "Observed against simulated hourly flows per line, lane, "
-                      "direction and interval (veh/h); grey: where the GEH statistic is below 5.", b.dpi))
+    out.append(flows_figure(b, compare))
+    out.append(compare_counts_table(compare))
+    speeds = read_table(run.folder / "compare_speeds.csv")
+    if speeds is not None and len(speeds):
+        out += [Heading("Spot speeds at the lines, observed vs simulated", 4), compare_speeds_table(speeds)]
+    return tuple(out)
+
+
+def flows_figure(b: ReportContext, compare: pd.DataFrame) -> Block:
+    """The observed against simulated flows with the GEH band (``compare_counts.csv``)."""
+    return figure(F.observed_vs_simulated(compare), "Observed against simulated hourly flows per line, lane, "
+                  "direction and interval (veh/h); grey: where the GEH statistic is below 5.", b.dpi)
+
+
+def compare_counts_table(compare: pd.DataFrame) -> Table:
+    """``compare_counts.csv`` (its first :data:`TABLE_ROWS` rows), counts with GEH >= 5 marked as outliers."""
     cols = [("line", "line"), ("lane", "lane"), ("direction", "direction"), ("interval_start", "from s"),
             ("interval_end", "to s"), ("observed", "observed"), ("simulated", "simulated"), ("geh", "GEH")]
     cols = [(c, label) for c, label in cols if c in compare.columns]
@@ -148,19 +165,19 @@ def _comparison(b: ReportContext, run: TrafficRun, compare: pd.DataFrame) -> Par
                      (int(d[c]) if c in ("observed", "simulated") else (d[c], 2 if c == "geh" else 1)))
                      for c, _ in cols])
         classes.append("outlier" if float(d.get("geh", 0.0)) >= 5.0 else "")
-    out.append(table([label for _, label in cols], rows, row_classes=classes))
-    speeds = read_table(run.folder / "compare_speeds.csv")
-    if speeds is not None and len(speeds):
-        scols = [("line", "line"), ("lane", "lane"), ("observed_n", "observed n"),
-                 ("observed_mean_kmh", "observed mean km/h"), ("simulated_n", "simulated n"),
-                 ("simulated_mean_kmh", "simulated mean km/h"), ("mean_difference_kmh", "difference km/h"),
-                 ("ks_statistic", "KS distance"), ("ks_pvalue", "KS p")]
-        scols = [(c, label) for c, label in scols if c in speeds.columns]
-        srows = [[d[c] if c in ("line", "lane") else (int(d[c]) if c.endswith("_n") and np.isfinite(d[c]) else
-                  (d[c], 2)) for c, _ in scols] for d in speeds.head(TABLE_ROWS).to_dict("records")]
-        out += [Heading("Spot speeds at the lines, observed vs simulated", 4),
-                table([label for _, label in scols], srows)]
-    return tuple(out)
+    return table([label for _, label in cols], rows, row_classes=classes)
+
+
+def compare_speeds_table(speeds: pd.DataFrame) -> Table:
+    """``compare_speeds.csv``: spot speeds per line and lane, observed and simulated, with the KS distance."""
+    scols = [("line", "line"), ("lane", "lane"), ("observed_n", "observed n"),
+             ("observed_mean_kmh", "observed mean km/h"), ("simulated_n", "simulated n"),
+             ("simulated_mean_kmh", "simulated mean km/h"), ("mean_difference_kmh", "difference km/h"),
+             ("ks_statistic", "KS distance"), ("ks_pvalue", "KS p")]
+    scols = [(c, label) for c, label in scols if c in speeds.columns]
+    srows = [[d[c] if c in ("line", "lane") else (int(d[c]) if c.endswith("_n") and np.isfinite(d[c]) else
+              (d[c], 2)) for c, _ in scols] for d in speeds.head(TABLE_ROWS).to_dict("records")]
+    return table([label for _, label in scols], srows)
 
 
 def _run_summary(run: TrafficRun, s: dict[str, Any]) -> Part:

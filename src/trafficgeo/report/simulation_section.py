@@ -1,0 +1,141 @@
+"""The Simulation section of a report (:mod:`trafficgeo.report.blocks`): a run's comparison with the SUMO scenario
+trafficgeo built from it (``sumo-validate``, recorded in ``compare_simulation.json``).
+
+It shows what was simulated, the headline (share of the line x lane x direction x interval counts with GEH < 5
+against the 85 % target, mean GEH), the observed against simulated flows with the GEH band, the spot speeds at
+the lines observed and simulated side by side (KS distance), the travel times between the first and the last
+line and the count table. A plain ``compare-sumo`` comparison stays in the traffic section.
+
+Units: flows in vehicles per hour; speeds in km/h; times in seconds (observed time unless said).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from trafficgeo.report import simulation_figures as SF
+from trafficgeo.report.blocks import Block, Heading, Part, Section, Text, figure, num, table
+from trafficgeo.report.context import ReportContext
+from trafficgeo.report.inputs import TrafficRun, read_json
+from trafficgeo.report.traffic_sections import (
+    TABLE_ROWS,
+    compare_counts_table,
+    compare_speeds_table,
+    flows_figure,
+    read_table,
+)
+
+GEH_LIMIT = 5.0
+
+
+def _float(value: Any) -> float:
+    """``value`` as a float (NaN for None or anything not a number)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def headline(record: dict[str, Any], compare: pd.DataFrame) -> dict[str, Any]:
+    """Share of the counts with GEH < 5, mean GEH, number of counts, target share and whether it is met: from
+    ``sumo-validate``'s record, or from ``compare_counts.csv`` for what the record lacks."""
+    geh = compare["geh"].to_numpy(float) if "geh" in compare.columns else np.full(len(compare), np.nan)
+    share = _float(record.get("share_geh_below_5"))
+    share = share if np.isfinite(share) else (float((geh < GEH_LIMIT).mean()) if geh.size else float("nan"))
+    mean = _float(record.get("mean_geh"))
+    mean = mean if np.isfinite(mean) else (float(np.nanmean(geh)) if np.isfinite(geh).any() else float("nan"))
+    target = _float(record.get("target_share"))
+    target = target if np.isfinite(target) else 0.85
+    return {"share_geh_below_5": share, "mean_geh": mean, "counts": int(record.get("counts") or len(compare)),
+            "target_share": target, "target_met": bool(np.isfinite(share) and share >= target)}
+
+
+def _what_was_simulated(rec: dict[str, Any]) -> Block:
+    def seconds(key: str) -> Any:
+        v = _float(rec.get(key))
+        return (v, 1) if np.isfinite(v) else "not known"
+
+    rows = [["scenario folder (sumo-gui scenario.sumocfg)", str(rec.get("scenario", "-")), ""],
+            ["network", str(rec.get("net", "-")), ""],
+            ["network CRS", str(rec.get("net_crs") or "the network's own"), ""],
+            ["observed period simulated", f'{num(rec.get("begin_s"), 1)} to {num(rec.get("end_s"), 1)}', "s"],
+            ["counting interval", (_float(rec.get("interval_s")), 0), "s"],
+            ["SUMO time minus observed time", (_float(rec.get("time_offset_s")), 1), "s"],
+            ["simulation step", (_float(rec.get("step_s")), 2), "s"],
+            ["vehicles in the demand", rec.get("vehicles", "-"), ""], ["seed", rec.get("seed", "-"), ""],
+            ["time to build the scenario (sumo-demand)", seconds("build_s"), "s"],
+            ["time to run SUMO", seconds("run_s"), "s"]]
+    return table(["quantity", "value", "unit"], rows, caption="the SUMO scenario built from this run's counts")
+
+
+def _travel_times(tt: dict[str, Any]) -> Part:
+    rows = [[side, tt.get(f"{side}_n", "-"), (_float(tt.get(f"{side}_mean_s")), 1),
+             (_float(tt.get(f"{side}_median_s")), 1), (_float(tt.get(f"{side}_p85_s")), 1)]
+            for side in ("observed", "simulated")]
+    text = (f"Simulated minus observed mean: {num(tt.get('mean_difference_s'), 1)} s; KS distance of the two "
+            f"distributions {num(tt.get('ks_statistic'), 2)} (p {num(tt.get('ks_pvalue'), 3)}).")
+    return (Heading(f"Travel times from line {tt.get('from_line', '?')} to line {tt.get('to_line', '?')}", 4),
+            table(["", "vehicles", "mean s", "median s", "85th pct s"], rows), Text(text))
+
+
+def _observed_crossings(folder: Path, rec: dict[str, Any], lines: set[str]) -> pd.DataFrame:
+    """The run's crossings the comparison used: at the compared lines, within the simulated period."""
+    cr = read_table(folder / "crossings.csv")
+    if cr is None or not len(cr):
+        return pd.DataFrame(columns=["line", "lane", "speed_kmh"])
+    t = pd.to_numeric(cr["time"], errors="coerce")
+    b, e = _float(rec.get("begin_s")), _float(rec.get("end_s"))
+    keep = cr["line"].isin(lines) & (t >= (b if np.isfinite(b) else -np.inf)) & (t < (e if np.isfinite(e) else np.inf))
+    return cr[keep.to_numpy()]
+
+
+def simulation_section(b: ReportContext, run: TrafficRun, k: int, compare: pd.DataFrame) -> Section:
+    """The Simulation section of the ``k``-th traffic run (1-based), whose comparison ``compare``
+    (``compare_counts.csv``) ``sumo-validate`` wrote; what it cannot show is noted in ``b``."""
+    rec = run.simulation or {}
+    rel = run.folder.relative_to(b.inputs.run_dir) if run.folder != b.inputs.run_dir else Path(".")
+    name = str(rel)
+    title = f"Simulation: {name}" if len(b.inputs.traffic) > 1 or name != "." else "Simulation"
+    b.used.append(("SUMO scenario (sumo-validate)", str(rec.get("scenario", "-"))))
+    h = headline(rec, compare)
+    verdict = "met" if h["target_met"] else "NOT met"
+    lead = (f'{num(100.0 * h["share_geh_below_5"], 1)} % of the {h["counts"]} counts (line, lane, direction, '
+            f'interval) have GEH < 5, against the target of {num(100.0 * h["target_share"], 0)} %: {verdict}. '
+            f'Mean GEH {num(h["mean_geh"], 2)}; observed {int(compare["observed"].sum())} vehicles, simulated '
+            f'{int(compare["simulated"].sum())}.')
+    parts: list[Part] = [(Text(lead, "summary"), _what_was_simulated(rec))]
+    notes = [f"not compared (no vehicle observed there): {u}" for u in rec.get("unobserved") or []]
+    notes += [str(w) for w in rec.get("warnings") or []]
+    if notes:
+        parts.append(tuple(Text(n, "note") for n in notes))
+    parts.append((flows_figure(b, compare),))
+    speeds = read_table(run.folder / "compare_speeds.csv")
+    sim_cross = read_table(run.folder / "simulated_crossings.csv")
+    lines = set(compare["line"].astype(str))
+    fig = None
+    if sim_cross is not None and len(sim_cross):
+        fig = SF.observed_vs_simulated_speeds(_observed_crossings(run.folder, rec, lines), sim_cross)
+    if fig is not None:
+        parts.append((figure(fig, "Spot speeds at the counting lines (km/h), observed (blue) and simulated (orange) "
+                             "side by side, per line and lane with vehicles on both sides, on the same bins; KS: the "
+                             "two-sample Kolmogorov-Smirnov distance (0: the same distribution).", b.dpi),))
+    else:
+        b.skip(f"simulated speed histograms ({name})", "no line and lane with observed and simulated crossings "
+               "(simulated_crossings.csv empty or missing): run 'trafficgeo sumo-validate' again")
+    if speeds is not None and len(speeds):
+        parts.append((Heading("Spot speeds at the lines, observed vs simulated", 4), compare_speeds_table(speeds)))
+    doc = read_json(run.folder / "compare_summary.json") if (run.folder / "compare_summary.json").is_file() else {}
+    tt = doc.get("travel_times") if isinstance(doc, dict) else None
+    if isinstance(tt, dict) and tt:
+        parts.append(_travel_times(tt))
+    else:
+        b.skip(f"travel times between lines ({name})", "the comparison has fewer than two counting lines")
+    blocks: list[Block] = [Heading("Counts, observed vs simulated", 4), compare_counts_table(compare)]
+    if len(compare) > TABLE_ROWS:
+        blocks.append(Text(f"first {TABLE_ROWS} of {len(compare)} rows; all are in compare_counts.csv", "note"))
+    parts.append(tuple(blocks))
+    return Section(f"simulation-{k}", title, tuple(parts))
