@@ -9,7 +9,6 @@ import json
 import re
 import shutil
 from html import unescape
-from pathlib import Path
 
 import cv2
 import numpy as np

@@ -51,7 +51,8 @@ def speed_bins(panels: list[tuple[str, str, np.ndarray, np.ndarray]], n_bins: in
 
 def observed_vs_simulated_speeds(observed: pd.DataFrame, simulated: pd.DataFrame, *, n_bins: int = 20) -> Any:
     """Spot speeds at the counting lines (km/h), observed against simulated, as histograms side by side: one panel
-    per line and lane with vehicles on both sides (:func:`speed_panels`), the same bins in all (:func:`speed_bins`),
+    per line and lane with vehicles on both sides (:func:`speed_panels`; a row per line, its lanes across), the
+    same bins in all (:func:`speed_bins`),
     the two-sample Kolmogorov-Smirnov distance in each panel's title. Bars have gid ``"sim-speed-observed-<line>-
     <lane>"`` and ``"sim-speed-simulated-<line>-<lane>"``; None when no line and lane has vehicles on both sides."""
     from matplotlib.ticker import MaxNLocator
@@ -60,11 +61,14 @@ def observed_vs_simulated_speeds(observed: pd.DataFrame, simulated: pd.DataFrame
     if not panels:
         return None
     bins = speed_bins(panels, n_bins)
-    ncols = min(len(panels), 4)
-    nrows = math.ceil(len(panels) / ncols)
-    fig, axs = new_figure(min(2.6 * ncols + 0.6, 11.0), 0.6 + 2.1 * nrows, nrows, ncols, sharex=True)
+    lines = list(dict.fromkeys(line for line, _, _, _ in panels))  # one row per line, its lanes across
+    cells = [(lines.index(line), sum(1 for p in panels[:k] if p[0] == line)) for k, (line, _, _, _) in
+             enumerate(panels)]
+    nrows, ncols = len(lines), max(c for _, c in cells) + 1
+    fig, axs = new_figure(min(2.6 * ncols + 0.6, 12.0), 0.6 + 2.1 * nrows, nrows, ncols, sharex=True)
     width = np.diff(bins) / 2.0
-    for k, (ax, (line, lane, o, s)) in enumerate(zip(axs.ravel(), panels, strict=False)):
+    for k, ((r, c), (line, lane, o, s)) in enumerate(zip(cells, panels, strict=True)):
+        ax = axs[r, c]
         ho, _ = np.histogram(o, bins)
         hs, _ = np.histogram(s, bins)
         for heights, offset, colour, side in ((ho, 0.0, OBSERVED_COLOUR, "observed"),
@@ -78,8 +82,10 @@ def observed_vs_simulated_speeds(observed: pd.DataFrame, simulated: pd.DataFrame
                      loc="left")
         ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         ax.tick_params(labelsize=7, labelbottom=True)
-    for ax in axs.ravel()[len(panels):]:
-        ax.remove()
+    used = set(cells)
+    for r, c in np.ndindex(nrows, ncols):
+        if (r, c) not in used:
+            axs[r, c].remove()
     for ax in axs[:, 0]:
         ax.set_ylabel("vehicles", fontsize=7)
     fig.supxlabel("spot speed at the line (km/h)", fontsize=8)
