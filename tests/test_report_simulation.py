@@ -9,6 +9,7 @@ import json
 import re
 import shutil
 from html import unescape
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -156,3 +157,19 @@ def test_plain_compare_sumo_stays_in_the_traffic_section(loop: dict) -> None:
     traffic = unescape(_section(page.html, "traffic-1"))
     assert "Observed vs simulated (compare-sumo)" in traffic
     assert any(a.startswith("Observed against simulated hourly flows") for a in _figures(traffic))
+
+
+@pytest.mark.slow
+def test_a_record_not_from_sumo_validate_is_one_line_error(loop: dict, tmp_path: Path) -> None:
+    from trafficgeo.errors import InputError
+    from trafficgeo.io.run_manifest import COMPARE_MANIFEST, publish_outputs
+
+    run = tmp_path / "run"
+    shutil.copytree(loop["run"], run)
+    (run / SIMULATION_RECORD).write_text(json.dumps({"format": "something else"}))
+    files = json.loads((run / COMPARE_MANIFEST).read_text())["files"]
+    publish_outputs(run, list(files), command="sumo-validate", name=COMPARE_MANIFEST)
+    with pytest.raises(InputError, match=r"compare_simulation.json: not a record written by 'trafficgeo "
+                       r"sumo-validate'; run it again$") as info:
+        build_page(run, dpi=40)
+    assert "\n" not in str(info.value)

@@ -130,8 +130,11 @@ def simulation_section(b: ReportContext, run: TrafficRun, k: int, compare: pd.Da
         parts.append((Heading("Spot speeds at the lines, observed vs simulated", 4), compare_speeds_table(speeds)))
     doc = read_json(run.folder / "compare_summary.json") if (run.folder / "compare_summary.json").is_file() else {}
     tt = doc.get("travel_times") if isinstance(doc, dict) else None
-    if isinstance(tt, dict) and tt:
+    if isinstance(tt, dict) and tt and (_float(tt.get("observed_n")) > 0 or _float(tt.get("simulated_n")) > 0):
         parts.append(_travel_times(tt))
+    elif isinstance(tt, dict) and tt:
+        b.skip(f"travel times between lines ({name})", f"no vehicle, observed or simulated, crossed line "
+               f"{tt.get('from_line', '?')} and then line {tt.get('to_line', '?')}: simulate a longer period")
     else:
         b.skip(f"travel times between lines ({name})", "the comparison has fewer than two counting lines")
     blocks: list[Block] = [Heading("Counts, observed vs simulated", 4), compare_counts_table(compare)]
