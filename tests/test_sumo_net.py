@@ -16,6 +16,7 @@ import pandas as pd
 import pyproj
 import pytest
 import shapely
+import shapely.affinity
 
 import trafficgeo as tg
 from cli_support import invoke
@@ -254,3 +255,32 @@ def test_cli_writes_the_network_and_lists_its_edges(tmp_path) -> None:
     assert [p.name for p in out.parent.iterdir()] == ["road.net.xml"]  # no temporary or plain XML left
     code, _, stderr = invoke("sumo-net", lanes, "-o", out, "--speed-kmh", -5)
     assert code == 2 and "--speed-kmh -5" in stderr, stderr
+
+
+@pytest.mark.slow
+def test_lanes_of_unequal_widths_keep_theirs(tmp_path) -> None:
+    box = shapely.box
+    # heading north-east: a 3.75 m kerb lane L1 and a 3.0 m lane L2 left of it; a 3.5 m lane L3 the other way
+    rot = 45.0
+    polys = [shapely.affinity.rotate(p, -rot, origin=(0, 0)) for p in
+             (box(3.0, 0, 6.75, 150), box(0, 0, 3.0, 150), box(-3.5, 0, 0, 150))]
+    polys = [shapely.affinity.translate(p, 500000.0, 5000000.0) for p in polys]
+    result = build_sumo_net(_lanes(polys, [rot, rot, rot + 180.0]), tmp_path / "x.net.xml", crs="EPSG:32633")
+    assert [(e.id, e.lanes) for e in result.edges] == [("e1", ("L1", "L2")), ("e2", ("L3",))]
+    assert result.edges[0].lane_widths_m == pytest.approx((3.75, 3.0), abs=1e-6)
+    sn = sumolib.net.readNet(str(result.path))
+    off = np.array(sn.getLocationOffset())
+    for lane_id, name in (("e1_0", "L1"), ("e1_1", "L2"), ("e2_0", "L3")):
+        lane = sn.getLane(lane_id)
+        poly = polys[int(name[1]) - 1]
+        assert lane.getWidth() == pytest.approx(poly.area / 150.0, abs=1e-3)
+        xy = np.asarray(lane.getShape())[:, :2] - off
+        # the SUMO lane runs down the middle of its polygon: as far from both long sides
+        long_sides = [ln for ln in (shapely.LineString(np.asarray(poly.exterior.coords)[[k, k + 1]])
+                                    for k in range(4)) if ln.length > 100]
+        d = [shapely.distance(ln, shapely.points(xy)) for ln in long_sides]
+        np.testing.assert_allclose(d[0], d[1], atol=0.01)
+    # a lane that stops halfway beside a full one
+    with pytest.raises(InputError, match="lane L2 starts or ends 75 m away from lane L1"):
+        build_sumo_net(_lanes([box(0, 0, 3.5, 150), box(3.5, 0, 7.0, 75)], [0.0, 0.0]), tmp_path / "y.net.xml",
+                       crs="EPSG:32633")

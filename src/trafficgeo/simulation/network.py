@@ -7,8 +7,9 @@ sharp corners (turns of more than :data:`CORNER_DEG`), two long sides and two sh
 * Lanes of the same direction (bearings within 45 deg) that touch side by side (gap at most :data:`GAP_M`) form a
   carriageway: one SUMO edge, its lanes ordered from the right in the direction of travel (SUMO lane 0 is the
   rightmost), ``numLanes`` the lanes, ``width`` their mean width (area / centreline length), ``speed`` the limit.
-  The lanes of the demo world ``d1_1, d1_2`` give edge ``d1`` (the common part of the names before their last
-  ``_``; else ``e1, e2, ...``).
+  Lanes of unequal widths (by more than 1 cm) keep their own widths. Lanes of an edge must start and end together
+  (within :data:`END_TOLERANCE_M`). The lanes of the demo world ``d1_1, d1_2`` give edge ``d1`` (the common part
+  of the names before their last ``_``; else ``e1, e2, ...``).
 * The edge's ``shape`` (``spreadType="center"``) is the midline between the carriageway's outer boundaries (the
   right side of its rightmost lane and the left side of its leftmost), sampled every :data:`STEP_M` metres and
   simplified to within 1 cm; each edge has its own two dead-end nodes at the ends of that line. One-way roads give
@@ -49,6 +50,8 @@ CORNER_DEG = 30.0  # a turn of the outline sharper than this is a corner of the 
 GAP_M = 0.5  # lanes of one direction at most this far apart are side by side on one edge
 STEP_M = 2.0  # sampling of the edge's centreline (m) before simplifying it to within SHAPE_TOLERANCE_M
 SHAPE_TOLERANCE_M = 0.01
+END_TOLERANCE_M = 5.0  # lanes of one edge start and end within this distance (m) of each other
+WIDTH_TOLERANCE_M = 0.01  # lanes of an edge whose widths differ by more get their own widths in the network
 NET_PRECISION = 6  # digits after the comma in the .net.xml
 NETCONVERT_TIMEOUT_S = 120.0
 _GENERATED = re.compile(r"^\s*<!-- generated on .*? by Eclipse SUMO (\S+) (\S+)")
@@ -102,6 +105,7 @@ class NetEdge:
     id: str
     lanes: tuple[str, ...]  # lane names, rightmost first (SUMO lane i = lanes[i])
     lane_width_m: float  # mean of the lanes' widths
+    lane_widths_m: tuple[float, ...]  # each lane's (area / centreline length), rightmost first
     length_m: float  # of the centreline
     bearing_deg: float  # direction of travel at the middle, deg clockwise from grid north
     shape: np.ndarray  # (N, 2) centreline in the CRS (world coordinates, m)
@@ -261,10 +265,19 @@ def _edge(edge_id: str, group: list[_Strip]) -> NetEdge:
     _, offset = _offset_along(ref, mids)
     order = np.argsort(offset, kind="stable")  # rightmost (most negative: right of the reference) first
     lanes = [group[k] for k in order]
+    ends = np.array([_offset_along(ref, shapely.get_coordinates(s.centre)[[0, -1]])[0] for s in lanes])
+    far = np.abs(ends - ends[order == 0]).max(axis=1) if len(lanes) > 1 else np.zeros(1)
+    if far.max() > END_TOLERANCE_M:
+        k = int(np.argmax(far))
+        raise InputError(f"lanes: lane {lanes[k].name} starts or ends {far[k]:.0f} m away from lane {group[0].name} "
+                         "beside it; the lanes of one edge run the same stretch: draw them to the same ends (a "
+                         f"turning pocket as its own stretch of road), within {END_TOLERANCE_M:g} m",
+                         parameters=("lanes",))
     shape = _midline(lanes[-1].left, lanes[0].right)
     line = shapely.LineString(shape).simplify(SHAPE_TOLERANCE_M)
-    return NetEdge(edge_id, tuple(s.name for s in lanes), float(np.mean([s.width_m for s in lanes])),
-                   float(line.length), _bearing_at_middle(shape), shapely.get_coordinates(line))
+    widths = tuple(float(s.width_m) for s in lanes)
+    return NetEdge(edge_id, tuple(s.name for s in lanes), float(np.mean(widths)), widths, float(line.length),
+                   _bearing_at_middle(shape), shapely.get_coordinates(line))
 
 
 # ---------------------------------------------------------------------------------------------------- XML
@@ -288,9 +301,14 @@ def _edges_xml(edges: list[NetEdge], origin: np.ndarray, speed_mps: float) -> st
     rows = []
     for e in edges:
         shape = " ".join(f"{sumo_number(x)},{sumo_number(y)}" for x, y in e.shape - origin)
-        rows.append(f'    <edge id="{e.id}" from="{e.id}_start" to="{e.id}_end" numLanes="{len(e.lanes)}" '
-                    f'speed="{sumo_number(speed_mps)}" width="{sumo_number(e.lane_width_m)}" spreadType="center" '
-                    f'shape="{shape}"/>\n')
+        head = (f'    <edge id="{e.id}" from="{e.id}_start" to="{e.id}_end" numLanes="{len(e.lanes)}" '
+                f'speed="{sumo_number(speed_mps)}" width="{sumo_number(e.lane_width_m)}" spreadType="center" '
+                f'shape="{shape}"')
+        if max(e.lane_widths_m) - min(e.lane_widths_m) <= WIDTH_TOLERANCE_M:
+            rows.append(head + "/>\n")
+            continue
+        rows.append(head + ">\n" + "".join(f'        <lane index="{i}" width="{sumo_number(w)}"/>\n'
+                                            for i, w in enumerate(e.lane_widths_m)) + "    </edge>\n")
     return "<edges>\n" + "".join(rows) + "</edges>\n"
 
 
