@@ -56,6 +56,8 @@ _API: dict[str, str] = {
     "Comparison": "trafficgeo.traffic.validation",
     "export_fcd": "trafficgeo.traffic.validation",
     # closing the loop with SUMO
+    "build_sumo_net": "trafficgeo.simulation.network",
+    "SumoNet": "trafficgeo.simulation.network",
     "build_sumo_scenario": "trafficgeo.simulation.scenario",
     "SumoScenario": "trafficgeo.simulation.scenario",
     "validate_sumo_scenario": "trafficgeo.simulation.loop",
@@ -104,6 +106,7 @@ __all__ = [
     "RunFolder",
     "RunOptions",
     "SumoLoopResult",
+    "SumoNet",
     "SumoScenario",
     "SumoValidation",
     "TrafficResult",
@@ -111,6 +114,7 @@ __all__ = [
     "TrajectoryOptions",
     "__version__",
     "analyze_tracks",
+    "build_sumo_net",
     "build_sumo_scenario",
     "calibrate",
     "close_sumo_loop",
@@ -156,6 +160,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.geo.mapping import GroundPoints, georeference
     from trafficgeo.geo.surface import ConstantSurface
     from trafficgeo.simulation.loop import SumoLoopResult, SumoValidation, close_sumo_loop, validate_sumo_scenario
+    from trafficgeo.simulation.network import SumoNet, build_sumo_net
     from trafficgeo.simulation.scenario import SumoScenario, build_sumo_scenario
     from trafficgeo.traffic.analyze import TrafficResult, analyze_tracks
     from trafficgeo.traffic.lanes import Lanes

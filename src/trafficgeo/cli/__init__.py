@@ -202,7 +202,7 @@ from trafficgeo.cli import batch as _batch  # noqa: E402, F401  (registers batch
 from trafficgeo.cli import geo as _geo  # noqa: E402, F401  (registers the geospatial commands)
 from trafficgeo.cli import process as _process  # noqa: E402, F401  (registers process and stitch)
 from trafficgeo.cli import report as _report  # noqa: E402, F401  (registers the report command)
-from trafficgeo.cli import sumo as _sumo  # noqa: E402, F401  (registers sumo-demand and sumo-validate)
+from trafficgeo.cli import sumo as _sumo  # noqa: E402, F401  (registers sumo-net, sumo-demand and sumo-validate)
 from trafficgeo.cli import synth as _synth  # noqa: E402, F401  (registers the synth command)
 from trafficgeo.cli import traffic as _traffic  # noqa: E402, F401  (registers analyze and compare-sumo)
 from trafficgeo.cli import ui as _ui  # noqa: E402, F401  (registers the gcp-ui command)

@@ -1,5 +1,6 @@
-"""SUMO commands: sumo-demand (observed counts -> a runnable SUMO scenario) and sumo-validate (run it, compare with
-the observation); thin wrappers over :mod:`trafficgeo.simulation`."""
+"""SUMO commands: sumo-net (a georeferenced SUMO network from the lanes layer), sumo-demand (observed counts -> a
+runnable SUMO scenario) and sumo-validate (run it, compare with the observation); thin wrappers over
+:mod:`trafficgeo.simulation`."""
 
 from __future__ import annotations
 
@@ -9,6 +10,10 @@ from typing import Annotated
 import typer
 
 from trafficgeo.cli import app, console
+from trafficgeo.errors import InputError
+
+#: library parameter -> this command's argument or flag (``lanes`` is the LANES argument here, not ``--lanes``)
+_SUMO_NET_FLAGS = {"lanes": "LANES", "out_path": "--out", "crs": "--crs", "speed_kmh": "--speed-kmh"}
 
 
 def _print_mapping_problem(exc: Exception) -> None:
@@ -80,3 +85,27 @@ def sumo_validate(
     console.print(f"GEH < 5 for {val.share_geh_below_5:.1%} of {val.counts} counts: target >= "
                   f"{GEH_TARGET_SHARE:.0%} {verdict}; SUMO ran {val.simulation.run_s:.1f} s")
     console.print(f"wrote {', '.join(p.name for p in val.written)} in {out or scenario}")
+
+
+@app.command("sumo-net")
+def sumo_net(
+    lanes: Annotated[Path, typer.Argument(help="lane polygons with a 'bearing' column (direction of travel, deg "
+                                          "clockwise from north), e.g. the lanes.gpkg given to analyze")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="SUMO network to write (.net.xml)")],
+    crs: Annotated[str | None, typer.Option(help="projected CRS (metres) of the network, e.g. the camera's "
+                                            "EPSG:32633; default the lanes file's")] = None,
+    speed_kmh: Annotated[float, typer.Option("--speed-kmh", help="speed limit of every edge (km/h)")] = 50.0,
+) -> None:
+    """Lane polygons -> a georeferenced SUMO network (netconvert): one edge per direction of travel, its lanes
+    ordered from the right, their mean width; for sumo-demand when there is no network of the area."""
+    from trafficgeo.simulation.network import build_sumo_net
+
+    try:
+        net = build_sumo_net(lanes, out, crs=crs, speed_kmh=speed_kmh)
+    except InputError as exc:
+        raise InputError(exc.in_terms_of(_SUMO_NET_FLAGS)) from None
+    for e in net.edges:
+        console.print(f"edge {e.id}: {len(e.lanes)} lane(s) {', '.join(e.lanes)} (from the right), "
+                      f"{e.lane_width_m:.2f} m wide, {e.length_m:.1f} m long, heading {e.bearing_deg:.0f} deg")
+    console.print(f"wrote {out} in {net.crs.name} (netOffset {-net.origin[0]:.0f},{-net.origin[1]:.0f}), SUMO "
+                  f"{net.sumo_version}; use it with: trafficgeo sumo-demand RUN --net {out} --out SCENARIO")

@@ -49,19 +49,19 @@ replaced by a fixed comment naming the SUMO version, so the same inputs give byt
 from __future__ import annotations
 
 import os
-import re
 import shutil
 import tempfile
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from trafficgeo.crs import parse_crs
 from trafficgeo.errors import InputError
-from trafficgeo.io.atomic import atomic_open, write_text_atomic
+from trafficgeo.io.atomic import write_text_atomic
+from trafficgeo.simulation.network import copy_without_sumo_header as _copy_without_header
+from trafficgeo.simulation.network import proj_parameter
+from trafficgeo.simulation.network import sumo_number as _num
 from trafficgeo.simulation.tools import run_sumo_program, sumo_binary
 from trafficgeo.synth.sumo_scene import _MARGIN_M, VEHICLE_CLASSES, Demand, RoadSpec, _finite, _positive
 
@@ -78,7 +78,6 @@ _NET_PRECISION = 6  # digits after the comma in the .net.xml (netOffset must kee
 _FCD_PRECISION = 3  # digits after the comma in fcd.xml: mm, ms
 _FCD_ATTRIBUTES = ("x", "y", "angle", "type", "speed", "pos", "lane", "signals")  # signals: brake lights, blinkers
 _NETCONVERT_TIMEOUT_S = 120.0
-_GENERATED = re.compile(r"^\s*<!-- generated on .*? by Eclipse SUMO (\S+) (\S+)")
 
 
 # ---------------------------------------------------------------------------------------------------- outputs
@@ -138,43 +137,10 @@ def _run_tool(name: str, args: list[str], timeout_s: float) -> None:
     run_sumo_program(name, args, timeout_s)
 
 
-def _copy_without_header(src: Path, dst: Path) -> str | None:
-    """Copy a SUMO output to ``dst`` (atomically), replacing the dated "generated on" comment (which also lists
-    the configuration and temporary file names) by a fixed one. Returns the SUMO version found in it."""
-    version = None
-    with open(src, encoding="utf-8") as fin, atomic_open(dst, "w") as fout:
-        in_header = False
-        for line in fin:
-            if version is None and not in_header:
-                m = _GENERATED.match(line)
-                if m:
-                    version = m.group(2)
-                    fout.write(f"<!-- Eclipse SUMO {m.group(1)} {version}; date and configuration removed by "
-                               "trafficgeo for reproducible output -->\n")
-                    in_header = "-->" not in line
-                    continue
-            if in_header:
-                in_header = "-->" not in line
-                continue
-            fout.write(line)
-    return version
-
-
 # ---------------------------------------------------------------------------------------------------- network
-def _num(value: float) -> str:
-    """A float as exact, round-trip text for SUMO XML (no numpy repr)."""
-    return repr(float(value))
-
-
 def _proj_parameter(road: RoadSpec) -> str:
     """The PROJ string of the road's CRS, as SUMO wants it in ``projParameter``."""
-    crs = parse_crs(road.crs)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # "You will likely lose important projection information"
-        text = crs.to_proj4() if crs is not None else None
-    if not text:
-        raise InputError(f"RoadSpec.crs {road.crs!r} has no PROJ string for SUMO; use an EPSG projected CRS")
-    return text.replace("+type=crs", "").strip()
+    return proj_parameter(road.crs, "RoadSpec.crs")
 
 
 def _axis_xy(road: RoadSpec, stations: np.ndarray) -> np.ndarray:
