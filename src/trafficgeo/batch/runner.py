@@ -54,6 +54,7 @@ from typing import Any
 from trafficgeo.batch.model import Task, TaskOutcome, utc_text
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_open
+from trafficgeo.io.environment import environment
 
 #: the environment variables that bound a worker process's library threads (set to ``threads_per_worker``)
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS",
@@ -405,19 +406,6 @@ def _quiet() -> Iterator[None]:
             logging.getLogger(n).setLevel(level)
 
 
-@contextlib.contextmanager
-def _environment(values: dict[str, str]) -> Iterator[None]:
-    """Set environment variables for the block, then restore them (worker processes inherit them at spawn)."""
-    before = {k: os.environ.get(k) for k in values}
-    os.environ.update(values)
-    try:
-        yield
-    finally:
-        for k, v in before.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def start_local_cluster(options: RunOptions = RunOptions()) -> Any:
@@ -434,7 +422,7 @@ def start_local_cluster(options: RunOptions = RunOptions()) -> Any:
               "distributed.worker.daemon": True}
     cluster = None
     try:
-        with _quiet(), _environment(env), dask.config.set(config):
+        with _quiet(), environment(env), dask.config.set(config):
             with _sigint_ignored():  # the workers ignore Ctrl-C: this process handles it
                 cluster = distributed.LocalCluster(n_workers=max(1, options.workers),
                                                    threads_per_worker=options.threads_per_worker,

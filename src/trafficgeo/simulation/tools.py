@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from trafficgeo.errors import InputError, TrafficgeoError
+from trafficgeo.io.environment import environment
 
 __all__ = ["run_sumo_program", "run_sumo_tool", "sumo_binary", "sumo_env", "sumo_home", "sumo_tool"]
 
@@ -26,18 +27,12 @@ _SUMO_IMPORT_VARIABLES = ("SUMO_HOME", "PROJ_LIB", "PROJ_DATA")
 
 def sumo_home() -> Path:
     """SUMO_HOME of the installed ``eclipse-sumo`` wheel (this process's environment left as it was)."""
-    before = {k: os.environ.get(k) for k in _SUMO_IMPORT_VARIABLES}
     try:
-        import sumo  # the eclipse-sumo wheel
+        with environment(keep=_SUMO_IMPORT_VARIABLES):
+            import sumo  # the eclipse-sumo wheel
     except ImportError:
         raise InputError("SUMO is not installed (Python package eclipse-sumo missing); "
                          "install it with: pip install eclipse-sumo") from None
-    finally:
-        for k, v in before.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
     return Path(sumo.SUMO_HOME)
 
 
