@@ -13,7 +13,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "trafficgeo"
 # Each top-level part of the package and its layer; a part may import only parts of a lower layer.
 LAYER = {"errors": 0, "crs": 1, "groups": 1, "io": 2, "camera": 3, "calibration": 4, "geo": 5, "traffic": 6, "video": 7,
-         "simulation": 7,
+         "simulation": 7, "registration": 6,
          "synth": 8, "report": 8, "ui": 8, "batch": 9, "demo": 9, "cli": 10, "__init__": 11}
 
 

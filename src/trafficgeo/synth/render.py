@@ -21,7 +21,8 @@ import cv2
 import numpy as np
 
 from trafficgeo.camera.model import Camera
-from trafficgeo.geo.mapping import Surface, pixels_to_world
+from trafficgeo.geo.drape import drape_orthophoto as drape
+from trafficgeo.geo.mapping import Surface
 from trafficgeo.geo.raster import GeoRaster
 from trafficgeo.synth.vehicle_mesh import BODY, GLASS, MATERIAL_RGB, Mesh, kind_name, place, vehicle_mesh
 from trafficgeo.traffic.boxes import cuboid_corners
@@ -74,22 +75,13 @@ class FrameTruth:
 
 
 def drape_orthophoto(camera: Camera, surface: Surface, ortho: GeoRaster) -> np.ndarray:
-    """The static background (H, W, 3) float32 RGB: each pixel's ray meets the surface, the orthophoto is sampled
-    there (bilinear); pixels that see no ground get a sky gradient."""
-    w, h = camera.image_size
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    g = pixels_to_world(camera, np.column_stack([u.ravel(), v.ravel()]), surface, min_incidence_deg=0.0,
-                        with_lonlat=False)
-    col, row = ortho.map_to_pixel(g.xyz[:, 0], g.xyz[:, 1])
-    map_x = (col - 0.5).reshape(h, w).astype(np.float32)  # cv2.remap: integer = pixel centre
-    map_y = (row - 0.5).reshape(h, w).astype(np.float32)
-    rgb = np.ascontiguousarray(ortho.data[:3].transpose(1, 2, 0)).astype(np.float32)
-    ground = cv2.remap(rgb, np.nan_to_num(map_x, nan=-1e6), np.nan_to_num(map_y, nan=-1e6), cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_REPLICATE)
-    sky = ~g.ok.reshape(h, w)
-    t = np.clip(v / max(h - 1, 1), 0.0, 1.0)[..., None]
+    """The static background (H, W, 3) float32 RGB: the orthophoto through the camera
+    (:func:`trafficgeo.geo.drape.drape_orthophoto`); pixels that see no ground get a sky gradient."""
+    view = drape(camera, surface, ortho)
+    h = camera.image_size[1]
+    t = np.clip(np.arange(h, dtype=np.float64) / max(h - 1, 1), 0.0, 1.0)[:, None, None]
     sky_rgb = (SKY_TOP * (1 - t) + SKY_HORIZON * t).astype(np.float32)
-    return np.where(sky[..., None], sky_rgb, ground).astype(np.float32)
+    return np.where(view.ground[..., None], view.image[..., :3], sky_rgb).astype(np.float32)
 
 
 def _fill(img: np.ndarray, poly: np.ndarray, colour: object, aa: bool = True) -> None:

@@ -1,0 +1,153 @@
+"""Refine a camera JSON with an orthophoto and write the results: the one call behind ``trafficgeo refine``.
+
+Outputs (each written atomically, nothing on bad input):
+
+* the camera JSON ``out_camera``: the refined camera with the calibration keys of ``trafficgeo calibrate`` (the
+  automatic correspondences appear among its ``gcps`` with ids ``ortho0001``...) and a ``refinement`` block; when
+  the refinement is refused, the original camera and its keys, with the ``refinement`` block saying why;
+* with ``report_path``: the refinement report (:data:`REFINE_FORMAT`): the verdict, the user's points' held-out
+  errors before and after, each pass, every automatic correspondence (world, pixel, where the camera predicted it,
+  its score, whether the re-fit kept it, where the refined camera projects it), and the frame it was matched on
+  beside it (``<report stem>_frame.jpg``), for the HTML report and the GCP web app.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from trafficgeo.calibration.gcp_table import ROLE_CHECK, ROLE_CONTROL, GCPTable
+from trafficgeo.calibration.gcps import read_gcps
+from trafficgeo.calibration.run import camera_extras
+from trafficgeo.calibration.validation import build_report
+from trafficgeo.camera.io import camera_to_dict, read_camera_document, write_camera_json
+from trafficgeo.camera.model import Camera
+from trafficgeo.errors import InputError
+from trafficgeo.geo.load import load_surface
+from trafficgeo.geo.mapping import Surface
+from trafficgeo.geo.raster import GeoRaster, read_raster
+from trafficgeo.io.atomic import atomic_path, write_json_atomic
+from trafficgeo.registration.judge import model_from_names
+from trafficgeo.registration.refine import OrthoRefinement, RefineOptions, match_sigma_px, refine_camera
+
+REFINE_FORMAT = "trafficgeo-refine/1"
+MATCH_COLUMNS = ("x", "y", "z", "u", "v", "u_predicted", "v_predicted", "ncc", "roundness", "sigma_px", "kept",
+                 "u_refined", "v_refined")
+
+
+def gcps_from_camera_document(doc: dict[str, Any], camera: Camera, where: str) -> tuple[GCPTable, np.ndarray]:
+    """The user's GCPs stored in a camera JSON by ``trafficgeo calibrate`` (its ``gcps`` list), without automatic
+    correspondences of an earlier refinement; and which control points that calibration kept (its ``inlier``)."""
+    rows = [r for r in doc.get("gcps") or [] if isinstance(r, dict) and not str(r.get("id", "")).startswith("ortho")]
+    if not rows:
+        raise InputError(f"{where}: the camera JSON lists no GCPs to judge the refinement by; give the GCP file it "
+                         "was calibrated from", parameters=("gcps",))
+    try:
+        world = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
+        pixels = np.array([[float(r["u"]), float(r["v"])] for r in rows])
+        roles = tuple(ROLE_CHECK if r.get("role") == ROLE_CHECK else ROLE_CONTROL for r in rows)
+        ids = tuple(str(r["id"]) for r in rows)
+        inlier = np.array([bool(r.get("inlier", True)) for r in rows])
+        sigma = np.array([float(r.get("sigma_px", 1.0)) for r in rows])
+        table = GCPTable(ids=ids, world=world, pixels=pixels, roles=roles, sigma_px=sigma, crs=camera.crs,
+                         source=where, lines=(0,) * len(rows))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{where}: its gcps list is damaged ({exc}); give the GCP file it was calibrated from",
+                         parameters=("gcps",)) from None
+    return table, inlier
+
+
+def read_frame_image(path: str | Path) -> np.ndarray:
+    """A frame from an image file (PNG, JPEG, TIFF) as (H, W, 3) BGR uint8."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: frame image not found; give a still of the calibrated video (PNG or JPEG)",
+                         parameters=("frame",))
+    img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+    if img is None:
+        raise InputError(f"{p}: not an image OpenCV can read; give a PNG or JPEG still of the video",
+                         parameters=("frame",))
+    return img
+
+
+def _num(v: float) -> float | None:
+    return round(float(v), 4) if np.isfinite(v) else None
+
+
+def refinement_record(result: OrthoRefinement, options: RefineOptions) -> dict[str, Any]:
+    """The refinement report as a JSON object (format :data:`REFINE_FORMAT`)."""
+    m = result.matches
+    refined = result.refined.project(m.world) if result.refined is not None and len(m) else np.full((len(m), 2),
+                                                                                                     np.nan)
+    sigma = match_sigma_px(m, options.match_sigma_px)
+    rows = [[*(round(float(a), 4) for a in m.world[i]), *(round(float(a), 3) for a in m.pixels[i]),
+             *(round(float(a), 3) for a in m.predicted[i]), round(float(m.ncc[i]), 3),
+             round(float(m.roundness[i]), 3), round(float(sigma[i]), 3), bool(result.kept[i]) if len(result.kept)
+             else False, *(_num(a) for a in refined[i])] for i in range(len(m))]
+    return {
+        "format": REFINE_FORMAT,
+        "accepted": result.accepted,
+        "reason": result.reason,
+        "matches_kept": result.n_kept,
+        "before": result.before.to_dict(),
+        "after": None if result.after is None else result.after.to_dict(),
+        "passes": [{"search_px": p.search_px, "tried": p.tried, "matched": p.matched, "kept": p.kept,
+                    "rmse_px": _num(p.rmse_px), "moved_px": _num(p.moved_px)} for p in result.passes],
+        "model": None if result.calibration is None else list(result.calibration.fit.model.names),
+        "original_camera": camera_to_dict(result.original),
+        "refined_camera": None if result.refined is None else camera_to_dict(result.refined),
+        "matches": {"columns": list(MATCH_COLUMNS), "rows": rows},
+    }
+
+
+def refine_camera_files(camera_path: str | Path, frame: np.ndarray, ortho: str | Path | GeoRaster,
+                        surface: str | Surface, out_camera: str | Path, *, gcps: str | Path | GCPTable | None = None,
+                        report_path: str | Path | None = None, options: RefineOptions | None = None,
+                        progress: Callable[[str], None] | None = None) -> OrthoRefinement:
+    """Refine the camera JSON at ``camera_path`` against ``frame`` (H, W, 3 BGR) with the orthophoto and surface
+    (objects, or paths / a surface spec as ``trafficgeo georef`` takes), write ``out_camera`` and, if given, the
+    report; see the module docstring. The user's GCPs come from ``gcps`` (a file in the camera's CRS or a table)
+    or else from the camera JSON."""
+    options = options or RefineOptions()
+    camera, doc = read_camera_document(camera_path)
+    where = str(camera_path)
+    if gcps is None:
+        table, use = gcps_from_camera_document(doc, camera, where)
+    else:
+        table = gcps if isinstance(gcps, GCPTable) else read_gcps(gcps, crs=camera.crs)
+        use = np.ones(table.n, dtype=bool)
+    if isinstance(ortho, GeoRaster):
+        raster = ortho
+    else:
+        raster = read_raster(ortho)
+        if raster.crs is not None and camera.crs is not None and not raster.crs.equals(camera.crs):
+            raise InputError(f"{ortho}: the orthophoto's CRS is not the camera's ({camera.crs_text}); reproject it "
+                             "(gdalwarp -t_srs) or calibrate in its CRS", parameters=("ortho",))
+    ground = surface if not isinstance(surface, str) else load_surface(surface, camera, doc, where=where)
+    model = model_from_names((doc.get("model") or {}).get("free_parameters"))
+    result = refine_camera(camera, table, frame, raster, ground, model=model, use=use, options=options,
+                           progress=progress)
+    if report_path is not None:
+        report = Path(report_path)
+        frame_file = report.with_name(report.stem + "_frame.jpg")
+        with atomic_path(frame_file) as tmp:  # the temporary name keeps the .jpg suffix OpenCV goes by
+            if not cv2.imwrite(str(tmp), frame, [cv2.IMWRITE_JPEG_QUALITY, 92]):
+                raise InputError(f"{frame_file}: cannot write the frame image", parameters=("report_path",))
+        record = refinement_record(result, options)
+        record["frame"] = frame_file.name
+        write_json_atomic(report, record)
+    block = {"accepted": result.accepted, "reason": result.reason, "matches_kept": result.n_kept,
+             "before_rmse_m": _num(result.before.rmse_m),
+             "after_rmse_m": None if result.after is None else _num(result.after.rmse_m),
+             "report": None if report_path is None else Path(report_path).name}
+    if result.accepted and result.calibration is not None:
+        extras = camera_extras(build_report(result.calibration), result.calibration)
+    else:
+        extras = {k: v for k, v in doc.items() if k not in camera_to_dict(camera) and k != "format"}
+    extras["refinement"] = block
+    write_camera_json(out_camera, result.camera, extras)
+    return result
