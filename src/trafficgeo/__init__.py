@@ -64,6 +64,12 @@ _API: dict[str, str] = {
     "SumoValidation": "trafficgeo.simulation.loop",
     "close_sumo_loop": "trafficgeo.simulation.loop",
     "SumoLoopResult": "trafficgeo.simulation.loop",
+    # orthophoto registration
+    "refine_camera": "trafficgeo.registration.refine",
+    "RefineOptions": "trafficgeo.registration.refine",
+    "OrthoRefinement": "trafficgeo.registration.refine",
+    "drape_orthophoto": "trafficgeo.geo.drape",
+    "background_frame": "trafficgeo.video.background_frame",
     # video
     "process_video": "trafficgeo.video.run",
     "ProcessResult": "trafficgeo.video.run",
@@ -100,9 +106,11 @@ __all__ = [
     "ImageTracks",
     "InputError",
     "Lanes",
+    "OrthoRefinement",
     "OutputError",
     "ProcessOptions",
     "ProcessResult",
+    "RefineOptions",
     "RunFolder",
     "RunOptions",
     "SumoLoopResult",
@@ -114,11 +122,13 @@ __all__ = [
     "TrajectoryOptions",
     "__version__",
     "analyze_tracks",
+    "background_frame",
     "build_sumo_net",
     "build_sumo_scenario",
     "calibrate",
     "close_sumo_loop",
     "compare_with_sumo",
+    "drape_orthophoto",
     "export_fcd",
     "georeference",
     "load_camera",
@@ -132,6 +142,7 @@ __all__ = [
     "read_gcps",
     "read_table",
     "read_tasks",
+    "refine_camera",
     "run_batch",
     "stitch",
     "summarize_dataset",
@@ -157,8 +168,10 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, calibrate
     from trafficgeo.calibration.report import CalibrationReport
     from trafficgeo.camera.model import Camera
+    from trafficgeo.geo.drape import drape_orthophoto
     from trafficgeo.geo.mapping import GroundPoints, georeference
     from trafficgeo.geo.surface import ConstantSurface
+    from trafficgeo.registration.refine import OrthoRefinement, RefineOptions, refine_camera
     from trafficgeo.simulation.loop import SumoLoopResult, SumoValidation, close_sumo_loop, validate_sumo_scenario
     from trafficgeo.simulation.network import SumoNet, build_sumo_net
     from trafficgeo.simulation.scenario import SumoScenario, build_sumo_scenario
@@ -170,6 +183,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.traffic.tracks import ImageTracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
     from trafficgeo.traffic.validation import Comparison, compare_with_sumo, export_fcd
+    from trafficgeo.video.background_frame import background_frame
     from trafficgeo.video.detections import Detections
     from trafficgeo.video.detectors.factory import make_detector
     from trafficgeo.video.pipeline import ProcessOptions

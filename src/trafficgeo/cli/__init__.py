@@ -201,6 +201,7 @@ def demo(
 from trafficgeo.cli import batch as _batch  # noqa: E402, F401  (registers batch plan|run|summarize)
 from trafficgeo.cli import geo as _geo  # noqa: E402, F401  (registers the geospatial commands)
 from trafficgeo.cli import process as _process  # noqa: E402, F401  (registers process and stitch)
+from trafficgeo.cli import refine as _refine  # noqa: E402, F401  (registers the refine command)
 from trafficgeo.cli import report as _report  # noqa: E402, F401  (registers the report command)
 from trafficgeo.cli import sumo as _sumo  # noqa: E402, F401  (registers sumo-net, sumo-demand and sumo-validate)
 from trafficgeo.cli import synth as _synth  # noqa: E402, F401  (registers the synth command)
@@ -223,7 +224,9 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "workers": "--workers", "threads_per_worker": "--threads", "retries": "--retries", "scheduler": "--scheduler",
          "max_window_s": "--max-window", "name_pattern": "--name-pattern",
          "lanes": "--lanes", "lines": "--lines", "net": "--net", "net_crs": "--net-crs", "routes": "--routes",
-         "begin_s": "--begin", "seed": "--seed", "scenario": "SCENARIO"}
+         "begin_s": "--begin", "seed": "--seed", "scenario": "SCENARIO",
+         "n_frames": "--frames", "duration_s": "--duration", "search_px": "--search",
+         "report_path": "--report"}
 
 
 def main(argv: list[str] | None = None) -> Any:
