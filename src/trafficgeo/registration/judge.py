@@ -3,9 +3,17 @@
 A control point's error is its *leave-one-out* error: the camera refitted without it (same parameter model, warm
 started from the camera, plain least squares, with any extra correspondences the camera was fitted to), then its
 clicked pixel's ray meets the horizontal plane at its Z, and the distance to its surveyed X, Y is the error (metres,
-whatever the CRS unit). A check point was never fitted: its error comes from the camera itself. Both measure what
-a camera does at a point it has not seen, so a camera from 8 clicks and one from 8 clicks plus 500 orthophoto
-matches are compared on equal terms. The errors include the clicks' own noise.
+whatever the CRS unit); the pixel error is the distance between the clicked pixel and the point's projection. A
+check point was never fitted: its errors come from the camera itself. Both measure what a camera does at a point
+it has not seen, so a camera from 8 clicks and one from 8 clicks plus 500 orthophoto matches are compared on equal
+terms.
+
+The errors include the clicks' own noise, and on the ground that noise is magnified where the camera looks along
+the road: a click 7 px off on a pole top 83 m away is 22 m off on the ground. Ground errors of a handful of clicked
+points are therefore dominated by their farthest clicks, whatever the camera; in pixels every click's noise weighs
+the same. :attr:`HeldOutErrors.rmse_px` is the statistic a refinement is judged by, the ground errors are reported
+beside it (measured on generated scenes: with 3 px clicks, a refined camera 50x closer to the truth on the ground
+had a *larger* RMS ground error at the clicks, 7.2 m against 4.7 m, and a smaller pixel error, 4.4 px against 6.0).
 """
 
 from __future__ import annotations
@@ -31,32 +39,55 @@ class HeldOutErrors:
     ground_error_m: np.ndarray
     pixel_error_px: np.ndarray
 
-    def _rms(self, role: str | None) -> float:
+    def _rms(self, values: np.ndarray, role: str | None) -> float:
         sel = np.array([role is None or r == role for r in self.roles], dtype=bool)
-        e = self.ground_error_m[sel]
+        e = values[sel]
         e = e[np.isfinite(e)]
         return float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
 
     @property
+    def rmse_px(self) -> float:
+        """RMS pixel error over all judged points (px): the statistic a refinement is judged by."""
+        return self._rms(self.pixel_error_px, None)
+
+    @property
     def rmse_m(self) -> float:
         """RMS ground error over all judged points (m)."""
-        return self._rms(None)
+        return self._rms(self.ground_error_m, None)
+
+    @property
+    def median_m(self) -> float:
+        """Median ground error over all judged points (m)."""
+        e = self.ground_error_m[np.isfinite(self.ground_error_m)]
+        return float(np.median(e)) if e.size else float("nan")
 
     @property
     def check_rmse_m(self) -> float:
         """RMS ground error at the check points (m); NaN without check points."""
-        return self._rms("check")
+        return self._rms(self.ground_error_m, "check")
 
     @property
     def loo_rmse_m(self) -> float:
         """RMS leave-one-out ground error at the control points (m)."""
-        return self._rms("control")
+        return self._rms(self.ground_error_m, "control")
+
+    @property
+    def check_rmse_px(self) -> float:
+        """RMS pixel error at the check points (px); NaN without check points."""
+        return self._rms(self.pixel_error_px, "check")
+
+    @property
+    def loo_rmse_px(self) -> float:
+        """RMS leave-one-out pixel error at the control points (px)."""
+        return self._rms(self.pixel_error_px, "control")
 
     def to_dict(self) -> dict[str, object]:
         def num(v: float) -> float | None:
             return round(float(v), 4) if np.isfinite(v) else None
 
-        return {"rmse_m": num(self.rmse_m), "check_rmse_m": num(self.check_rmse_m), "loo_rmse_m": num(self.loo_rmse_m),
+        return {"rmse_px": num(self.rmse_px), "check_rmse_px": num(self.check_rmse_px),
+                "loo_rmse_px": num(self.loo_rmse_px), "rmse_m": num(self.rmse_m), "median_m": num(self.median_m),
+                "check_rmse_m": num(self.check_rmse_m), "loo_rmse_m": num(self.loo_rmse_m),
                 "points": [{"id": i, "role": r, "ground_error_m": num(g), "pixel_error_px": num(p)}
                            for i, r, g, p in zip(self.ids, self.roles, self.ground_error_m, self.pixel_error_px,
                                                  strict=True)]}

@@ -10,10 +10,10 @@ The loop (:func:`refine_camera`):
 3. Repeat with a search radius a quarter of the last (down to ``final_search_px``) until, at the smallest radius,
    the camera moves the matched points by less than ``converged_px``.
 
-The user's own points then judge (:mod:`.judge`): the held-out ground error at their check points and the
-leave-one-out ground error at their control points, before and after. The refined camera is kept only when it
-has at least ``min_matches`` consistent correspondences and lowers that error; otherwise the original camera is
-kept and the reason given.
+The user's own points then judge (:mod:`.judge`): the held-out error at their check points and the leave-one-out
+error at their control points, before and after, in pixels (where every click's noise weighs the same) and on
+the ground. The refined camera is kept only when it has at least ``min_matches`` consistent correspondences and
+lowers the pixel error; otherwise the original camera is kept and the reason given.
 """
 
 from __future__ import annotations
@@ -263,19 +263,20 @@ def refine_camera(camera: Camera, gcps: GCPTable, frame: np.ndarray, ortho: GeoR
 
 def _verdict(before: HeldOutErrors, after: HeldOutErrors, kept: int, min_matches: int, why_stopped: str
              ) -> tuple[bool, str]:
-    """Accept when enough correspondences survived and the user's points' held-out ground error went down."""
+    """Accept when enough correspondences survived and the user's points' held-out pixel error went down (see
+    :mod:`.judge` for why pixels decide and ground errors are reported)."""
     if kept < min_matches:
         return False, (f"only {kept} orthophoto matches agree on one camera (need {min_matches}): the orthophoto "
                        "may show another place, or too little texture is visible")
-    b, a = before.rmse_m, after.rmse_m
-    what = "check and leave-one-out" if np.isfinite(before.check_rmse_m) else "leave-one-out"
+    b, a = before.rmse_px, after.rmse_px
+    what = "check and leave-one-out" if np.isfinite(before.check_rmse_px) else "leave-one-out"
     if not np.isfinite(a):
-        return False, "the refined camera cannot map the user's points to the ground"
+        return False, "the refined camera cannot project the user's points"
+    ground = f"; on the ground {before.rmse_m:.3f} m -> {after.rmse_m:.3f} m RMS"
     if np.isfinite(b) and a >= b:
-        return False, (f"the refined camera does not improve the {what} ground error at the user's points "
-                       f"({a:.3f} m against {b:.3f} m before): the orthophoto does not agree with the GCPs")
-    text = f"{kept} orthophoto matches; {what} ground error at the user's points {b:.3f} m -> {a:.3f} m"
+        return False, (f"the refined camera does not improve the {what} error at the user's points ({a:.2f} px "
+                       f"against {b:.2f} px before{ground}): the orthophoto does not agree with the GCPs")
+    text = f"{kept} orthophoto matches; {what} error at the user's points {b:.2f} px -> {a:.2f} px{ground}"
     if why_stopped:
         text += f" (stopped early: {why_stopped})"
     return True, text
-
