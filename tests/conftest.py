@@ -62,6 +62,26 @@ def small_city(tmp_path_factory: pytest.TempPathFactory):
     assert _digest(folder) == before, f"a test changed the shared city in {folder}"
 
 
+#: The registration scene of the orthophoto-refinement tests (test_registration, test_ui_refine, test_report_refine):
+#: 960x540, 8 m up, 8 control + 3 check points clicked with 3 px noise; its ground rendered at 2x and averaged.
+REGISTRATION_SCENE = {"seed": 1, "image_size": (960, 540), "supersample": 2}
+
+
+@pytest.fixture(scope="session")
+def registration_scene(tmp_path_factory: pytest.TempPathFactory):
+    """Folder written by ``trafficgeo.synth.registration_scene.write_registration_scene`` for
+    :data:`REGISTRATION_SCENE` (frame.png, ortho.tif, ortho_elsewhere.tif, dem.tif, gcps.csv, camera.json from
+    them, and the truth: camera_truth.json, perfect_gcps.csv, truth_points.csv). Read only, checked like
+    :func:`small_world`."""
+    from trafficgeo.synth.registration_scene import RegistrationSceneOptions, write_registration_scene
+
+    folder = tmp_path_factory.mktemp("registration_scene")
+    write_registration_scene(folder, RegistrationSceneOptions(**REGISTRATION_SCENE))
+    before = _digest(folder)
+    yield folder
+    assert _digest(folder) == before, f"a test changed the shared registration scene in {folder}"
+
+
 @pytest.fixture(scope="session")
 def roadside_camera() -> Camera:
     """The camera of :data:`ROADSIDE_ORIGIN` (frozen, read-only arrays)."""

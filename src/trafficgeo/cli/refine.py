@@ -64,4 +64,4 @@ def refine(
         console.print(f"[green]refined[/green]: {result.reason}; wrote {output}")
         return
     console.print(f"[yellow]refinement refused[/yellow]: {result.reason}; {output} is the original camera")
-    raise typer.Exit(1)
+    raise SystemExit(1)  # exit code 1: the job ran, its result is not trustworthy (explained above)

@@ -24,6 +24,7 @@ import numpy as np
 
 from trafficgeo.calibration.gcps import GCPTable
 from trafficgeo.calibration.params import ParameterModel, camera_to_full, full_to_camera
+from trafficgeo.calibration.pipeline import effective_sigma
 from trafficgeo.calibration.refine import fit_camera
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
@@ -110,18 +111,21 @@ def _ground_error(camera: Camera, pixel: np.ndarray, world: np.ndarray, m_per_un
 
 def held_out_errors(camera: Camera, gcps: GCPTable, model: ParameterModel, *, use: np.ndarray | None = None,
                     extra_world: np.ndarray | None = None, extra_pixels: np.ndarray | None = None,
-                    extra_sigma_px: np.ndarray | None = None) -> HeldOutErrors:
+                    extra_sigma_px: np.ndarray | None = None, survey_sigma_m: float = 0.03) -> HeldOutErrors:
     """Held-out ground errors of ``camera`` at the GCPs (see the module docstring).
 
     ``use`` (N,) bool marks the control points the camera was fitted to (default: all control points); only they
     are judged by leave-one-out and used in the refits, with the ``extra_*`` correspondences (world (M, 3), pixels
-    (M, 2), sigma (M,)) the camera was also fitted to.
+    (M, 2), sigma (M,)) the camera was also fitted to. The GCPs are weighted as the calibration weighs them: their
+    pixel sigma with the survey error ``survey_sigma_m`` seen at their depth
+    (:func:`trafficgeo.calibration.pipeline.effective_sigma`).
     """
     m = metres_per_unit(gcps.crs) if gcps.crs is not None else 1.0
     control = np.asarray(gcps.is_control, dtype=bool)
     use = control.copy() if use is None else (np.asarray(use, dtype=bool) & control)
     origin = gcps.world[use].mean(axis=0) if use.any() else camera.position.copy()
     start = camera_to_full(camera, origin)
+    gcp_sigma = effective_sigma(start, gcps.world - origin, gcps.sigma_px, survey_sigma_m / m)
     ew = np.zeros((0, 3)) if extra_world is None else np.asarray(extra_world, dtype=np.float64)
     ep = np.zeros((0, 2)) if extra_pixels is None else np.asarray(extra_pixels, dtype=np.float64)
     es = np.ones(len(ew)) if extra_sigma_px is None else np.asarray(extra_sigma_px, dtype=np.float64)
@@ -135,7 +139,7 @@ def held_out_errors(camera: Camera, gcps: GCPTable, model: ParameterModel, *, us
             rest[i] = False
             world = np.vstack([gcps.world[rest], ew]) - origin
             pix = np.vstack([gcps.pixels[rest], ep])
-            sig = np.concatenate([gcps.sigma_px[rest], es])
+            sig = np.concatenate([gcp_sigma[rest], es])
             if 2 * len(world) - model.n_free < 1:
                 continue
             fit = fit_camera(world, pix, sig, start, model)

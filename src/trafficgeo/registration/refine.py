@@ -55,7 +55,7 @@ class RefineOptions:
     search_px: float = 60.0
     final_search_px: float = 4.0
     max_iterations: int = 5
-    converged_px: float = 0.1
+    converged_px: float = 0.25
     min_matches: int = 30
     match_sigma_px: float = 0.5
     patch_px: int = 25

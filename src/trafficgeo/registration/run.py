@@ -45,7 +45,7 @@ def gcps_from_camera_document(doc: dict[str, Any], camera: Camera, where: str) -
     rows = [r for r in doc.get("gcps") or [] if isinstance(r, dict) and not str(r.get("id", "")).startswith("ortho")]
     if not rows:
         raise InputError(f"{where}: the camera JSON lists no GCPs to judge the refinement by; give the GCP file it "
-                         "was calibrated from", parameters=("gcps",))
+                         "was calibrated from (`gcps`)", parameters=("gcps",))
     try:
         world = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
         pixels = np.array([[float(r["u"]), float(r["v"])] for r in rows])
@@ -56,7 +56,8 @@ def gcps_from_camera_document(doc: dict[str, Any], camera: Camera, where: str) -
         table = GCPTable(ids=ids, world=world, pixels=pixels, roles=roles, sigma_px=sigma, crs=camera.crs,
                          source=where, lines=(0,) * len(rows))
     except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{where}: its gcps list is damaged ({exc}); give the GCP file it was calibrated from",
+        raise InputError(f"{where}: its gcps list is damaged ({exc}); give the GCP file it was calibrated from "
+                         "(`gcps`)",
                          parameters=("gcps",)) from None
     return table, inlier
 

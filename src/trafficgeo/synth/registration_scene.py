@@ -20,10 +20,13 @@ Deterministic for a seed.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
+from affine import Affine
 
 from trafficgeo.calibration.gcps import GCPTable
 from trafficgeo.camera.model import Camera
@@ -130,6 +133,17 @@ def _flown_again(ortho: GeoRaster, opts: RegistrationSceneOptions, rng: np.rando
     return GeoRaster(data=data, transform=ortho.transform, crs=ortho.crs, descriptions=ortho.descriptions)
 
 
+def _elsewhere(opts: RegistrationSceneOptions, origin: np.ndarray, bounds: tuple[float, float, float, float],
+               crs: str, rng: np.random.Generator) -> GeoRaster:
+    """The ground texture of another place under the same coordinates: another road (35 deg off, 3 + 1 lanes,
+    shifted), other markings and grain."""
+    other_road = RoadSurface(origin=origin + [35.0, -20.0, 0.0], azimuth_deg=opts.azimuth_deg + 35.0,
+                             grade=opts.grade, crossfall=0.02)
+    other = RoadMarkings(lanes_right=3, lanes_left=1, dash_phase=float(rng.uniform(0.0, 9.0)))
+    return render_orthophoto(other_road, other, bounds, resolution=opts.ortho_resolution, seed=opts.seed + 1000,
+                             crs=crs)
+
+
 def _integrated_background(camera: Camera, surface: DEMSurface, texture: GeoRaster, k: int) -> np.ndarray:
     """The draped texture as a sensor sees it: rendered at k x the resolution and averaged over each pixel (a
     point-sampled far field would alias the texture into patterns no real camera records)."""
@@ -167,11 +181,7 @@ def make_registration_scene(opts: RegistrationSceneOptions | None = None) -> Reg
     frame = cv2.GaussianBlur(frame, (0, 0), 0.6) + rng.normal(0.0, opts.sensor_noise, frame.shape).astype(np.float32)
     frame_bgr = np.clip(np.rint(frame), 0, 255).astype(np.uint8)[..., ::-1].copy()
     if opts.wrong_place:
-        other_road = RoadSurface(origin=origin + [35.0, -20.0, 0.0], azimuth_deg=opts.azimuth_deg + 35.0,
-                                 grade=opts.grade, crossfall=0.02)
-        other = RoadMarkings(lanes_right=3, lanes_left=1, dash_phase=float(rng.uniform(0.0, 9.0)))
-        texture = render_orthophoto(other_road, other, bounds, resolution=opts.ortho_resolution,
-                                    seed=opts.seed + 1000, crs=world_opts.crs)
+        texture = _elsewhere(opts, origin, bounds, world_opts.crs, rng)
     ortho = _flown_again(texture, opts, rng)
 
     world, uv = _candidates(camera, road, markings)
@@ -198,3 +208,40 @@ def ground_errors_m(camera: Camera, truth_camera: Camera, points: np.ndarray) ->
     uv = truth_camera.project(points)
     g = camera.intersect_horizontal_plane(uv, points[:, 2])
     return np.hypot(g[:, 0] - points[:, 0], g[:, 1] - points[:, 1])
+
+
+def write_registration_scene(folder: str | Path, opts: RegistrationSceneOptions | None = None) -> RegistrationScene:
+    """Write a scene as a user would have it, into ``folder``: ``frame.png`` (BGR still), ``ortho.tif`` (the user's
+    orthophoto), ``ortho_elsewhere.tif`` (an orthophoto of another place, same extent and lighting change),
+    ``dem.tif``, ``gcps.csv`` (the rough clicks: control and check), ``camera.json`` + ``report.json`` (their
+    calibration by ``trafficgeo calibrate``), and the truth: ``camera_truth.json``, ``perfect_gcps.csv``,
+    ``truth_points.csv`` (x, y, z). Returns the scene (with ``wrong_place`` False)."""
+    from trafficgeo.calibration.run import run_calibration
+    from trafficgeo.camera.io import write_camera_json
+    from trafficgeo.geo.raster import write_geotiff
+    from trafficgeo.io.atomic import atomic_path, write_csv_atomic
+
+    opts = dataclasses.replace(opts or RegistrationSceneOptions(), wrong_place=False)
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = make_registration_scene(opts)
+    with atomic_path(out / "frame.png") as tmp:
+        cv2.imwrite(str(tmp), scene.frame)
+    crs = scene.ortho.crs
+    write_geotiff(out / "ortho.tif", scene.ortho.data, scene.ortho.transform, crs)
+    rng = np.random.default_rng(opts.seed + 7)
+    left, bottom, right, top = scene.ortho.bounds
+    elsewhere = _flown_again(_elsewhere(opts, np.array(WorldOptions().origin), (left, bottom, right, top),
+                                        WorldOptions().crs, rng), opts, rng)
+    write_geotiff(out / "ortho_elsewhere.tif", elsewhere.data, elsewhere.transform, crs)
+    s = scene.surface
+    write_geotiff(out / "dem.tif", s.values[None], Affine(s.xres, 0.0, s.left, 0.0, -s.yres, s.top), crs,
+                  nodata=float("nan"))
+    scene.gcps.to_csv(out / "gcps.csv")
+    scene.perfect_gcps.to_csv(out / "perfect_gcps.csv")
+    run_calibration(scene.gcps, opts.image_size, camera_path=out / "camera.json", report_path=out / "report.json")
+    write_camera_json(out / "camera_truth.json", scene.camera)
+    import pandas as pd
+
+    write_csv_atomic(out / "truth_points.csv", pd.DataFrame(scene.truth_points, columns=["x", "y", "z"]))
+    return scene
