@@ -86,8 +86,10 @@ def gray(image: np.ndarray, *, bgr: bool) -> np.ndarray:
     a = np.asarray(image)
     if a.ndim == 2:
         return a.astype(np.float32)
-    a = a[..., :3].astype(np.float32)
-    return cv2.cvtColor(a, cv2.COLOR_BGR2GRAY if bgr else cv2.COLOR_RGB2GRAY)
+    code = cv2.COLOR_BGR2GRAY if bgr else cv2.COLOR_RGB2GRAY
+    if a.dtype == np.uint8:  # convert the 8-bit image first: 4x less memory traffic than float
+        return cv2.cvtColor(np.ascontiguousarray(a[..., :3]), code).astype(np.float32)
+    return cv2.cvtColor(np.ascontiguousarray(a[..., :3], dtype=np.float32), code)
 
 
 class OrthoPyramid:

@@ -48,7 +48,8 @@ class RefineOptions:
         converged_px: stop when a re-fit moves the matched points by less than this (RMS, px).
         min_matches: fewer consistent automatic correspondences than this refuse the refinement.
         match_sigma_px: pixel standard deviation given to an automatic correspondence in the re-fit.
-        patch_px, cell_px, min_ncc: see :class:`~trafficgeo.registration.matching.MatchSettings`.
+        patch_px, cell_px, min_ncc: see :class:`~trafficgeo.registration.matching.MatchSettings`; ``cell_px`` None
+            is 40 px per 1920 px of frame width (about 700 spots on a 1080p road scene, as many at 4K).
         calibration: options of the re-fit (default: the pipeline's, model chosen from the data).
     """
 
@@ -59,7 +60,7 @@ class RefineOptions:
     min_matches: int = 30
     match_sigma_px: float = 0.5
     patch_px: int = 25
-    cell_px: int = 40
+    cell_px: int | None = None
     min_ncc: float = 0.55
     calibration: CalibrationOptions = field(default_factory=CalibrationOptions)
 
@@ -69,7 +70,7 @@ class RefineOptions:
             if not (np.isfinite(value) and value > 0):
                 raise InputError(f"{name} = {value} must be a positive number", parameters=(name,))
         for name, low in (("max_iterations", 1), ("min_matches", 6), ("cell_px", 8)):
-            if int(getattr(self, name)) < low:
+            if getattr(self, name) is not None and int(getattr(self, name)) < low:
                 raise InputError(f"{name} = {getattr(self, name)} must be at least {low}", parameters=(name,))
         if self.patch_px < 7 or self.patch_px % 2 == 0:
             raise InputError(f"patch_px = {self.patch_px} must be an odd number >= 7", parameters=("patch_px",))
@@ -218,9 +219,10 @@ def refine_camera(camera: Camera, gcps: GCPTable, frame: np.ndarray, ortho: GeoR
     current, cal, matches = camera, None, Matches.empty()
     kept = np.zeros(0, dtype=bool)
     radius = options.search_px
+    cell_px = options.cell_px or max(24, round(40 * camera.width / 1920))
     reason = ""
     for _ in range(options.max_iterations):
-        settings = MatchSettings(scale=1.0, search_px=radius, patch_px=options.patch_px, cell_px=options.cell_px,
+        settings = MatchSettings(scale=1.0, search_px=radius, patch_px=options.patch_px, cell_px=cell_px,
                                  min_ncc=options.min_ncc)
         found = _dedupe(match_orthophoto(current, surface, pyramid, fg, settings), gcps.pixels[use | ~control])
         if len(found) < options.min_matches:
