@@ -5,9 +5,11 @@ change): SUMO traffic on a crowned road, an orthophoto, lidar, a roadside 1080p 
 H.264 video, noisy GCPs with planted blunders (wrong clicks and a lidar Z from a tree), and the truth. The demo
 then checks the GCP heights against the lidar, calibrates the camera from the GCPs, builds a ground DEM from the
 lidar, maps the vehicles' true ground points (as a perfect detector would report them) to the ground on the DEM
-and on the GCP plane, and writes the accuracy map and the site as GIS layers. Then traffic: simulated tracker
-output (truth boxes with a detector's and tracker's faults, :mod:`trafficgeo.synth.detections`) goes through
-``analyze`` (speeds, lanes, counts at three counting lines) and ``compare-sumo`` against the world's SUMO run.
+and on the GCP plane, and writes the accuracy map and the site as GIS layers; the orthophoto then refines the
+camera (``refine``: the video's still without traffic matched to the orthophoto, judged by the GCPs). Then
+traffic: simulated tracker output (truth boxes with a detector's and tracker's faults,
+:mod:`trafficgeo.synth.detections`) goes through ``analyze`` (speeds, lanes, counts at three counting lines) and
+``compare-sumo`` against the world's SUMO run.
 Finally the whole chain runs on the video itself (``process``: decode, the built-in learned detector, ByteTrack,
 analyze), and the loop is closed: the video's counts become SUMO demand on the world's network (routeSampler),
 SUMO runs it, and the simulated counts are compared with the video's and with the truth (GEH); the scenario stays
@@ -183,6 +185,7 @@ def run_demo(out: Path, *, seed: int = 7, console: Console | None = None, world:
                       f"{np.nanmedian(errors['DEM'][band]):.3f} / {np.nanmedian(errors['GCP plane'][band]):.3f} m",
                       f"predicted {np.nanmedian(predicted[band]):.3f} m", "")
     con.print(t)
+    cmp.update(_refine(out, wdir, surf, truth_cam, steady, truth_xyz, dist, con))
     cmp.update(_traffic(out, wdir, cam, surf, opts, con))
     cmp.update(_video(out, wdir, cam, surf, con))
     cmp.update(_simulation(out, wdir, opts, con))
@@ -230,6 +233,37 @@ def _simulation(out: Path, wdir: Path, opts: WorldOptions, con: Console) -> dict
               f"{loop.run_and_compare_s:.1f} s. Open {scenario / 'scenario.sumocfg'} in sumo-gui to watch it.",
               markup=False, highlight=False)
     return m
+
+
+def _refine(out: Path, wdir: Path, surf, truth_cam, steady: pd.DataFrame, truth_xyz: np.ndarray, dist: np.ndarray,
+            con: Console) -> dict[str, float]:
+    """Step 4b: the orthophoto refines the calibration (``trafficgeo refine``); the vehicles' true ground points are
+    mapped again through the refined camera. Later steps keep the GCP camera."""
+    from trafficgeo.geo.georef import georeference_table
+    from trafficgeo.registration.run import refine_camera_files
+    from trafficgeo.video.background_frame import background_frame
+
+    con.print(f"\n$ trafficgeo refine {out / 'camera.json'} --video {wdir / 'video.mp4'} --ortho {wdir / 'ortho.tif'} "
+              f"--surface {out / 'dem.tif'} -o {out / 'camera_refined.json'} --report {out / 'refine.json'}")
+    still = background_frame(wdir / "video.mp4")
+    result = refine_camera_files(out / "camera.json", still, wdir / "ortho.tif", surf, out / "camera_refined.json",
+                                 report_path=out / "refine.json", progress=con.print)
+    con.print(("refined: " if result.accepted else "refused: ") + result.reason, markup=False, highlight=False)
+    t = Table(title="Vehicle ground points (steady camera), median horizontal error on the DEM")
+    for col in ("distance", "points", "GCP camera", "refined camera"):
+        t.add_column(col, justify="left" if col == "distance" else "right")
+    errors = {}
+    for label, camera in (("gcp", read_camera_json(out / "camera.json")), ("refined", result.camera)):
+        world = georeference_table(camera, steady, surf)
+        errors[label] = np.hypot(*(world[["x", "y"]].to_numpy() - truth_xyz[:, :2]).T)
+    for lo, hi in ((0, 40), (40, 80), (80, 200)):
+        band = (dist >= lo) & (dist < hi)
+        if band.any():
+            t.add_row(f"{lo}-{hi} m", str(int(band.sum())), f"{np.nanmedian(errors['gcp'][band]):.3f} m",
+                      f"{np.nanmedian(errors['refined'][band]):.3f} m")
+    con.print(t)
+    return {"refine_accepted": float(result.accepted), "refine_matches": float(result.n_kept),
+            "ground_median_refined_m": float(np.nanmedian(errors["refined"]))}
 
 
 def _report(out: Path, wdir: Path, con: Console) -> None:

@@ -28,8 +28,9 @@ from trafficgeo.calibration.gcps import ROLE_CHECK, ROLE_CONTROL, GCPTable
 from trafficgeo.calibration.params import ParameterModel
 from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, calibrate
 from trafficgeo.camera.model import Camera
+from trafficgeo.crs import metres_per_unit
 from trafficgeo.errors import CalibrationError, InputError
-from trafficgeo.geo.mapping import Surface
+from trafficgeo.geo.mapping import Surface, pixels_to_world
 from trafficgeo.geo.raster import GeoRaster
 from trafficgeo.registration.judge import HeldOutErrors, held_out_errors
 from trafficgeo.registration.matching import Matches, MatchSettings, OrthoPyramid, gray, match_orthophoto
@@ -50,6 +51,9 @@ class RefineOptions:
         match_sigma_px: pixel standard deviation given to an automatic correspondence in the re-fit.
         patch_px, cell_px, min_ncc: see :class:`~trafficgeo.registration.matching.MatchSettings`; ``cell_px`` None
             is 40 px per 1920 px of frame width (about 700 spots on a 1080p road scene, as many at 4K).
+        max_distance_m: the orthophoto is matched up to this distance from the camera (m on the ground).
+        max_rmse_px: a re-fit whose kept matches miss it by more than this (RMS, px) means the matches do not
+            describe one camera: refused.
         calibration: options of the re-fit (default: the pipeline's, model chosen from the data).
     """
 
@@ -62,10 +66,13 @@ class RefineOptions:
     patch_px: int = 25
     cell_px: int | None = None
     min_ncc: float = 0.55
+    max_distance_m: float = 300.0
+    max_rmse_px: float = 3.0
     calibration: CalibrationOptions = field(default_factory=CalibrationOptions)
 
     def __post_init__(self) -> None:
-        for name in ("search_px", "final_search_px", "converged_px", "match_sigma_px"):
+        for name in ("search_px", "final_search_px", "converged_px", "match_sigma_px", "max_distance_m",
+                     "max_rmse_px"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise InputError(f"{name} = {value} must be a positive number", parameters=(name,))
@@ -174,6 +181,29 @@ def _moved_px(a: Camera, b: Camera, world: np.ndarray) -> float:
     return float(np.sqrt(np.mean(d ** 2))) if d.size else float("inf")
 
 
+def _seen_part(ortho: GeoRaster, camera: Camera, surface: Surface, search_px: float, max_distance_m: float
+               ) -> GeoRaster:
+    """The part of the orthophoto the camera can see within ``max_distance_m`` (with room for the camera being
+    ``search_px`` off): orthophotos cover whole districts, the matching needs a few hectares of them."""
+    w, h = camera.image_size
+    u, v = np.meshgrid(np.linspace(0, w - 1, 64), np.linspace(0, h - 1, 36))
+    g = pixels_to_world(camera, np.column_stack([u.ravel(), v.ravel()]), surface, min_incidence_deg=0.0,
+                        with_lonlat=False)
+    xy = g.xyz[:, :2]
+    m = metres_per_unit(camera.crs) if camera.crs is not None else 1.0
+    near = np.all(np.isfinite(xy), axis=1) & (np.hypot(*(xy - camera.position[:2]).T) * m <= max_distance_m)
+    if not near.any():
+        raise InputError(f"the camera sees no ground within {max_distance_m:g} m: check that the surface is in the "
+                         "camera's CRS", parameters=("surface",))
+    lo, hi = xy[near].min(axis=0), xy[near].max(axis=0)
+    pad = (hi - lo).max() * (search_px / max(w, h)) + 20.0 / m
+    try:
+        return ortho.crop((lo[0] - pad, lo[1] - pad, hi[0] + pad, hi[1] + pad))
+    except InputError:
+        raise InputError("the orthophoto does not cover what the camera sees; give the orthophoto of this camera's "
+                         "site, in its CRS", parameters=("ortho",)) from None
+
+
 def _check_frame(frame: np.ndarray, camera: Camera) -> np.ndarray:
     a = np.asarray(frame)
     if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] not in (1, 3, 4)):
@@ -214,7 +244,7 @@ def refine_camera(camera: Camera, gcps: GCPTable, frame: np.ndarray, ortho: GeoR
     use = control.copy() if use is None else np.asarray(use, dtype=bool) & control
     before = held_out_errors(camera, gcps, model, use=use)
     fg = gray(frame, bgr=True)
-    pyramid = OrthoPyramid(ortho)
+    pyramid = OrthoPyramid(_seen_part(ortho, camera, surface, options.search_px, options.max_distance_m))
     passes: list[Pass] = []
     current, cal, matches = camera, None, Matches.empty()
     kept = np.zeros(0, dtype=bool)
@@ -246,6 +276,12 @@ def refine_camera(camera: Camera, gcps: GCPTable, frame: np.ndarray, ortho: GeoR
             p = passes[-1]
             progress(f"pass {len(passes)}: search {p.search_px:.0f} px, {p.matched} of {p.tried} patches matched, "
                      f"{p.kept} kept, RMSE {p.rmse_px:.2f} px, camera moved {p.moved_px:.2f} px")
+        if not passes[-1].rmse_px <= options.max_rmse_px:
+            reason = (f"the {passes[-1].kept} orthophoto matches kept do not agree on one camera (RMSE "
+                      f"{passes[-1].rmse_px:.1f} px, at most {options.max_rmse_px:g} expected): the orthophoto may "
+                      "show another place, or the camera is too far off")
+            cal, matches, kept = None, found, fit_kept
+            break
         current, cal, matches, kept = fit.camera, fit, found, fit_kept
         if moved < options.converged_px and radius <= options.final_search_px:
             break

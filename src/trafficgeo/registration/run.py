@@ -2,8 +2,9 @@
 
 Outputs (each written atomically, nothing on bad input):
 
-* the camera JSON ``out_camera``: the refined camera with the calibration keys of ``trafficgeo calibrate`` (the
-  automatic correspondences appear among its ``gcps`` with ids ``ortho0001``...) and a ``refinement`` block; when
+* the camera JSON ``out_camera``: the refined camera with the calibration keys of ``trafficgeo calibrate`` (``stats``,
+  ``model``, ``uncertainty``, ``covariance`` of the whole re-fit; ``gcps`` lists the user's points with their
+  residuals under the refined camera, the automatic correspondences are in the report) and a ``refinement`` block; when
   the refinement is refused, the original camera and its keys, with the ``refinement`` block saying why;
 * with ``report_path``: the refinement report (:data:`REFINE_FORMAT`): the verdict, the user's points' held-out
   errors before and after, each pass, every automatic correspondence (world, pixel, where the camera predicted it,
@@ -32,7 +33,7 @@ from trafficgeo.geo.mapping import Surface
 from trafficgeo.geo.raster import GeoRaster, read_raster
 from trafficgeo.io.atomic import atomic_path, write_json_atomic
 from trafficgeo.registration.judge import model_from_names
-from trafficgeo.registration.refine import OrthoRefinement, RefineOptions, match_sigma_px, refine_camera
+from trafficgeo.registration.refine import AUTO_PREFIX, OrthoRefinement, RefineOptions, match_sigma_px, refine_camera
 
 REFINE_FORMAT = "trafficgeo-refine/1"
 MATCH_COLUMNS = ("x", "y", "z", "u", "v", "u_predicted", "v_predicted", "ncc", "roundness", "sigma_px", "kept",
@@ -42,7 +43,8 @@ MATCH_COLUMNS = ("x", "y", "z", "u", "v", "u_predicted", "v_predicted", "ncc", "
 def gcps_from_camera_document(doc: dict[str, Any], camera: Camera, where: str) -> tuple[GCPTable, np.ndarray]:
     """The user's GCPs stored in a camera JSON by ``trafficgeo calibrate`` (its ``gcps`` list), without automatic
     correspondences of an earlier refinement; and which control points that calibration kept (its ``inlier``)."""
-    rows = [r for r in doc.get("gcps") or [] if isinstance(r, dict) and not str(r.get("id", "")).startswith("ortho")]
+    rows = [r for r in doc.get("gcps") or []
+            if isinstance(r, dict) and not str(r.get("id", "")).startswith(AUTO_PREFIX)]
     if not rows:
         raise InputError(f"{where}: the camera JSON lists no GCPs to judge the refinement by; give the GCP file it "
                          "was calibrated from (`gcps`)", parameters=("gcps",))
@@ -147,6 +149,8 @@ def refine_camera_files(camera_path: str | Path, frame: np.ndarray, ortho: str |
              "report": None if report_path is None else Path(report_path).name}
     if result.accepted and result.calibration is not None:
         extras = camera_extras(build_report(result.calibration), result.calibration)
+        # The user's points only (their residuals under the refined camera); the automatic ones are in the report.
+        extras["gcps"] = [r for r in extras["gcps"] if not str(r["id"]).startswith(AUTO_PREFIX)]
     else:
         extras = {k: v for k, v in doc.items() if k not in camera_to_dict(camera) and k != "format"}
     extras["refinement"] = block
