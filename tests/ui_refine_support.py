@@ -3,8 +3,9 @@ gcp-ui opens (frame.png, ortho.tif, dem.tif, gcps.csv with the rough clicks), an
 ground extent showing another road (ortho_wrong.tif).
 
 960x540: at 640x360 the refinement's default patches (25 px every 40 px) find fewer than the 30 matches it needs on
-this scene. The orthophoto is 0.1 m over +-60 m (not the scene's default 0.05 m over +-85 m) so the scene builds
-in a few seconds.
+this scene. The orthophoto is 0.1 m over +-60 m and the frame's ground is rendered at 2x (not the scene's default
+0.05 m over +-85 m at 3x) so the scene builds in a few seconds. Seed 2: the user's held-out error goes from 5.2 to
+3.3 m (a clear margin for the verdict), the ground error at the truth points from 1.1 m to about 0.01 m.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from trafficgeo.geo.raster import write_geotiff
 from trafficgeo.synth.registration_scene import RegistrationScene, RegistrationSceneOptions, make_registration_scene
 
 IMAGE_SIZE = (960, 540)
-SCENE_OPTIONS = dict(seed=0, image_size=IMAGE_SIZE, ortho_resolution=0.1, half_size=60.0)
+SCENE_OPTIONS = dict(seed=2, image_size=IMAGE_SIZE, ortho_resolution=0.1, half_size=60.0, supersample=2)
 
 
 @dataclass(frozen=True)
@@ -38,8 +39,9 @@ def build_refine_scene(folder: Path) -> RefineScene:
     """Write the scene's files into ``folder``; returns them with the scene (its truth)."""
     folder.mkdir(parents=True, exist_ok=True)
     sc = make_registration_scene(RegistrationSceneOptions(**SCENE_OPTIONS))
-    wrong = make_registration_scene(RegistrationSceneOptions(**SCENE_OPTIONS, wrong_place=True, supersample=1,
-                                                             vehicles=0))
+    # only its orthophoto is used (same extent, another road): a small frame is enough
+    wrong = make_registration_scene(RegistrationSceneOptions(**{**SCENE_OPTIONS, "image_size": (160, 90),
+                                                                "supersample": 1, "vehicles": 0}, wrong_place=True))
     paths = {k: folder / n for k, n in (("frame", "frame.png"), ("ortho", "ortho.tif"),
                                          ("ortho_wrong", "ortho_wrong.tif"), ("dem", "dem.tif"),
                                          ("gcps", "gcps.csv"))}
