@@ -59,11 +59,15 @@ class FrameImage:
         image: (H, W, 3) uint8 BGR, upright as a player shows it.
         png: the same image as PNG bytes (what the browser shows, full resolution).
         source: where it came from, for messages ("frame.png", "video.mp4 at 12.000 s (frame 300)").
+        video: the video it was taken from (None for an image file), and ``time_s`` its time in it (s): the
+            orthophoto refinement takes a still without traffic from around that time.
     """
 
     image: np.ndarray
     png: bytes
     source: str
+    video: Path | None = None
+    time_s: float | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -76,8 +80,9 @@ class FrameImage:
         return -0.5 <= u <= w - 0.5 and -0.5 <= v <= h - 0.5
 
     @classmethod
-    def from_array(cls, image: np.ndarray, source: str) -> FrameImage:
-        """From an (H, W, 3) uint8 BGR array (or (H, W) grey)."""
+    def from_array(cls, image: np.ndarray, source: str, *, video: Path | None = None,
+                   time_s: float | None = None) -> FrameImage:
+        """From an (H, W, 3) uint8 BGR array (or (H, W) grey); ``video``, ``time_s`` where it was taken from."""
         img = np.asarray(image)
         if img.ndim == 2:
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
@@ -85,7 +90,7 @@ class FrameImage:
             raise InputError(f"{source}: expected an 8-bit colour image of at least 2x2 pixels, got an array of "
                              f"shape {img.shape} and type {img.dtype}")
         img = np.ascontiguousarray(img[:, :, :3])
-        return cls(image=img, png=_png(img, source), source=source)
+        return cls(image=img, png=_png(img, source), source=source, video=video, time_s=time_s)
 
 
 def load_frame(path: str | Path) -> FrameImage:
@@ -111,7 +116,8 @@ def load_video_frame(path: str | Path, at_s: float) -> FrameImage:
         raise InputError(f"at_s {at_s:g} must be a time in seconds from the start of the video, >= 0",
                          parameters=("at_s",))
     picked = read_frame_at(path, at_s)
-    return FrameImage.from_array(picked.image, f"{path} at {picked.time_s:.3f} s (frame {picked.index})")
+    return FrameImage.from_array(picked.image, f"{path} at {picked.time_s:.3f} s (frame {picked.index})",
+                                 video=Path(path), time_s=float(picked.time_s))
 
 
 # --------------------------------------------------------------------------------------------------- orthophoto

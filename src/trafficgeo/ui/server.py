@@ -9,7 +9,10 @@ Endpoints (JSON unless said otherwise; every error is a 4xx answer ``{"detail": 
   ``z_auto``; ``DELETE /api/pairs/{id}``;
 * ``GET /api/calibration`` the live calibration (a failure is a normal answer with ``status`` "failed");
 * ``POST /api/gcps/save`` ``{name}``, ``POST /api/gcps/load`` ``{name}``, ``POST /api/camera/save`` ``{name}``:
-  files in the working folder.
+  files in the working folder;
+* ``POST /api/refine`` ``{}`` "Refine from orthophoto": the live calibration refined by registering the orthophoto
+  to the frame (1-10 s, run off the event loop; see :mod:`trafficgeo.ui.refine`); ``POST /api/refine/save``
+  ``{[name]}`` writes the accepted refined camera, its report and frame into the working folder.
 
 Request bodies are limited to ``MAX_BODY_BYTES`` (counted as they arrive, chunked or not) and validated strictly
 (no type coercion, no unknown keys, no NaN); changing requests must be JSON (``Content-Type: application/json``)
@@ -34,9 +37,12 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field
+from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from trafficgeo.errors import InputError
+from trafficgeo.ui.refine import CAMERA_NAME as REFINED_CAMERA_NAME
+from trafficgeo.ui.refine import SessionRefiner
 from trafficgeo.ui.session import Session, SessionError
 
 log = logging.getLogger(__name__)
@@ -91,6 +97,10 @@ class FileName(_Body):
 
 class OptionalFileName(_Body):
     name: Name | None = None
+
+
+class RefineRequest(_Body):
+    """``POST /api/refine`` takes an empty JSON object (a JSON body keeps plain cross-site form posts out)."""
 
 
 def _error(status: int, message: str) -> JSONResponse:
@@ -164,6 +174,7 @@ def create_app(session: Session, *, allowed_hosts: Sequence[str] | None = None) 
     """
     app = FastAPI(title="trafficgeo gcp-ui", docs_url=None, redoc_url=None, openapi_url=None)
     app.state.session = session
+    refiner = app.state.refiner = SessionRefiner(session)
     hosts = None if allowed_hosts is None else {h.lower() for h in allowed_hosts}
     app.add_middleware(BodyLimit, max_bytes=MAX_BODY_BYTES)  # inside the guard below: refused hosts send nothing
 
@@ -217,7 +228,7 @@ def create_app(session: Session, *, allowed_hosts: Sequence[str] | None = None) 
 
     @app.get("/api/info")
     def info() -> dict[str, Any]:
-        return session.info()
+        return {**session.info(), "refined_camera_name": REFINED_CAMERA_NAME}
 
     @app.get("/api/frame.png")
     def frame_png() -> Response:
@@ -267,6 +278,14 @@ def create_app(session: Session, *, allowed_hosts: Sequence[str] | None = None) 
     @app.post("/api/camera/save")
     def save_camera(body: FileName) -> dict[str, Any]:
         return session.save_camera(body.name)
+
+    @app.post("/api/refine")
+    async def refine(_: RefineRequest) -> dict[str, Any]:
+        return await run_in_threadpool(refiner.refine)  # seconds of work: the other requests go on meanwhile
+
+    @app.post("/api/refine/save")
+    def save_refined(body: OptionalFileName) -> dict[str, Any]:
+        return refiner.save(body.name)
 
     return app
 

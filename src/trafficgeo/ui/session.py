@@ -498,6 +498,10 @@ class Session:
         """The live calibration of the current pairs (JSON-ready), see :meth:`_calibrate`."""
         return self._calibrate_cached()[0]
 
+    def calibration_run(self) -> tuple[dict[str, Any], CalibrationRun | None]:
+        """The live calibration's answer and its run (None unless calibrated), cached per revision."""
+        return self._calibrate_cached()
+
     def _calibrate_cached(self) -> tuple[dict[str, Any], CalibrationRun | None]:
         with self._calib_lock:
             with self._lock:

@@ -9,12 +9,18 @@
  * A GCP moves only when the user drags its marker on purpose: a press on a marker becomes a drag only after the
  * pointer has moved DRAG_THRESHOLD_PX screen pixels (|dx| + |dy|), and while a pointer is pressed no marker is
  * moved, re-styled or re-created (updates wait for the release).
+ *
+ * "Refine from orthophoto" asks the server to match the orthophoto to the frame and re-fit the camera; its
+ * automatic matches are drawn on the frame with the GCP markers' transform (frameLL): a dot at the found pixel
+ * (green kept by the re-fit, red rejected) and a line towards where the camera predicted it, MATCH_VECTOR_SCALE
+ * times longer.
  */
 "use strict";
 (function () {
   const DRAG_THRESHOLD_PX = 6;
+  const MATCH_VECTOR_SCALE = 5;
   const app = window.gcpui = {
-    ready: false, info: null, state: null, calibration: null, selected: null,
+    ready: false, info: null, state: null, calibration: null, selected: null, refine: null, refining: false,
     pending: {frame: null, ortho: null}, frameMap: null, orthoMap: null, layers: {}, markers: new Map(),
     tableStale: false, pressed: false, markersStale: false,
   };
@@ -180,6 +186,7 @@
     renderMarkers();
     renderTable();
     renderCalibration();
+    renderRefinePanel();
   }
 
   // Markers are made once and then updated in place (position, classes, label): their elements are never
@@ -458,6 +465,89 @@
     }
   }
 
+  // ------------------------------------------------------------------------------------------------ refinement
+  async function refineFromOrtho() {
+    if (app.refining) return;
+    app.refining = true;
+    $("refine").disabled = true;
+    renderRefinePanel();
+    message("refining the camera from the orthophoto (a few seconds)…");
+    try {
+      const r = await api("POST", "/api/refine", {});
+      app.refine = r;
+      message(`refinement ${r.accepted ? "accepted" : "refused"}: ${r.reason}`, r.accepted ? "ok" : "");
+    } catch (err) {
+      message(err.message, "error");
+    } finally {
+      app.refining = false;
+      $("refine").disabled = false;
+      renderRefinePanel();
+      renderRefineMatches();
+    }
+  }
+
+  function renderRefinePanel() {
+    const status = $("refine-status");
+    const details = $("refine-details");
+    const r = app.refine;
+    details.textContent = "";
+    $("refine-save").hidden = true;
+    if (app.refining) {
+      status.textContent = "Refining from the orthophoto…";
+      status.className = "busy";
+      return;
+    }
+    if (!r) {
+      status.textContent = "";
+      status.className = "";
+      return;
+    }
+    status.textContent = r.accepted ? "Refinement accepted" : "Refinement refused";
+    status.className = r.accepted ? "ok" : "refused";
+    const add = (text, cls) => {
+      const el = document.createElement("div");
+      el.textContent = text;
+      if (cls) el.className = cls;
+      details.appendChild(el);
+    };
+    add(r.reason);
+    add(`held-out ground error at your GCPs: ${fmt(r.before.rmse_m, 3)} m → ` +
+      `${r.after ? fmt(r.after.rmse_m, 3) : "–"} m`);
+    add(`${r.n_kept} of ${r.n_matches} matches kept; ${r.passes.length} pass(es), ${fmt(r.elapsed_s, 1)} s`);
+    add(`frame: ${r.frame}`);
+    add(`surface: ${r.surface}`);
+    const stale = !!app.state && r.revision !== app.state.revision;
+    if (stale) add("the pairs changed since: refine again to save a refined camera", "warn");
+    $("refine-save").hidden = !r.accepted || stale;
+  }
+
+  function renderRefineMatches() {
+    const layer = app.layers.refineMatches;
+    layer.clearLayers();
+    const r = app.refine;
+    if (!r || !$("show-matches").checked) return;
+    const s = MATCH_VECTOR_SCALE;
+    for (const m of r.matches) {
+      const kind = m.kept ? "kept" : "rejected";
+      const color = m.kept ? "#39ff14" : "#ff3b3b";
+      const du = m.u - m.u_predicted;
+      const dv = m.v - m.v_predicted;
+      L.polyline([frameLL(m.u - s * du, m.v - s * dv), frameLL(m.u, m.v)],
+        {color, weight: 1.5, interactive: false, className: "refine-vector refine-" + kind}).addTo(layer);
+      L.circleMarker(frameLL(m.u, m.v), {radius: 3, color: "#111", weight: 1, fillColor: color, fillOpacity: 1,
+        interactive: false, className: "refine-match refine-" + kind}).addTo(layer);
+    }
+  }
+
+  async function saveRefined() {
+    try {
+      const r = await api("POST", "/api/refine/save", {name: $("refined-name").value.trim()});
+      message(`saved the refined camera to ${r.path} (report ${r.report}, frame ${r.frame})`, "ok");
+    } catch (err) {
+      message(err.message, "error");
+    }
+  }
+
   // While any pointer (mouse button, pen, finger) is pressed, markers are left as they are; the release renders them.
   function watchPointer() {
     const press = () => { app.pressed = true; };
@@ -495,6 +585,7 @@
     lay.orthoGrid = L.layerGroup().addTo(app.orthoMap);
     lay.frameGrid = L.layerGroup().addTo(app.frameMap);
     lay.residuals = L.layerGroup().addTo(app.frameMap);
+    lay.refineMatches = L.layerGroup().addTo(app.frameMap);
     lay.frameMarkers = L.layerGroup().addTo(app.frameMap);
     lay.orthoMarkers = L.layerGroup().addTo(app.orthoMap);
     lay.pendingFrame = L.layerGroup().addTo(app.frameMap);
@@ -514,11 +605,15 @@
     $("save-csv").addEventListener("click", saveCsv);
     $("load-csv").addEventListener("click", loadCsv);
     $("save-camera").addEventListener("click", saveCamera);
+    $("refine").addEventListener("click", refineFromOrtho);
+    $("show-matches").addEventListener("change", renderRefineMatches);
+    $("save-refined").addEventListener("click", saveRefined);
     document.querySelector("#pairs tbody").addEventListener("focusout", () => {
       if (app.tableStale) setTimeout(renderTable, 0);
     });
     $("csv-name").value = app.info.gcps_name;
     $("camera-name").value = app.info.camera_name;
+    $("refined-name").value = app.info.refined_camera_name || "camera_refined.json";
     document.addEventListener("keydown", (e) => {
       if (["INPUT", "SELECT", "TEXTAREA"].includes(e.target.tagName)) return;
       if (e.key === "Escape") {
