@@ -126,6 +126,7 @@ def test_the_section_shows_the_refine_json(accepted: dict) -> None:
     assert page.sections.index(TITLE) == page.sections.index("GCPs and residuals") + 1
     sec = _section(page.html)
     assert sec.paragraphs[0].startswith("Accepted") and doc["reason"] in sec.paragraphs[0]
+    assert "does not match" not in page.html  # the camera JSON's refinement block describes this report
     rms, per_point, passes, model = sec.tables
     assert rms[1:] == [["check points (never fitted)", _f3(doc["before"]["check_rmse_m"]),
                         _f3(doc["after"]["check_rmse_m"]), rms[1][3]],
@@ -232,6 +233,20 @@ def test_a_report_without_refinement_has_no_section(accepted: dict) -> None:
     assert TITLE not in page.sections and 'id="refinement"' not in page.html
     assert page.sections == tuple(s for s in accepted["page"].sections if s != TITLE)
     assert not [s for s, r in page.left_out if "refine" in s.lower() or "refine" in r.lower()]
+
+
+def test_a_camera_json_from_another_refinement_is_pointed_out(accepted: dict) -> None:
+    run = accepted["run"]
+    b = ReportContext(inputs=find_inputs(run), dpi=DPI)
+    b.doc = json.loads((run / "camera.json").read_text())
+    b.doc["refinement"]["matches_kept"] += 5
+    b.doc["refinement"]["after_rmse_m"] = None
+    section = refinement_section(b, read_refine_record(run / "refine.json"))
+    assert section is not None
+    (warning,) = [x.text for x in section.parts[0] if getattr(x, "css", "") == "warn"]
+    kept = accepted["doc"]["matches_kept"]
+    assert f"matches_kept {kept + 5} against {kept}" in warning and "after_rmse_m None against" in warning
+    assert "accepted" not in warning and "before_rmse_m" not in warning
 
 
 def test_a_missing_report_named_by_the_camera_is_noted(accepted: dict, tmp_path: Path) -> None:

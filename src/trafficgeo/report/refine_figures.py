@@ -46,7 +46,7 @@ def matches_on_frame(pixels: np.ndarray, predicted: np.ndarray, kept: np.ndarray
         lines = LineCollection(list(segments), colors=colour, linewidths=0.9, zorder=3)
         lines.set_gid(f"refine-shift-{name}")
         ax.add_collection(lines)
-        dots = ax.scatter(found[sel, 0], found[sel, 1], s=9, c=colour, edgecolors="white", linewidths=0.3,
+        dots = ax.scatter(found[sel, 0], found[sel, 1], s=12, c=colour, edgecolors="black", linewidths=0.3,
                           label=f"{label} ({int(sel.sum())})", zorder=4)
         dots.set_gid(f"refine-{name}")
     ax.set_xlim(-0.5, w - 0.5)

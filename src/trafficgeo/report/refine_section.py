@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from trafficgeo.registration.refine_record import HeldOutSummary, RefineRecord
-from trafficgeo.report.blocks import Block, Heading, Part, Section, Text, figure, table
+from trafficgeo.report.blocks import Block, Heading, Part, Section, Text, figure, num, table
 from trafficgeo.report.context import MAX_FRAME_PX, ReportContext
 from trafficgeo.report.refine_figures import SHIFT_FACTOR, matches_on_frame
 
@@ -37,7 +37,8 @@ def refinement_section(b: ReportContext, rec: RefineRecord | None) -> Section | 
                    "not beside it: pass --refine-report with the file 'trafficgeo refine --report' wrote")
         return None
     b.used.append(("orthophoto refinement report", str(rec.path)))
-    parts: list[Part] = [(_verdict(rec),)]
+    disagree = _disagreement(b, rec)
+    parts: list[Part] = [(_verdict(rec), *((Text(disagree, "warn"),) if disagree else ()))]
     parts.append((Heading("The user's points, held out", 3), *_errors(rec)))
     parts.append((Heading("Automatic correspondences", 3), *_correspondences(rec)))
     parts.append((Heading("The refined model", 3), *_model(rec, b)))
@@ -51,6 +52,30 @@ def _verdict(rec: RefineRecord) -> Text:
     else:
         head = "Refused: the camera JSON keeps the original camera."
     return Text(f"{head} Reason: {rec.reason.rstrip('.')}.", "summary")
+
+
+def _disagreement(b: ReportContext, rec: RefineRecord) -> str:
+    """Why the camera JSON's ``refinement`` block does not describe this report (verdict, matches kept, RMS before
+    and after), or "" when it does or the camera JSON has no such block."""
+    block = (b.doc or {}).get("refinement")
+    if not isinstance(block, dict):
+        return ""
+    after = rec.after.rmse_m if rec.after is not None else float("nan")
+    differ = []
+    for key, mine in (("accepted", rec.accepted), ("matches_kept", rec.matches_kept),
+                      ("before_rmse_m", rec.before.rmse_m), ("after_rmse_m", after)):
+        theirs = block.get(key)
+        if isinstance(mine, int):  # and bool
+            same = theirs == mine and isinstance(theirs, bool) == isinstance(mine, bool)
+        else:
+            same = (theirs is None and not np.isfinite(mine)) or (
+                isinstance(theirs, int | float) and not isinstance(theirs, bool) and abs(theirs - mine) <= 1e-3)
+        if not same:
+            differ.append(f"{key} {theirs} against {num(mine, 4) if isinstance(mine, float) else mine}")
+    if not differ:
+        return ""
+    return (f"The camera JSON's refinement block does not match {rec.path.name} ({'; '.join(differ)}): the report "
+            "may be from another run of 'trafficgeo refine'.")
 
 
 def _rms_rows(before: HeldOutSummary, after: HeldOutSummary | None) -> list[list[object]]:
