@@ -54,12 +54,15 @@ def report(
                      ] = None,
     dem: Annotated[Path | None, typer.Option(help="DEM GeoTIFF for the accuracy map when RUN_DIR has no "
                                              "accuracy.tif (default: dem.tif; else the GCP plane)")] = None,
+    refine_report: Annotated[Path | None, typer.Option(help="report JSON of 'trafficgeo refine --report' (default: "
+                                                       "the one the camera JSON's refinement names)")] = None,
 ) -> None:
-    """One self-contained HTML page of a run: calibration, accuracy map and traffic figures and tables.
+    """One self-contained HTML page of a run: calibration, orthophoto refinement, accuracy map and traffic figures and
+    tables.
 
     Every section whose inputs exist is included; the page lists the ones left out and why. Files are found by
     name in RUN_DIR and its sub-folders; the options override them.
     """
     check_html_path(output, "--output")
     write_page(output, run_dir, camera=camera, calibration_report=calibration_report, frame=frame, video=video,
-               ortho=ortho, dem=dem)
+               ortho=ortho, dem=dem, refine_report=refine_report)

@@ -12,6 +12,8 @@ folder, then in its sub-folders (then beside the camera JSON), unless given expl
 * ``accuracy.tif`` (``trafficgeo accuracy``), or else the accuracy map computed from the camera JSON's covariance
   on the DEM (``dem.tif``, ``--dem``) or on the GCP plane; ``site.gpkg`` for the footprint;
 * an orthophoto (``ortho.tif``, ``--ortho``) behind the plan views, reprojected on the fly when its CRS differs;
+* an orthophoto refinement: the report JSON of ``trafficgeo refine --report`` that the camera JSON's
+  ``refinement.report`` key names beside it (``--refine-report``), with its ``<stem>_frame.jpg``;
 * traffic runs: every folder (the run folder or a sub-folder) with the outputs of ``analyze``/``process``
   (``summary.json`` with ``vehicles.csv``/``trajectories.csv``, ``counts.csv``, ``crossings.csv``, ``process.json``);
   a comparison with SUMO in it (``compare_counts.csv``...) is part of its traffic section, or, when
@@ -31,9 +33,11 @@ from typing import Any
 
 from trafficgeo.calibration.report import CalibrationReport
 from trafficgeo.errors import InputError
+from trafficgeo.registration.refine_record import read_refine_record
 from trafficgeo.report.blocks import Section
 from trafficgeo.report.context import ReportContext, load_context, read_background
 from trafficgeo.report.inputs import ReportInputs, TrafficRun, find_inputs
+from trafficgeo.report.refine_section import refinement_section
 from trafficgeo.report.render import render_page
 from trafficgeo.report.sections import accuracy_section, calibration_sections
 from trafficgeo.report.simulation_section import simulation_section
@@ -71,19 +75,23 @@ def _header(b: ReportContext, about: Sequence[tuple[str, str]] = ()) -> list[tup
 def build_page(run_dir: str | Path, *, camera: str | Path | None = None,
                calibration_report: str | Path | CalibrationReport | Mapping[str, Any] | None = None,
                frame: str | Path | None = None, ortho: str | Path | None = None, dem: str | Path | None = None,
-               video: str | Path | None = None, dpi: int = 100, title: str | None = None,
-               about: Sequence[tuple[str, str]] = ()) -> ReportPage:
+               video: str | Path | None = None, refine_report: str | Path | None = None, dpi: int = 100,
+               title: str | None = None, about: Sequence[tuple[str, str]] = ()) -> ReportPage:
     """The page with its list of sections and of those left out (see :func:`build_report`); ``title`` replaces the
     page's title (the folder's name) and ``about`` rows (label, value) the header's run folder row."""
     inputs = find_inputs(run_dir, camera=camera, calibration_report=calibration_report, frame=frame, ortho=ortho,
-                         dem=dem, video=video)
+                         dem=dem, video=video, refine_report=refine_report)
     if inputs.empty:
         raise InputError(f"{inputs.run_dir}: nothing to report: no camera.json, calibration report.json, "
                          "accuracy.tif or analyze/process outputs (summary.json with vehicles.csv) in it or its "
                          "sub-folders; give such a folder, or `camera` / calibration_report",
                          parameters=("camera", "calibration_report"))
+    refine = read_refine_record(inputs.refine_report) if inputs.refine_report is not None else None  # fail early
     b = load_context(inputs, dpi)
     sections: list[Section] = calibration_sections(b)
+    refinement = refinement_section(b, refine)
+    if refinement is not None:
+        sections.append(refinement)
     accuracy = accuracy_section(b)
     if accuracy is not None:
         sections.append(accuracy)
@@ -104,7 +112,7 @@ def build_page(run_dir: str | Path, *, camera: str | Path | None = None,
 def build_report(run_dir: str | Path, *, camera: str | Path | None = None,
                  calibration_report: str | Path | CalibrationReport | Mapping[str, Any] | None = None,
                  frame: str | Path | None = None, ortho: str | Path | None = None, dem: str | Path | None = None,
-                 video: str | Path | None = None, dpi: int = 100) -> str:
+                 video: str | Path | None = None, refine_report: str | Path | None = None, dpi: int = 100) -> str:
     """One self-contained HTML page (figures as base64 PNG, inline CSS, no links out) of what ``run_dir`` holds.
 
     ``calibration_report`` may be the report itself (:class:`~trafficgeo.calibration.CalibrationReport`) or its
@@ -115,7 +123,7 @@ def build_report(run_dir: str | Path, *, camera: str | Path | None = None,
         InputError: ``run_dir`` is not a folder, there is nothing to report, or an input cannot be read.
     """
     return build_page(run_dir, camera=camera, calibration_report=calibration_report, frame=frame, ortho=ortho,
-                      dem=dem, video=video, dpi=dpi).html
+                      dem=dem, video=video, refine_report=refine_report, dpi=dpi).html
 
 
 def write_report_html(path: str | Path, run_dir: str | Path, **options: Any) -> ReportPage:

@@ -54,12 +54,14 @@ class ReportInputs:
     accuracy: Path | None = None
     site: Path | None = None
     traffic: tuple[TrafficRun, ...] = ()
+    refine_report: Path | None = None  # the orthophoto refinement report (trafficgeo refine --report)
+    refine_named: str | None = None  # the file the camera JSON's refinement block names, when not found
 
     @property
     def empty(self) -> bool:
         """True when there is nothing to report (no calibration, accuracy map or traffic run)."""
         return (self.camera is None and self.calibration_report is None and self.accuracy is None
-                and not self.traffic)
+                and not self.traffic and self.refine_report is None)
 
 
 def _subfolders(folder: Path) -> list[Path]:
@@ -156,8 +158,11 @@ def _simulation_record(d: Path, manifest: RunManifest) -> dict[str, Any] | None:
 def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
                 calibration_report: str | Path | CalibrationReport | Mapping[str, Any] | None = None,
                 frame: str | Path | None = None, ortho: str | Path | None = None, dem: str | Path | None = None,
-                video: str | Path | None = None) -> ReportInputs:
+                video: str | Path | None = None, refine_report: str | Path | None = None) -> ReportInputs:
     """The files of a run folder (see the module docstring); given paths override what is found.
+
+    The orthophoto refinement report is ``refine_report``, else the file the camera JSON's ``refinement.report``
+    key names beside it (``trafficgeo refine --report``); none when the camera JSON has no refinement.
 
     ``calibration_report`` may also be the report itself, or its report.json document as a dictionary.
 
@@ -203,6 +208,10 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
             if frame_path is not None:
                 break
     frame_path = frame_path or _find(site_dirs, FRAME_NAMES)
+    refine_path = _given_file(refine_report, "refine_report", "give the report JSON of 'trafficgeo refine --report'")
+    refine_named = None
+    if refine_path is None and cam is not None:
+        refine_path, refine_named = _refine_report_of(cam)
     video_path = _given_file(video, "video", "give the video file")
     video_given = video_path is not None
     time_s = 0.0
@@ -220,7 +229,19 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
     return ReportInputs(run_dir=root, camera=cam, calibration_report=rep, frame=frame_path, frame_given=frame_given,
                         video=video_path, video_given=video_given, video_time_s=time_s, ortho=ortho_path,
                         dem=dem_path, accuracy=_find(site_dirs, ACCURACY_NAMES), site=_find(site_dirs, SITE_NAMES),
-                        traffic=traffic)
+                        traffic=traffic, refine_report=refine_path, refine_named=refine_named)
+
+
+def _refine_report_of(camera: Path) -> tuple[Path | None, str | None]:
+    """The refinement report a camera JSON's ``refinement.report`` key names beside it: (the file, None) when it
+    exists, (None, the name) when it does not, (None, None) without such a key."""
+    doc = read_json(camera)
+    block = doc.get("refinement") if isinstance(doc, dict) else None
+    name = block.get("report") if isinstance(block, dict) else None
+    if not isinstance(name, str) or not name:
+        return None, None
+    found = camera.parent / name
+    return (found, None) if found.is_file() else (None, name)
 
 
 def _is_calibration_report(path: Path) -> bool:
