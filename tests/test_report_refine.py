@@ -120,6 +120,10 @@ def _f3(value: float | None) -> str:
     return "-" if value is None else f"{value:.3f}"
 
 
+def _f2(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f}"
+
+
 def test_the_section_shows_the_refine_json(accepted: dict) -> None:
     page, doc, result = accepted["page"], accepted["doc"], accepted["result"]
     assert TITLE in page.sections
@@ -128,12 +132,12 @@ def test_the_section_shows_the_refine_json(accepted: dict) -> None:
     assert sec.paragraphs[0].startswith("Accepted") and doc["reason"] in sec.paragraphs[0]
     assert "does not match" not in page.html  # the camera JSON's refinement block describes this report
     rms, per_point, passes, model = sec.tables
-    assert rms[1:] == [["check points (never fitted)", _f3(doc["before"]["check_rmse_m"]),
-                        _f3(doc["after"]["check_rmse_m"]), rms[1][3]],
-                       ["control points, leave-one-out", _f3(doc["before"]["loo_rmse_m"]),
-                        _f3(doc["after"]["loo_rmse_m"]), rms[2][3]],
-                       ["all the user's points", _f3(doc["before"]["rmse_m"]), _f3(doc["after"]["rmse_m"]), rms[3][3]]]
-    assert float(rms[3][2]) < float(rms[3][1])  # accepted: the error went down
+    for row, label, key in zip(rms[1:], ("check points (never fitted)", "control points, leave-one-out",
+                                         "all the user's points"), ("check_rmse", "loo_rmse", "rmse"), strict=True):
+        assert row[0] == label
+        assert row[1:3] == [_f2(doc["before"][f"{key}_px"]), _f2(doc["after"][f"{key}_px"])]
+        assert row[4:6] == [_f3(doc["before"][f"{key}_m"]), _f3(doc["after"][f"{key}_m"])]
+    assert float(rms[3][2]) < float(rms[3][1])  # accepted: the pixel error went down
     # per point: the user's points (the GCPs the rough calibration kept, and the check points), in order
     judged = [g for g, ok, role in zip(accepted["scene"].gcps.ids, accepted["calibration"].calibration.inlier,
                                        accepted["scene"].gcps.roles, strict=True) if ok or role == "check"]
@@ -173,7 +177,8 @@ def test_a_refused_refinement_says_so_and_why(refused: dict, tmp_path: Path) -> 
     assert sec.paragraphs[0] == f"Refused: the camera JSON keeps the original camera. Reason: {doc['reason']}."
     assert unescape(doc["reason"]) in unescape(page.html)
     rms = sec.tables[0]
-    assert rms[3][1:] == [_f3(doc["before"]["rmse_m"]), _f3(doc["after"] and doc["after"]["rmse_m"]), rms[3][3]]
+    assert rms[3][1:3] == [_f2(doc["before"]["rmse_px"]), _f2(doc["after"] and doc["after"]["rmse_px"])]
+    assert rms[3][4:6] == [_f3(doc["before"]["rmse_m"]), _f3(doc["after"] and doc["after"]["rmse_m"])]
 
 
 def test_the_section_without_its_frame_says_so(accepted: dict, tmp_path: Path) -> None:

@@ -80,7 +80,7 @@ def test_refine_is_accepted_and_beats_the_rough_camera_at_the_truth(refined, rs)
     assert "orthophoto matches" in ans["reason"]
     assert ans["n_kept"] > 30 and len(ans["matches"]) == ans["n_matches"] >= ans["n_kept"]
     assert sum(m["kept"] for m in ans["matches"]) == ans["n_kept"]
-    assert ans["after"]["rmse_m"] < ans["before"]["rmse_m"]
+    assert ans["after"]["rmse_px"] < ans["before"]["rmse_px"]  # the verdict's statistic
     assert {p["id"] for p in ans["before"]["points"]} == set(sc.gcps.ids)
     assert ans["passes"] and ans["passes"][-1]["kept"] == ans["n_kept"]
     assert ans["surface"].startswith("DEM") and ans["frame"].startswith("the session's frame")
@@ -140,7 +140,7 @@ def test_a_wrong_orthophoto_is_refused_with_a_reason(rs, tmp_path):
     assert r.status_code == 200, r.text
     ans = r.json()
     assert ans["accepted"] is False
-    assert "orthophoto" in ans["reason"] and ans["n_kept"] < 30
+    assert "the orthophoto may show another place" in ans["reason"]
     r = client.post("/api/refine/save", json={})
     assert r.status_code == 409 and "refused" in r.json()["detail"]
     assert not (tmp_path / "camera_refined.json").exists()

@@ -78,7 +78,8 @@ def test_refine_button_draws_the_matches_on_their_pixels(refine_page):
     n_kept, n = ans["n_kept"], ans["n_matches"]
     assert n_kept > 30
     details = page.inner_text("#refine-details")
-    assert f"{n_kept} of {n} matches kept" in details and "held-out ground error" in details
+    assert f"{n_kept} of {n} matches kept" in details and "held-out error at your GCPs" in details
+    assert f"{ans['before']['rmse_px']:.2f} px → {ans['after']['rmse_px']:.2f} px" in details
     assert f"{ans['before']['rmse_m']:.3f} m → {ans['after']['rmse_m']:.3f} m" in details
     assert page.locator("#frame-map path.refine-match.refine-kept").count() == n_kept
     assert page.locator("#frame-map path.refine-match.refine-rejected").count() == n - n_kept

@@ -37,12 +37,16 @@ class PointError:
 @dataclass(frozen=True)
 class HeldOutSummary:
     """Held-out errors of one camera at the user's points (as :meth:`HeldOutErrors.to_dict` wrote them): RMS over
-    all points, over the check points and leave-one-out over the control points (m, NaN when not known)."""
+    all points, over the check points and leave-one-out over the control points, on the ground (m) and in the
+    image (px; the verdict's statistic); NaN when not known."""
 
     rmse_m: float
     check_rmse_m: float
     loo_rmse_m: float
     points: tuple[PointError, ...]
+    rmse_px: float = float("nan")
+    check_rmse_px: float = float("nan")
+    loo_rmse_px: float = float("nan")
 
     def point(self, point_id: str) -> PointError | None:
         """The point with this id, or None."""
@@ -179,8 +183,9 @@ def _held_out(d: _Doc, obj: Any, name: str) -> HeldOutSummary:
                                                          f"{at}.ground_error_m"),
                                  pixel_error_px=d.number(d.get(p, "pixel_error_px", f"{at}.pixel_error_px"),
                                                          f"{at}.pixel_error_px")))
-    return HeldOutSummary(*(d.number(d.get(obj, key, f"{name}.{key}"), f"{name}.{key}")
-                            for key in ("rmse_m", "check_rmse_m", "loo_rmse_m")), points=tuple(points))
+    keys = ("rmse_m", "check_rmse_m", "loo_rmse_m", "rmse_px", "check_rmse_px", "loo_rmse_px")
+    values = {key: d.number(d.get(obj, key, f"{name}.{key}"), f"{name}.{key}") for key in keys}
+    return HeldOutSummary(points=tuple(points), **values)
 
 
 def _camera(d: _Doc, obj: Any, name: str) -> CameraSummary:

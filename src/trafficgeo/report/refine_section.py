@@ -80,18 +80,24 @@ def _disagreement(b: ReportContext, rec: RefineRecord) -> str:
 
 def _rms_rows(before: HeldOutSummary, after: HeldOutSummary | None) -> list[list[object]]:
     rows = []
-    for label, key in (("check points (never fitted)", "check_rmse_m"),
-                       ("control points, leave-one-out", "loo_rmse_m"), ("all the user's points", "rmse_m")):
-        b = getattr(before, key)
-        a = getattr(after, key) if after is not None else float("nan")
-        rows.append([label, (b, 3), (a, 3), (a - b, 3)])
+    for label, key in (("check points (never fitted)", "check_rmse"),
+                       ("control points, leave-one-out", "loo_rmse"), ("all the user's points", "rmse")):
+        row: list[object] = [label]
+        for unit, digits in (("px", 2), ("m", 3)):
+            b = getattr(before, f"{key}_{unit}")
+            a = getattr(after, f"{key}_{unit}") if after is not None else float("nan")
+            row += [(b, digits), (a, digits), (a - b, digits)]
+        rows.append(row)
     return rows
 
 
 def _errors(rec: RefineRecord) -> tuple[Block, ...]:
-    """The RMS held-out ground errors before and after, then one row per user's point."""
-    rms = table(["RMS ground error (m)", "before", "after", "change"], _rms_rows(rec.before, rec.after),
-                caption="held-out ground error at the user's GCPs, original (before) and refined (after) camera")
+    """The RMS held-out errors before and after (pixels decide, the ground is shown), then one row per point."""
+    rms = table(["RMS held-out error", "before (px)", "after (px)", "change (px)", "before (m)", "after (m)",
+                 "change (m)"], _rms_rows(rec.before, rec.after),
+                caption="held-out error at the user's GCPs, original (before) and refined (after) camera; the "
+                        "verdict goes by the pixels, where every click's noise weighs the same (on the ground a "
+                        "click's noise grows with its distance along the view)")
     rows, classes = [], []
     for p in rec.before.points:
         q = rec.after.point(p.id) if rec.after is not None else None

@@ -511,8 +511,9 @@
       details.appendChild(el);
     };
     add(r.reason);
-    add(`held-out ground error at your GCPs: ${fmt(r.before.rmse_m, 3)} m → ` +
-      `${r.after ? fmt(r.after.rmse_m, 3) : "–"} m`);
+    add(`held-out error at your GCPs: ${fmt(r.before.rmse_px, 2)} px → ` +
+      `${r.after ? fmt(r.after.rmse_px, 2) : "–"} px (on the ground ${fmt(r.before.rmse_m, 3)} m → ` +
+      `${r.after ? fmt(r.after.rmse_m, 3) : "–"} m)`);
     add(`${r.n_kept} of ${r.n_matches} matches kept; ${r.passes.length} pass(es), ${fmt(r.elapsed_s, 1)} s`);
     add(`frame: ${r.frame}`);
     add(`surface: ${r.surface}`);
