@@ -462,12 +462,15 @@ def test_demo_writes_its_files(tmp_path: Path) -> None:
     for name in ("world/gcps.csv", "world/camera_truth.json", "world/video.mp4", "camera.json", "report.json",
                  "dem.tif", "accuracy.tif", "site.gpkg", "gcps_z.csv", "vehicles_world_dem.gpkg", "tracks.csv",
                  "traffic/vehicles.csv", "traffic/counts.csv", "traffic/trajectories.gpkg",
-                 "traffic/compare_counts.csv"):
+                 "traffic/compare_counts.csv", "camera_refined.json", "refine.json", "refine_frame.jpg"):
         assert (out / name).is_file(), name
     assert read_json(out / "camera.json")["format"] == "trafficgeo.camera/1"
     assert "gcps" in read_json(out / "report.json")
     words = " ".join(stdout.split())
     assert "estimate vs truth" in words and "traffic: measured vs truth" in words and "GEH" in words
+    # the orthophoto refined (or, with a reason, kept) the GCP camera
+    assert "$ trafficgeo refine" in words and ("refined: " in words or "refused: " in words)
+    assert read_json(out / "camera_refined.json")["refinement"]["report"] == "refine.json"
     # the loop closed on the video's counts, its scenario left for sumo-gui
     assert "The loop closed" in words and "against the truth" in words
     assert (out / "sumo" / "scenario.sumocfg").is_file() and (out / "video" / "compare_counts.csv").is_file()

@@ -267,12 +267,14 @@ def _refine(out: Path, wdir: Path, surf, truth_cam, steady: pd.DataFrame, truth_
 
 
 def _report(out: Path, wdir: Path, con: Console) -> None:
-    """Step 8: everything above on one HTML page (calibration, accuracy map, both traffic runs)."""
+    """Step 8: everything above on one HTML page (calibration, the orthophoto refinement, accuracy map, both traffic
+    runs, the simulation)."""
     from trafficgeo.report.html import write_report_html
 
     con.print(f"\n$ trafficgeo report {out} --ortho {wdir / 'ortho.tif'} --video {wdir / 'video.mp4'} "
-              f"-o {out / 'report.html'}")
-    page = write_report_html(out / "report.html", out, ortho=wdir / "ortho.tif", video=wdir / "video.mp4")
+              f"--refine-report {out / 'refine.json'} -o {out / 'report.html'}")
+    page = write_report_html(out / "report.html", out, ortho=wdir / "ortho.tif", video=wdir / "video.mp4",
+                             refine_report=out / "refine.json")
     con.print(f"wrote {out / 'report.html'} ({len(page.html.encode('utf-8')) / 1e6:.1f} MB): "
               f"{', '.join(page.sections)}", markup=False, highlight=False)
 
