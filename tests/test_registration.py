@@ -28,9 +28,9 @@ from trafficgeo.geo.drape import drape_orthophoto
 from trafficgeo.geo.mapping import pixels_to_world
 from trafficgeo.geo.raster import GeoRaster, read_raster
 from trafficgeo.geo.surface import ConstantSurface
-from trafficgeo.registration.judge import held_out_errors
+from trafficgeo.registration.judge import HeldOutErrors, held_out_errors, worse_p_value
 from trafficgeo.registration.matching import MatchSettings, OrthoPyramid, _subpixel, gray, match_orthophoto
-from trafficgeo.registration.refine import RefineOptions, refine_camera
+from trafficgeo.registration.refine import WORSE_P, RefineOptions, _verdict, refine_camera
 from trafficgeo.synth.registration_scene import ground_errors_m
 from trafficgeo.traffic.loading import load_surface
 
@@ -279,3 +279,33 @@ def test_the_background_frame_shows_the_road_where_vehicles_drove(small_world: P
     with pytest.raises(InputError, match=r"start_s = 9\.0 s is outside") as info:
         background_frame(small_world / "video.mp4", start_s=9.0)
     assert info.value.parameters == ("start_s",)
+
+
+# ------------------------------------------------------------------------------------------------------ verdict
+def _held_out(px: list[float]) -> HeldOutErrors:
+    n = len(px)
+    return HeldOutErrors(ids=tuple(f"G{k}" for k in range(n)), roles=("control",) * n,
+                         ground_error_m=np.asarray(px) * 0.1, pixel_error_px=np.asarray(px, dtype=float))
+
+
+def test_the_verdict_refuses_a_camera_worse_at_the_clicks_and_says_when_they_cannot_tell() -> None:
+    rng = np.random.default_rng(4)
+    before = _held_out(list(rng.uniform(2.0, 6.0, 11)))
+    better = _held_out(list(before.pixel_error_px * 0.7))
+    ok, why = _verdict(before, better, 300, 30, "")
+    assert ok and "cannot tell" not in why and f"{before.rmse_px:.2f} px -> {better.rmse_px:.2f} px" in why
+    # as noisy clicks do to two cameras both right at them: some points better, some worse, a little worse in all
+    same = _held_out(list(before.pixel_error_px + [0.6, -0.4, 0.5, -0.5, 0.4, -0.3, 0.5, -0.4, 0.3, -0.2, 0.2]))
+    assert same.rmse_px >= before.rmse_px
+    assert worse_p_value(before, same) > WORSE_P
+    ok, why = _verdict(before, same, 300, 30, "")
+    assert ok and "no worse within the clicks' noise" in why and "cannot tell the two cameras apart" in why
+    worse = _held_out(list(before.pixel_error_px * 1.8 + 1.0))
+    assert worse_p_value(before, worse) < 0.01
+    ok, why = _verdict(before, worse, 300, 30, "")
+    assert not ok and "worse beyond their noise" in why
+    few = _held_out([3.0, 4.0, 5.0])
+    ok, why = _verdict(few, _held_out([3.1, 4.1, 5.1]), 300, 30, "")
+    assert not ok and "fewer than 5 points to tell" in why
+    ok, why = _verdict(before, better, 12, 30, "")
+    assert not ok and "only 12 orthophoto matches" in why

@@ -94,6 +94,20 @@ class HeldOutErrors:
                                                  strict=True)]}
 
 
+def worse_p_value(before: HeldOutErrors, after: HeldOutErrors) -> float:
+    """One-sided p-value that ``after`` misses the user's points by more than ``before`` does: the Wilcoxon
+    signed-rank test of the per-point differences of squared pixel errors (points judged in both; NaN with fewer
+    than 5). Small: the second camera is worse at the clicks beyond what their noise explains."""
+    from scipy.stats import wilcoxon
+
+    b = dict(zip(before.ids, before.pixel_error_px, strict=True))
+    d = np.array([a ** 2 - b[i] ** 2 for i, a in zip(after.ids, after.pixel_error_px, strict=True)
+                  if i in b and np.isfinite(a) and np.isfinite(b[i])])
+    if d.size < 5 or not np.any(d != 0):
+        return float("nan")
+    return float(wilcoxon(d, alternative="greater").pvalue)
+
+
 def model_from_names(names: object) -> ParameterModel:
     """The parameter model whose free parameters are ``names`` (as a camera JSON's ``model.free_parameters``)."""
     free = {str(n) for n in (names or ())}
