@@ -313,7 +313,7 @@ def _verdict(before: HeldOutErrors, after: HeldOutErrors, kept: int, min_matches
     A few clicks cannot always tell a good camera from a better one: where a rough camera is right at the clicks
     (its trouble is between and beyond them, e.g. 100 m down the road) both miss them by about the click noise.
     Requiring a strictly lower error there refused 2 of the first 9 worlds of ``benchmarks/bench_refine.py``
-    whose refined camera was 25-45x closer to the truth at 100 m (5.05 -> 5.06 px, 3.91 -> 4.00 px at the clicks).
+    whose refined camera was about 40x closer to the truth at 100 m (5.05 -> 5.06 px, 3.91 -> 4.00 px at the clicks).
     So the refined camera is refused when it is *significantly worse* at the clicks (:data:`WORSE_P`), and the
     reason says which case it is."""
     if kept < min_matches:
