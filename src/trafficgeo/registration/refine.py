@@ -286,6 +286,9 @@ def refine_camera(camera: Camera, gcps: GCPTable, frame: np.ndarray, ortho: GeoR
         current, cal, matches, kept = fit.camera, fit, found, fit_kept
         if moved < options.converged_px and radius <= options.final_search_px:
             break
+        if len(passes) == options.max_iterations:
+            reason = (f"not converged after {len(passes)} passes: the last moved the camera by {moved:.2f} px "
+                      f"(converged below {options.converged_px:g})")
         radius = max(options.final_search_px, radius / 4.0)
     if cal is None:
         return OrthoRefinement(camera=camera, accepted=False, reason=reason or "no pass ran", original=camera,
@@ -324,7 +327,7 @@ def _verdict(before: HeldOutErrors, after: HeldOutErrors, kept: int, min_matches
     if not np.isfinite(a):
         return False, "the refined camera cannot project the user's points"
     ground = f"; on the ground {before.rmse_m:.3f} m -> {after.rmse_m:.3f} m RMS"
-    stopped = f" (stopped early: {why_stopped})" if why_stopped else ""
+    stopped = f" (stopped: {why_stopped})" if why_stopped else ""
     errors = f"{what} error at the user's points {b:.2f} px -> {a:.2f} px{ground}"
     if not np.isfinite(b) or a < b:
         return True, f"{kept} orthophoto matches; {errors}{stopped}"
