@@ -53,8 +53,8 @@ class RefineOptions:
         patch_px, cell_px, min_ncc: see :class:`~trafficgeo.registration.matching.MatchSettings`; ``cell_px`` None
             is 40 px per 1920 px of frame width (about 700 spots on a 1080p road scene, as many at 4K).
         max_distance_m: the orthophoto is matched up to this distance from the camera (m on the ground).
-        max_rmse_px: a re-fit whose kept matches miss it by more than this (RMS, px) means the matches do not
-            describe one camera: refused.
+        max_rmse_px: a re-fit at the final search radius whose kept matches miss it by more than this (RMS, px)
+            means the matches do not describe one camera: refused.
         calibration: options of the re-fit (default: the pipeline's, model chosen from the data).
     """
 
@@ -251,6 +251,7 @@ def refine_camera(camera: Camera, gcps: GCPTable, frame: np.ndarray, ortho: GeoR
     kept = np.zeros(0, dtype=bool)
     radius = options.search_px
     cell_px = options.cell_px or max(24, round(40 * camera.width / 1920))
+    cal_radius = radius
     reason = ""
     for _ in range(options.max_iterations):
         settings = MatchSettings(scale=1.0, search_px=radius, patch_px=options.patch_px, cell_px=cell_px,
@@ -277,19 +278,25 @@ def refine_camera(camera: Camera, gcps: GCPTable, frame: np.ndarray, ortho: GeoR
             p = passes[-1]
             progress(f"pass {len(passes)}: search {p.search_px:.0f} px, {p.matched} of {p.tried} patches matched, "
                      f"{p.kept} kept, RMSE {p.rmse_px:.2f} px, camera moved {p.moved_px:.2f} px")
-        if not passes[-1].rmse_px <= options.max_rmse_px:
+        # A wide first search matches repeated texture to the wrong place; only a fine pass must agree.
+        if radius <= options.final_search_px and not passes[-1].rmse_px <= options.max_rmse_px:
             reason = (f"the {passes[-1].kept} orthophoto matches kept do not agree on one camera (RMSE "
                       f"{passes[-1].rmse_px:.1f} px, at most {options.max_rmse_px:g} expected): the orthophoto may "
                       "show another place, or the camera is too far off")
             cal, matches, kept = None, found, fit_kept
             break
-        current, cal, matches, kept = fit.camera, fit, found, fit_kept
+        current, cal, matches, kept, cal_radius = fit.camera, fit, found, fit_kept, radius
         if moved < options.converged_px and radius <= options.final_search_px:
             break
         if len(passes) == options.max_iterations:
             reason = (f"not converged after {len(passes)} passes: the last moved the camera by {moved:.2f} px "
                       f"(converged below {options.converged_px:g})")
         radius = max(options.final_search_px, radius / 4.0)
+    if cal is not None and not min(p.rmse_px for p in passes if p.search_px == cal_radius) <= options.max_rmse_px:
+        reason = (f"the last orthophoto matches kept do not agree on one camera (RMSE "
+                  f"{passes[-1].rmse_px:.1f} px, at most {options.max_rmse_px:g} expected): the orthophoto may show "
+                  "another place, or the camera is too far off")
+        cal = None
     if cal is None:
         return OrthoRefinement(camera=camera, accepted=False, reason=reason or "no pass ran", original=camera,
                                refined=None, calibration=None, matches=matches, kept=kept, before=before,
