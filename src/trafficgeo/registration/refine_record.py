@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from trafficgeo.errors import InputError
+from trafficgeo.registration.refine import Pass
 from trafficgeo.registration.run import MATCH_COLUMNS, REFINE_FORMAT
 
 FIX = "write it again with 'trafficgeo refine --report'"
@@ -51,19 +52,6 @@ class HeldOutSummary:
     def point(self, point_id: str) -> PointError | None:
         """The point with this id, or None."""
         return next((p for p in self.points if p.id == point_id), None)
-
-
-@dataclass(frozen=True)
-class PassRecord:
-    """One match + re-fit pass: search radius (px), patches tried, matched, kept by the re-fit, their RMS
-    reprojection error (px) and how far the re-fit moved the matched points (RMS px; NaN when not known)."""
-
-    search_px: float
-    tried: int
-    matched: int
-    kept: int
-    rmse_px: float
-    moved_px: float
 
 
 @dataclass(frozen=True)
@@ -110,7 +98,7 @@ class RefineRecord:
     matches_kept: int
     before: HeldOutSummary
     after: HeldOutSummary | None
-    passes: tuple[PassRecord, ...]
+    passes: tuple[Pass, ...]
     model: tuple[str, ...] | None
     original: CameraSummary
     refined: CameraSummary | None
@@ -256,7 +244,7 @@ def read_refine_record(path: str | Path) -> RefineRecord:
     passes = []
     for k, q in enumerate(d.items(d.get(doc, "passes", "passes"), "passes")):
         at = f"passes[{k}]"
-        passes.append(PassRecord(
+        passes.append(Pass(
             search_px=d.number(d.get(q, "search_px", f"{at}.search_px"), f"{at}.search_px", allow_null=False),
             tried=d.count(d.get(q, "tried", f"{at}.tried"), f"{at}.tried"),
             matched=d.count(d.get(q, "matched", f"{at}.matched"), f"{at}.matched"),
