@@ -27,7 +27,7 @@ from trafficgeo.calibration.run import camera_extras
 from trafficgeo.calibration.validation import build_report
 from trafficgeo.camera.io import camera_to_dict, read_camera_document, write_camera_json
 from trafficgeo.camera.model import Camera
-from trafficgeo.errors import InputError
+from trafficgeo.errors import InputError, OutputError
 from trafficgeo.geo.load import load_surface
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.geo.raster import GeoRaster, read_raster
@@ -107,6 +107,36 @@ def refinement_record(result: OrthoRefinement, options: RefineOptions) -> dict[s
     }
 
 
+def write_refinement(result: OrthoRefinement, out_camera: str | Path, frame: np.ndarray, *,
+                     report_path: str | Path | None = None, options: RefineOptions | None = None,
+                     original_extras: dict[str, Any] | None = None) -> None:
+    """Write a refinement's files (see the module docstring): with ``report_path`` the report and the frame it was
+    matched on beside it, then the camera JSON ``out_camera`` last: the refined camera when accepted, else the
+    original with ``original_extras`` (the keys of its own camera JSON)."""
+    options = options or RefineOptions()
+    if report_path is not None:
+        report = Path(report_path)
+        frame_file = report.with_name(report.stem + "_frame.jpg")
+        with atomic_path(frame_file) as tmp:  # the temporary name keeps the .jpg suffix OpenCV goes by
+            if not cv2.imwrite(str(tmp), frame, [cv2.IMWRITE_JPEG_QUALITY, 92]):
+                raise OutputError(f"{frame_file}: OpenCV could not write the frame image; check the folder")
+        record = refinement_record(result, options)
+        record["frame"] = frame_file.name
+        write_json_atomic(report, record)
+    block = {"accepted": result.accepted, "reason": result.reason, "matches_kept": result.n_kept,
+             "before_rmse_m": _num(result.before.rmse_m),
+             "after_rmse_m": None if result.after is None else _num(result.after.rmse_m),
+             "report": None if report_path is None else Path(report_path).name}
+    if result.accepted and result.calibration is not None:
+        extras = camera_extras(build_report(result.calibration), result.calibration)
+        # The user's points only (their residuals under the refined camera); the automatic ones are in the report.
+        extras["gcps"] = [r for r in extras["gcps"] if not str(r["id"]).startswith(AUTO_PREFIX)]
+    else:
+        extras = dict(original_extras or {})
+    extras["refinement"] = block
+    write_camera_json(out_camera, result.camera, extras)
+
+
 def refine_camera_files(camera_path: str | Path, frame: np.ndarray, ortho: str | Path | GeoRaster,
                         surface: str | Surface, out_camera: str | Path, *, gcps: str | Path | GCPTable | None = None,
                         report_path: str | Path | None = None, options: RefineOptions | None = None,
@@ -134,25 +164,6 @@ def refine_camera_files(camera_path: str | Path, frame: np.ndarray, ortho: str |
     model = model_from_names((doc.get("model") or {}).get("free_parameters"))
     result = refine_camera(camera, table, frame, raster, ground, model=model, use=use, options=options,
                            progress=progress)
-    if report_path is not None:
-        report = Path(report_path)
-        frame_file = report.with_name(report.stem + "_frame.jpg")
-        with atomic_path(frame_file) as tmp:  # the temporary name keeps the .jpg suffix OpenCV goes by
-            if not cv2.imwrite(str(tmp), frame, [cv2.IMWRITE_JPEG_QUALITY, 92]):
-                raise InputError(f"{frame_file}: cannot write the frame image", parameters=("report_path",))
-        record = refinement_record(result, options)
-        record["frame"] = frame_file.name
-        write_json_atomic(report, record)
-    block = {"accepted": result.accepted, "reason": result.reason, "matches_kept": result.n_kept,
-             "before_rmse_m": _num(result.before.rmse_m),
-             "after_rmse_m": None if result.after is None else _num(result.after.rmse_m),
-             "report": None if report_path is None else Path(report_path).name}
-    if result.accepted and result.calibration is not None:
-        extras = camera_extras(build_report(result.calibration), result.calibration)
-        # The user's points only (their residuals under the refined camera); the automatic ones are in the report.
-        extras["gcps"] = [r for r in extras["gcps"] if not str(r["id"]).startswith(AUTO_PREFIX)]
-    else:
-        extras = {k: v for k, v in doc.items() if k not in camera_to_dict(camera) and k != "format"}
-    extras["refinement"] = block
-    write_camera_json(out_camera, result.camera, extras)
+    original = {k: v for k, v in doc.items() if k not in camera_to_dict(camera) and k != "format"}
+    write_refinement(result, out_camera, frame, report_path=report_path, options=options, original_extras=original)
     return result

@@ -26,18 +26,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
-from trafficgeo.calibration.run import camera_extras
-from trafficgeo.calibration.validation import build_report
-from trafficgeo.camera.io import write_camera_json
 from trafficgeo.errors import OutputError
 from trafficgeo.geo.raster import GeoRaster, read_raster
 from trafficgeo.geo.surface import PlaneSurface
-from trafficgeo.io.atomic import atomic_path, to_json_safe, write_json_atomic
+from trafficgeo.io.atomic import to_json_safe
 from trafficgeo.registration.refine import OrthoRefinement, RefineOptions, refine_camera
-from trafficgeo.registration.run import refinement_record
+from trafficgeo.registration.run import write_refinement
 from trafficgeo.ui import live
 from trafficgeo.ui.inputs import FrameImage, Orthophoto
 from trafficgeo.ui.session import CAMERA_SUFFIXES, ConflictError, Session, SessionError
@@ -215,20 +211,8 @@ class SessionRefiner:
             raise ConflictError("the pairs changed since the refinement; refine again before saving")
         report = path.with_name(REPORT_NAME)
         frame_file = report.with_name(report.stem + "_frame.jpg")
-        record = refinement_record(result, last.options)
-        record["frame"] = frame_file.name
-        block = {"accepted": True, "reason": result.reason, "matches_kept": result.n_kept,
-                 "before_rmse_m": _num(result.before.rmse_m),
-                 "after_rmse_m": None if result.after is None else _num(result.after.rmse_m),
-                 "report": report.name}
-        extras = camera_extras(build_report(result.calibration), result.calibration)
-        extras["refinement"] = block
         try:
-            with atomic_path(frame_file) as tmp:  # the temporary name keeps the .jpg suffix OpenCV goes by
-                if not cv2.imwrite(str(tmp), last.frame, [cv2.IMWRITE_JPEG_QUALITY, 92]):
-                    raise OSError(f"OpenCV could not write {frame_file.name}")
-            write_json_atomic(report, record)
-            write_camera_json(path, result.camera, extras)
+            write_refinement(result, path, last.frame, report_path=report, options=last.options)
         except (OSError, OutputError) as exc:
             raise SessionError(f"cannot write {path.parent} ({getattr(exc, 'strerror', None) or exc}); check the "
                                "folder's permissions or give another name") from None
