@@ -251,7 +251,7 @@ def refine_camera(camera: Camera, gcps: GCPTable, frame: np.ndarray, ortho: GeoR
     kept = np.zeros(0, dtype=bool)
     radius = options.search_px
     cell_px = options.cell_px or max(24, round(40 * camera.width / 1920))
-    cal_radius = radius
+    cal_rmse_px = float("nan")  # RMSE of the pass whose re-fit is ``cal``
     reason = ""
     for _ in range(options.max_iterations):
         settings = MatchSettings(scale=1.0, search_px=radius, patch_px=options.patch_px, cell_px=cell_px,
@@ -285,17 +285,17 @@ def refine_camera(camera: Camera, gcps: GCPTable, frame: np.ndarray, ortho: GeoR
                       "show another place, or the camera is too far off")
             cal, matches, kept = None, found, fit_kept
             break
-        current, cal, matches, kept, cal_radius = fit.camera, fit, found, fit_kept, radius
+        current, cal, matches, kept, cal_rmse_px = fit.camera, fit, found, fit_kept, passes[-1].rmse_px
         if moved < options.converged_px and radius <= options.final_search_px:
             break
         if len(passes) == options.max_iterations:
             reason = (f"not converged after {len(passes)} passes: the last moved the camera by {moved:.2f} px "
                       f"(converged below {options.converged_px:g})")
         radius = max(options.final_search_px, radius / 4.0)
-    if cal is not None and not min(p.rmse_px for p in passes if p.search_px == cal_radius) <= options.max_rmse_px:
-        reason = (f"the last orthophoto matches kept do not agree on one camera (RMSE "
-                  f"{passes[-1].rmse_px:.1f} px, at most {options.max_rmse_px:g} expected): the orthophoto may show "
-                  "another place, or the camera is too far off")
+    if cal is not None and not cal_rmse_px <= options.max_rmse_px:  # the loop ended before a fine pass
+        reason = (f"the orthophoto matches of the last re-fit do not agree on one camera (RMSE {cal_rmse_px:.1f} "
+                  f"px, at most {options.max_rmse_px:g} expected): the orthophoto may show another place, or the "
+                  "camera is too far off")
         cal = None
     if cal is None:
         return OrthoRefinement(camera=camera, accepted=False, reason=reason or "no pass ran", original=camera,
