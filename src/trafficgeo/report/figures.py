@@ -64,6 +64,15 @@ class Background:
     bounds: tuple[float, float, float, float]
 
 
+
+def frame_axes(ax, w: int, h: int) -> None:
+    """Axes in frame pixels (u right, v down; pixel (0, 0) centred on the top-left pixel), equal aspect, labelled."""
+    ax.set_xlim(-0.5, w - 0.5)
+    ax.set_ylim(h - 0.5, -0.5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("u (px)")
+    ax.set_ylabel("v (px)")
+
 def new_figure(width_in: float, height_in: float, nrows: int = 1, ncols: int = 1,
                **subplot_kw: Any) -> tuple[Any, np.ndarray]:
     """A figure on its own Agg canvas (the backend is chosen here, per figure) and its (nrows, ncols) axes."""
@@ -165,11 +174,7 @@ def residuals_on_frame(gcps: pd.DataFrame, image_size: tuple[int, int], image: n
         for name, x, y in zip(gcps["id"].astype(str), u, v, strict=True):
             ax.annotate(name, (x, y), xytext=(4, 4), textcoords="offset points", fontsize=6, color="white",
                         bbox={"facecolor": "black", "alpha": 0.45, "lw": 0, "pad": 0.8}, zorder=5)
-    ax.set_xlim(-0.5, w - 0.5)
-    ax.set_ylim(h - 0.5, -0.5)
-    ax.set_aspect("equal")
-    ax.set_xlabel("u (px)")
-    ax.set_ylabel("v (px)")
+    frame_axes(ax, w, h)
     ax.set_title(f"GCP residuals in the frame ({w}x{h} px): arrows x{scale:g}, from the clicked pixel towards the "
                  "projected survey point", fontsize=9)
     ax.legend(loc="lower right", fontsize=7, framealpha=0.8)

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from trafficgeo.report.figures import _rectangle, new_figure
+from trafficgeo.report.figures import _rectangle, frame_axes, new_figure
 
 KEPT_COLOUR = "#1a9850"  # the green of the calibration figures' inliers
 REJECTED_COLOUR = "#d73027"  # and the red of their outliers
@@ -49,11 +49,7 @@ def matches_on_frame(pixels: np.ndarray, predicted: np.ndarray, kept: np.ndarray
         dots = ax.scatter(found[sel, 0], found[sel, 1], s=12, c=colour, edgecolors="black", linewidths=0.3,
                           label=f"{label} ({int(sel.sum())})", zorder=4)
         dots.set_gid(f"refine-{name}")
-    ax.set_xlim(-0.5, w - 0.5)
-    ax.set_ylim(h - 0.5, -0.5)
-    ax.set_aspect("equal")
-    ax.set_xlabel("u (px)")
-    ax.set_ylabel("v (px)")
+    frame_axes(ax, w, h)
     ax.set_title(f"Orthophoto matches in the frame ({w}x{h} px): lines from the predicted to the found position, "
                  f"x{factor:g}", fontsize=9)
     ax.legend(loc="lower right", fontsize=7, framealpha=0.8)
