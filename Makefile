@@ -2,11 +2,12 @@
 #   make demo   -> create .venv, install trafficgeo, run the demo on a generated scene with known truth
 #   make test   -> create .venv, install trafficgeo with test tools, run ruff and the test suite
 #   make test-fast -> ruff and the tests not marked slow (under a minute; no browser needed)
+#   make test-other-simd -> the reference tests again under another SIMD dispatch (part of make test)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 
-.PHONY: demo test test-fast lint bench clean
+.PHONY: demo test test-fast test-other-simd lint bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -30,8 +31,21 @@ $(CHROMIUM):
 	$(SUDO) apt-get install -y --no-install-recommends chromium || \
 	  ($(SUDO) apt-get update && $(SUDO) apt-get install -y --no-install-recommends chromium)
 
+# The reference tests (marked `reference`: they compare with outputs stored in tests/data) run a second time under
+# another SIMD dispatch: numpy without its AVX2/AVX-512 paths, OpenCV without AVX/AVX2/AVX-512, OpenBLAS's Nehalem
+# (SSE4.2) kernels. A comparison that holds only on the CPU it was written on fails here too (tests/reference_values.py).
+ifeq ($(shell uname -m),x86_64)
+OTHER_SIMD ?= NPY_DISABLE_CPU_FEATURES="X86_V3 X86_V4 AVX512_ICL AVX512_SPR" \
+	OPENCV_CPU_DISABLE="AVX512-SKX,AVX2,FMA3,FP16,AVX" OPENBLAS_CORETYPE=Nehalem
+endif
+
 test: $(VENV)/.installed lint $(CHROMIUM)
 	TRAFFICGEO_CHROMIUM=$(CHROMIUM) $(BIN)/python -m pytest -q
+	$(MAKE) --no-print-directory test-other-simd
+
+test-other-simd: $(VENV)/.installed
+	@echo 'reference tests under another SIMD dispatch: $(or $(OTHER_SIMD),none on this CPU)'
+	$(OTHER_SIMD) $(BIN)/python -m pytest -q -m reference
 
 test-fast: $(VENV)/.installed lint
 	$(BIN)/python -m pytest -q -m "not slow"
