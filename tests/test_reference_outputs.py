@@ -9,7 +9,7 @@ Compared by what they mean, never by their bytes (see tests/reference_values.py)
 machine, and its files are checked by their content (``input_meaning``). When the video decodes to the very pixels
 of the reference, every number must agree to :data:`SAME_PIXELS` (measured: 4e-9 under another SIMD dispatch);
 when its pixels differ a little (a renderer on another CPU), a detection may come or go and only what a user reads
-must agree: :func:`_same_counts`.
+must agree (``assert_what_a_user_reads``).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from reference_values import TRAFFIC, assert_csv_close, assert_json_close
+from reference_values import TRAFFIC, assert_csv_close, assert_json_close, assert_what_a_user_reads
 
 pytestmark = [pytest.mark.slow, pytest.mark.reference]
 
@@ -53,7 +53,7 @@ def test_process_stitch_and_compare_write_what_the_release_before_the_api_wrote(
         for name in names:
             new_path, old_path = tmp_path / run / name, REF / "pipeline" / run / name
             if not same_pixels:
-                _same_counts(new_path, old_path, f"{run}/{name}")
+                assert_what_a_user_reads(new_path, old_path, f"{run}/{name}")
             elif name.endswith(".csv"):
                 assert_csv_close(new_path, old_path, f"{run}/{name}", SAME_PIXELS)
             else:
@@ -69,20 +69,3 @@ def test_process_stitch_and_compare_write_what_the_release_before_the_api_wrote(
     assert abs(stitched - whole) <= 1, (stitched, whole)
     assert len(pd.read_csv(REF / "pipeline" / "compare" / "compare_counts.csv")) >= 2
 
-
-def _same_counts(new_path: Path, old_path: Path, name: str) -> None:
-    """What a user reads of a run whose video has other pixels: the same number of rows within 1 (+-1 vehicle,
-    crossing, track or count row; detections within 2 %), and the numbers of every row whose keys match within
-    their meaning (counts exact, speeds 1 km/h, times 0.1 s, positions 0.5 m)."""
-    if not name.endswith(".csv"):
-        new, old = json.loads(new_path.read_text()), json.loads(old_path.read_text())
-        assert set(new) == set(old), f"{name}: keys {sorted(new)} != {sorted(old)}"
-        return
-    new, old = pd.read_csv(new_path), pd.read_csv(old_path)
-    assert list(new.columns) == list(old.columns), name
-    slack = max(1, round(0.02 * len(old))) if name.endswith("detections.csv") else 1
-    assert abs(len(new) - len(old)) <= slack, f"{name}: {len(new)} rows != {len(old)} (+-{slack})"
-    if name.endswith("counts.csv"):
-        keys = [c for c in ("line", "lane", "direction", "interval_start") if c in old.columns]
-        both = new.merge(old, on=keys, suffixes=("", "_ref"))
-        assert (both["count"] - both["count_ref"]).abs().sum() <= 1, f"{name}: counts differ by more than 1"
