@@ -265,7 +265,8 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "lanes": "--lanes", "lines": "--lines", "net": "--net", "net_crs": "--net-crs", "routes": "--routes",
          "begin_s": "--begin", "seed": "--seed", "scenario": "SCENARIO",
          "n_frames": "--frames", "duration_s": "--duration", "search_px": "--search",
-         "report_path": "--report", "refine_report": "--refine-report", "origin": "--origin"}
+         "report_path": "--report", "refine_report": "--refine-report", "origin": "--origin",
+         "world_file": "--world-file", "control": "--corners"}
 
 
 def main(argv: list[str] | None = None) -> Any:
