@@ -139,3 +139,23 @@ def test_import_camera_writes_the_camera_json(tmp_path: Path) -> None:
     code, _out, stderr = invoke("import-camera", tmp_path / "pose.yml", "-o", tmp_path / "c2.json",
                                 "--origin", "49.2,16.6")
     assert code == 2 and "--origin" in stderr and "lat,lon,alt" in stderr
+
+
+def test_a_hand_written_json_pose_at_a_geodetic_origin(tmp_path: Path) -> None:
+    # a camera 30 m south of the origin, 10 m up, looking level towards true north (the local frame's y axis)
+    doc = {"image_width": 1280, "image_height": 720, "K": [[1000, 0, 639.5], [0, 1000, 359.5], [0, 0, 1]],
+           "dist": [-0.1, 0.01, 0, 0], "R": [[1, 0, 0], [0, 0, -1], [0, 1, 0]], "t": [0, 10, 30],
+           "origin": [LAT0, LON0, ALT0], "frame": "enu", "crs": UTM}
+    (tmp_path / "pose.json").write_text(json.dumps(doc))
+    cam = read_pose_file(tmp_path / "pose.json")
+    np.testing.assert_array_equal(cam.dist, [-0.1, 0.01, 0.0, 0.0, 0.0])  # 'dist', 4 values: k3 = 0
+    back = pyproj.Transformer.from_pipeline(
+        "+proj=pipeline +step +inv +proj=topocentric +ellps=WGS84 "
+        f"+lat_0={LAT0} +lon_0={LON0} +h_0={ALT0} +step +inv +proj=cart +ellps=WGS84 "
+        "+step +proj=utm +zone=33 +ellps=WGS84")
+    truth = np.array(back.transform(0.0, -30.0, 10.0))
+    np.testing.assert_allclose(cam.position, truth, atol=1e-6)  # m: the centre is transformed exactly
+    # it looks at true north, which in the grid is the meridian convergence away from grid north
+    conv = pyproj.Proj(UTM).get_factors(LON0, LAT0).meridian_convergence  # deg, grid north -> true north
+    o = cam.orientation
+    assert abs(((o.heading_deg + conv + 180) % 360) - 180) < 0.01 and abs(o.tilt_deg) < 0.01
