@@ -117,6 +117,7 @@ def _pose_text(**keys: str) -> str:
     ({"origin": "[249.2, 16.6, 250.]"}, {"crs": UTM}, "latitude must be within"),
     ({"frame": "xyz", "origin": "[49.2, 16.6, 250.]"}, {"crs": UTM}, "'enu' (east-north-up) or 'ned'"),
     ({"camera_matrix": ""}, {}, "no camera matrix"),
+    ({}, {"crs": "EPSG:4326"}, "must be a projected CRS"),
 ])
 def test_bad_pose_files_raise_one_line(tmp_path: Path, keys: dict, kwargs: dict, needle: str) -> None:
     path = tmp_path / "pose.yml"

@@ -127,6 +127,10 @@ def camera_from_pose(image_size: tuple[int, int], K: object, dist: object, R: ob
         raise InputError(f"frame '{frame}': the local frame is 'enu' (east-north-up) or 'ned' (north-east-down)",
                          parameters=("frame",))
     if origin is None:
+        if crs is not None and is_geographic(parse_crs(crs)):
+            raise InputError("`crs`: the pose's world frame must be a projected CRS (metres or feet), not "
+                             "longitude/latitude; for a local frame at a geodetic point give `origin`",
+                             parameters=("crs", "origin"))
         return Camera(image_size=image_size, K=K, dist=dist, R=Rm, position=-Rm.T @ tv, crs=crs)
     target = parse_crs(crs) if crs is not None else None
     if target is None or is_geographic(target):
