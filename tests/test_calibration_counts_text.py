@@ -9,7 +9,7 @@ import io
 import numpy as np
 from rich.console import Console
 
-from trafficgeo.calibration import build_report, calibrate
+from trafficgeo.calibration import Calibration, build_report, calibrate
 from trafficgeo.calibration.pipeline import CalibrationOptions, _base_model, _choose_model, fit_camera
 from trafficgeo.report.terminal import print_calibration_report
 from trafficgeo.synth import make_gcp_scene
@@ -41,14 +41,14 @@ def test_a_count_taken_before_readmission_says_so() -> None:
     options = CalibrationOptions()
     cal = calibrate(gcps, (1280, 720))  # a good start for the fit on the seven
     base = _base_model(options)
-    start = fit_camera(loc, pix, sig, _start_for(cal, loc, gcps.world[ctrl].mean(axis=0)), base)
+    start = fit_camera(loc, pix, sig, _start_for(cal, gcps.world[ctrl].mean(axis=0)), base)
     _fit, model = _choose_model(base, start, loc, pix, sig, (1280, 720), options, n_control=8)
     why = [r for r in model.reasons if r.startswith("k1 not estimated")]
     assert why == ["k1 not estimated: only 7 of the 8 control points agreed on one camera when the lens model was "
                    "chosen (needs 8); points readmitted after that count in the final fit, not here"]
 
 
-def _start_for(cal, loc: np.ndarray, origin: np.ndarray) -> np.ndarray:
+def _start_for(cal: Calibration, origin: np.ndarray) -> np.ndarray:
     """The calibration's parameter vector with its pose moved to the origin ``origin``."""
     full = cal.fit.full.copy()
     R = cal.camera.R
