@@ -337,9 +337,16 @@ def _consensus(fit: Fit, loc: np.ndarray, pix: np.ndarray, sig: np.ndarray, opti
 
 
 def _choose_model(base: ParameterModel, fit: Fit, loc: np.ndarray, pix: np.ndarray, sig: np.ndarray,
-                  image_size: tuple[int, int], options: CalibrationOptions) -> tuple[Fit, ParameterModel]:
-    """Pick the distortion terms (and principal point) the data support; returns the fit and its model."""
+                  image_size: tuple[int, int], options: CalibrationOptions,
+                  n_control: int | None = None) -> tuple[Fit, ParameterModel]:
+    """Pick the distortion terms (and principal point) the data support; returns the fit and its model.
+
+    ``loc``/``pix``/``sig`` are the control points the consensus kept, chosen before data snooping and the
+    readmission of excluded points, so their number can differ from the final fit's; ``n_control`` (all control
+    points) lets the reasons say which count they mean.
+    """
     n = loc.shape[0]
+    n_control = n if n_control is None else n_control
     reasons: list[str] = []
     if options.fix_intrinsics:
         reasons.append("intrinsics fixed from the given file; only the pose is estimated")
@@ -370,7 +377,7 @@ def _choose_model(base: ParameterModel, fit: Fit, loc: np.ndarray, pix: np.ndarr
     current, current_loo = fit, _linear_loo_rmse(fit, sig)
     for term, min_points, min_cov in ladder:
         if n < min_points or coverage < min_cov:
-            why = f"{n} inlier GCPs (needs {min_points})" if n < min_points else (
+            why = _too_few_points(n, n_control, min_points) if n < min_points else (
                 f"GCPs reach {coverage:.0%} of the corner radius (needs {min_cov:.0%})")
             reasons.append(f"{term} not estimated: {why}")
             break
@@ -399,6 +406,14 @@ def _choose_model(base: ParameterModel, fit: Fit, loc: np.ndarray, pix: np.ndarr
     reasons.append("tangential terms p1, p2 and k3 not estimated (rarely supported by GCPs; use --distortion)")
     final_model = ParameterModel(current.model.focal, pp_free, current.model.free_dist, tuple(reasons))
     return current, final_model
+
+
+def _too_few_points(n: int, n_control: int, min_points: int) -> str:
+    """Why a distortion term was not tried: the count of control points the lens model was chosen on."""
+    if n == n_control:
+        return f"{n} control points (needs {min_points})"
+    return (f"only {n} of the {n_control} control points agreed on one camera when the lens model was chosen "
+            f"(needs {min_points}); points readmitted after that count in the final fit, not here")
 
 
 def outlier_test(d2: float, s2: float, dof: int, confidence: float) -> tuple[float, float]:
@@ -498,7 +513,7 @@ def calibrate(gcps: GCPTable, image_size: tuple[int, int], options: CalibrationO
                                f"{required_points(options)}): re-check the GCP pairs, most do not fit together")
 
     fit = fit_camera(loc[mask], pix[mask], sig[mask], robust.full, base, focal_bounds=robust.focal_bounds)
-    fit, model = _choose_model(base, fit, loc[mask], pix[mask], sig[mask], image_size, options)
+    fit, model = _choose_model(base, fit, loc[mask], pix[mask], sig[mask], image_size, options, len(ctrl))
     fit = dataclasses.replace(fit, model=model)
 
     fit, mask, removed = _snoop(fit, loc, pix, sig, mask, options)

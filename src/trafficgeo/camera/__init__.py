@@ -4,16 +4,20 @@ from trafficgeo.camera.distortion import distort_normalized, undistort_normalize
 from trafficgeo.camera.io import camera_to_dict, read_camera_document, read_camera_json, write_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.camera.orientation import Orientation, orientation_from_rotation, rotation_from_orientation
+from trafficgeo.camera.pose_file import camera_from_pose, read_pose_file, write_pose_file
 
 __all__ = [
     "Camera",
     "Orientation",
+    "camera_from_pose",
     "camera_to_dict",
     "distort_normalized",
     "orientation_from_rotation",
     "read_camera_document",
     "read_camera_json",
+    "read_pose_file",
     "rotation_from_orientation",
     "undistort_normalized",
     "write_camera_json",
+    "write_pose_file",
 ]

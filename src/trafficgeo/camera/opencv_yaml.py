@@ -3,7 +3,7 @@
 Reading accepts the key names in common use (first found wins):
 
     camera matrix   camera_matrix, cameraMatrix, K, M, M1
-    distortion      distortion_coefficients, dist_coeffs, distCoeffs, D, D1     (optional; missing -> zeros)
+    distortion      distortion_coefficients, dist_coeffs, distCoeffs, dist, D, D1  (optional; missing -> zeros)
     image size      image_width + image_height, or image_size / imageSize / resolution = [W, H]   (optional)
     reprojection    avg_reprojection_error, rms, reprojection_error                                (optional)
 
@@ -32,7 +32,7 @@ from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_path
 
 CAMERA_MATRIX_KEYS = ("camera_matrix", "cameraMatrix", "K", "M", "M1")
-DISTORTION_KEYS = ("distortion_coefficients", "dist_coeffs", "distCoeffs", "D", "D1")
+DISTORTION_KEYS = ("distortion_coefficients", "dist_coeffs", "distCoeffs", "dist", "D", "D1")
 IMAGE_SIZE_KEYS = ("image_size", "imageSize", "resolution")
 RMS_KEYS = ("avg_reprojection_error", "rms", "reprojection_error")
 # distortion_model values (ROS camera_info) that mean the OpenCV 5-term model

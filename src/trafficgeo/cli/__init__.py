@@ -174,6 +174,45 @@ def intrinsics(
     console.print(f"wrote {output}")
 
 
+def _parse_origin(text: str) -> tuple[float, float, float]:
+    """'49.2,16.6,250' -> (lat, lon, alt)."""
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        lat, lon, alt = (float(p) for p in parts)
+    except ValueError:
+        raise InputError(f"--origin '{text}' is not lat,lon,alt (degrees, degrees, metres); e.g. --origin "
+                         "49.2,16.6,250") from None
+    return lat, lon, alt
+
+
+@app.command("import-camera")
+def import_camera(
+    pose: Annotated[Path, typer.Argument(help="OpenCV pose file (.yml/.json): camera_matrix, dist_coeffs, R or "
+                                         "rvec, t (x_cam = R X + t), image_width/height")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="camera JSON to write")],
+    crs: Annotated[str | None, typer.Option(help="CRS of the pose's world frame, or the target CRS with --origin "
+                                            "(default: the file's 'crs' key)")] = None,
+    origin: Annotated[str | None, typer.Option(help="geodetic origin lat,lon,alt (deg, deg, m) of a local frame "
+                                               "(default: the file's origin_lat/lon/alt)")] = None,
+    frame: Annotated[str | None, typer.Option(help="axes of the local frame at --origin: enu | ned")] = None,
+    image_size: Annotated[str | None, typer.Option("--image-size", help="WIDTHxHEIGHT when the file has none")]
+        = None,
+) -> None:
+    """A camera JSON from a calibration made elsewhere (no GCPs): an OpenCV pose in a CRS or at a geodetic origin."""
+    from trafficgeo.camera.io import write_camera_json
+    from trafficgeo.camera.pose_file import read_pose_file
+
+    size = parse_image_size(image_size) if image_size is not None else None
+    cam = read_pose_file(pose, crs=crs, origin=_parse_origin(origin) if origin is not None else None, frame=frame,
+                         image_size=size)
+    write_camera_json(output, cam)
+    o, pos = cam.orientation, cam.position
+    console.print(f"camera {cam.width}x{cam.height} px, focal {cam.focal_px:.1f} px, at X {pos[0]:.3f} Y "
+                  f"{pos[1]:.3f} Z {pos[2]:.3f} ({cam.crs_text or 'local coordinates'}); heading "
+                  f"{o.heading_deg:.2f}, tilt {o.tilt_deg:.2f}, roll {o.roll_deg:.2f} deg")
+    console.print(f"wrote {output}")
+
+
 @app.command()
 def demo(
     out: Annotated[Path, typer.Option(help="folder for the demo's files (the world is cached in OUT/world)")] =
@@ -226,7 +265,8 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "lanes": "--lanes", "lines": "--lines", "net": "--net", "net_crs": "--net-crs", "routes": "--routes",
          "begin_s": "--begin", "seed": "--seed", "scenario": "SCENARIO",
          "n_frames": "--frames", "duration_s": "--duration", "search_px": "--search",
-         "report_path": "--report", "refine_report": "--refine-report"}
+         "report_path": "--report", "refine_report": "--refine-report", "origin": "--origin",
+         "world_file": "--world-file", "control": "--corners"}
 
 
 def main(argv: list[str] | None = None) -> Any:

@@ -243,3 +243,29 @@ def _m2(grid) -> float:
 
     m = metres_per_unit(grid.crs) if grid.crs is not None else 1.0
     return m * m
+
+
+@app.command("ortho-from-image")
+def ortho_from_image(
+    image: Annotated[Path, typer.Argument(help="georeferenced image that is not a GeoTIFF (PNG, JPEG, ...)")],
+    crs: Annotated[str, typer.Option(help="projected CRS of the map coordinates, e.g. EPSG:32633")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="orthophoto GeoTIFF to write")],
+    world_file: Annotated[Path | None, typer.Option(help="world file (.pgw/.jgw/.wld: six lines, parameters of the "
+                                                    "top-left pixel's centre); default: the one beside IMAGE")] = None,
+    corners: Annotated[Path | None, typer.Option(help="control-point CSV instead: u,v,x,y (pixel centres on integers) "
+                                                 "or corner,x,y (top-left, top-right, bottom-right, bottom-left); 3 "
+                                                 "or more, fitted by least squares")] = None,
+) -> None:
+    """Turn a georeferenced image (world file or 3+ control points, and a CRS) into an orthophoto GeoTIFF."""
+    from trafficgeo.geo.image_ortho import image_corners, image_to_geotiff
+
+    if output.suffix.lower() not in (".tif", ".tiff"):
+        raise InputError(f"--output {output}: write the orthophoto as a GeoTIFF (.tif)")
+    raster, fit = image_to_geotiff(image, output, crs, world_file=world_file, control=corners)
+    res = raster.resolution
+    console.print(f"{raster.cols}x{raster.rows} px, {raster.count} band(s), pixel {res[0]:.4g} x {res[1]:.4g} CRS "
+                  f"units, top-left corner at {image_corners(raster)[0][0]:.3f}, {image_corners(raster)[0][1]:.3f}")
+    if fit is not None:
+        console.print(f"affine fitted to {fit.n_points} control points: RMS {fit.rmse:.3f}, max {fit.max_error:.3f} "
+                      "CRS units" + (" (3 points: an exact fit, nothing checks it)" if fit.n_points == 3 else ""))
+    console.print(f"wrote {output}")

@@ -50,10 +50,10 @@ def print_calibration_report(report: CalibrationReport, console: Console | None 
     con.print(t)
 
     s = report.stats
-    con.print(f"[bold]Fit[/bold]: {s.n_inliers} of {s.n_control} control points; mean {s.mean_px:.2f} px, "
-              f"RMSE {s.rmse_px:.2f} px, max {s.max_px:.2f} px; leave-one-out RMSE {s.loo_rmse_px:.2f} px "
-              f"= {s.loo_ground_rmse_m:.3f} m on the ground; redundancy {s.redundancy}; "
-              f"sigma0 {s.sigma0:.2f}")
+    con.print(f"[bold]Fit[/bold]: {s.n_inliers} of {s.n_control} control points kept in the final fit; "
+              f"mean {s.mean_px:.2f} px, RMSE {s.rmse_px:.2f} px, max {s.max_px:.2f} px; "
+              f"leave-one-out RMSE {s.loo_rmse_px:.2f} px = {s.loo_ground_rmse_m:.3f} m on the ground; "
+              f"redundancy {s.redundancy}; sigma0 {s.sigma0:.2f}")
     c = report.check
     if c.n:
         con.print(f"[bold]Check points[/bold] ({c.n}, not used in the fit): RMSE {c.rmse_px:.2f} px, ground "

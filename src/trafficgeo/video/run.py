@@ -175,7 +175,7 @@ def process_video(video: PathLike, camera: Camera | PathLike, surface: Surface |
             from trafficgeo.video.annotate import annotate_video
 
             annotate_video(video, annotate, tracks, result.points, camera=cam, lines=count_lines, surface=surf,
-                           progress=annotate_progress)
+                           start_s=opts.start_s, end_s=opts.end_s, progress=annotate_progress)
         write_run_info(out, video=str(video), camera=str(camera) if doc is not None else "", options=opts,
                        seconds=elapsed, detections=len(detections), track_rows=len(tracks), read=read_doc,
                        detector=detector_doc or None)

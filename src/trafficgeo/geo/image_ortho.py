@@ -1,0 +1,189 @@
+"""An orthophoto from a georeferenced image that is not a GeoTIFF: a PNG/JPG (any GDAL-readable image) with a world
+file, or with three or more control points (pixel -> map), and a CRS given by the user.
+
+World files (``.pgw``, ``.jgw``, ``.wld``, ...) are six lines ``A, D, B, E, C, F``: ``x = A col + B row + C`` and
+``y = D col + E row + F``, where ``(col, row)`` are pixel *centres* on integers, so ``(C, F)`` is the centre of the
+top-left pixel, not its corner (a half-pixel shift if read the other way). They carry no CRS: give it.
+
+Control points (a CSV, :func:`read_control_points`) tie image positions to map coordinates: columns ``u, v`` (pixels,
+``(0, 0)`` the centre of the top-left pixel, as everywhere in trafficgeo) or ``corner`` (``top-left``, ``top-right``,
+``bottom-right``, ``bottom-left``: the outer corners of the image), and ``x, y`` in the CRS. The pixel -> map affine
+(six parameters) is their least-squares fit; with more than three points its RMS residual tells how well an affine
+describes the image (a photo that is not an orthophoto, or points mistyped, show as metres).
+
+Everything ends as a :class:`~trafficgeo.geo.raster.GeoRaster` (corner-convention transform) that
+:func:`~trafficgeo.geo.raster.write_geotiff` writes, so every command that takes an orthophoto GeoTIFF takes it.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import rasterio
+from affine import Affine
+from rasterio.errors import NotGeoreferencedWarning, RasterioError
+
+from trafficgeo.crs import is_geographic, parse_crs
+from trafficgeo.errors import InputError
+from trafficgeo.geo.raster import GeoRaster, _read_world_file, _world_file_candidates, pixel_to_map, write_geotiff
+
+CORNER_NAMES = ("top-left", "top-right", "bottom-right", "bottom-left")
+
+
+@dataclass(frozen=True)
+class ControlFit:
+    """The pixel -> map affine fitted to control points.
+
+    Attributes:
+        transform: corner-convention ``(col, row)`` -> ``(x, y)`` (rasterio's), CRS units.
+        n_points: control points used.
+        rmse: RMS distance (CRS units) between the points' map coordinates and the fitted affine's; 0 for 3 points.
+        max_error: the largest of those distances (CRS units).
+    """
+
+    transform: Affine
+    n_points: int
+    rmse: float
+    max_error: float
+
+
+def fit_affine(pixels: object, world: object) -> ControlFit:
+    """Least-squares affine from ``pixels`` (N, 2: u, v with pixel centres on integers) to ``world`` (N, 2, CRS units).
+
+    Raises:
+        InputError: fewer than 3 points, or points on one line in the image (no unique affine).
+    """
+    uv = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    xy = np.asarray(world, dtype=np.float64).reshape(-1, 2)
+    n = uv.shape[0]
+    if n < 3 or xy.shape[0] != n:
+        raise InputError(f"control: {n} control points; give at least 3 (not on one line) with pixel and map "
+                         "coordinates", parameters=("control",))
+    if not (np.all(np.isfinite(uv)) and np.all(np.isfinite(xy))):
+        raise InputError("control: a control point has a missing or non-finite coordinate; fix the table",
+                         parameters=("control",))
+    origin = xy.mean(axis=0)  # map coordinates of 5e6 keep their precision
+    corner = uv + 0.5  # pixel centres -> rasterio's corner convention
+    design = np.column_stack([corner, np.ones(n)])
+    spread = np.linalg.svd(corner - corner.mean(axis=0), compute_uv=False)
+    if spread[-1] <= 1e-6 * max(spread[0], 1.0):
+        raise InputError("control: the control points lie on one line in the image; add a point off that line",
+                         parameters=("control",))
+    coef, *_ = np.linalg.lstsq(design, xy - origin, rcond=None)
+    (a, d), (b, e), (c, f) = coef
+    transform = Affine(a, b, c + origin[0], d, e, f + origin[1])
+    residual = np.linalg.norm(design @ coef - (xy - origin), axis=1)
+    return ControlFit(transform, n, float(np.sqrt(np.mean(residual ** 2))), float(residual.max()))
+
+
+def read_control_points(path: str | os.PathLike[str], image_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels (N, 2) and map coordinates (N, 2) from a control-point CSV (see the module docstring).
+
+    ``image_size`` (width, height) [px] places the named corners: top-left is pixel (-0.5, -0.5), bottom-right
+    (W - 0.5, H - 0.5).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"control {p}: file not found; give a CSV with u,v,x,y (or corner,x,y) columns",
+                         parameters=("control",))
+    with p.open(newline="", encoding="utf-8-sig") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows:
+        raise InputError(f"control {p}: no rows; give a CSV with u,v,x,y (or corner,x,y) columns",
+                         parameters=("control",))
+    cols = {k.strip().lower(): k for k in rows[0] if k is not None}
+    has_uv, has_corner = {"u", "v"} <= set(cols), "corner" in cols
+    if not ({"x", "y"} <= set(cols)) or not (has_uv or has_corner):
+        raise InputError(f"control {p}: columns {', '.join(cols)}; need x, y and either u, v (pixels) or corner "
+                         f"({', '.join(CORNER_NAMES)})", parameters=("control",))
+    w, h = image_size
+    places = {"top-left": (-0.5, -0.5), "top-right": (w - 0.5, -0.5), "bottom-right": (w - 0.5, h - 0.5),
+              "bottom-left": (-0.5, h - 0.5)}
+    uv, xy = [], []
+    for i, row in enumerate(rows, start=2):
+        try:
+            name = (row.get(cols["corner"]) or "").strip().lower() if has_corner else ""
+            if name:
+                if name not in places:
+                    raise InputError(f"control {p}, line {i}: corner '{name}' is not one of "
+                                     f"{', '.join(CORNER_NAMES)}", parameters=("control",))
+                uv.append(places[name])
+            else:
+                if not has_uv:
+                    raise ValueError
+                uv.append((float(row[cols["u"]]), float(row[cols["v"]])))
+            xy.append((float(row[cols["x"]]), float(row[cols["y"]])))
+        except (TypeError, ValueError):
+            raise InputError(f"control {p}, line {i}: needs numbers in u, v (or a corner name) and x, y",
+                             parameters=("control",)) from None
+    return np.array(uv, dtype=np.float64), np.array(xy, dtype=np.float64)
+
+
+def read_image_ortho(image: str | os.PathLike[str], crs: object, *, world_file: str | os.PathLike[str] | None = None,
+                     control: str | os.PathLike[str] | None = None) -> tuple[GeoRaster, ControlFit | None]:
+    """The orthophoto of ``image`` in the projected ``crs``: georeferenced by ``world_file``, or by the control-point
+    CSV ``control``, or else by a world file beside it (``.pgw`` for ``.png``, ``.jgw`` for ``.jpg``, ``.wld``).
+
+    Returns the raster and, for control points, the fit (with its residuals).
+
+    Raises:
+        InputError: no such image or not an image GDAL reads, no CRS or a geographic one, both ``world_file`` and
+            ``control``, no georeferencing, bad world file or control points.
+    """
+    p = Path(image)
+    target = parse_crs(crs) if crs is not None else None
+    if target is None or is_geographic(target):
+        raise InputError(f"`crs`: {p} needs a projected CRS for its map coordinates, e.g. EPSG:32633 (world files "
+                         "and control points carry none)", parameters=("crs",))
+    if world_file is not None and control is not None:
+        raise InputError("give the world file or the control points, not both", parameters=("world_file", "control"))
+    if not p.is_file():
+        raise InputError(f"image {p}: file not found; check the path")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(p) as ds:
+                data = ds.read()
+                nodata = ds.nodata
+    except RasterioError as exc:
+        raise InputError(f"image {p} is not an image GDAL can read ({' '.join(str(exc).split())[:100]}); give a "
+                         "PNG, JPEG or TIFF") from None
+    fit = None
+    if control is not None:
+        uv, xy = read_control_points(control, (data.shape[2], data.shape[1]))
+        fit = fit_affine(uv, xy)
+        transform = fit.transform
+    elif world_file is not None:
+        wf = Path(world_file)
+        if not wf.is_file():
+            raise InputError(f"world_file {wf}: file not found; check the path", parameters=("world_file",))
+        transform = _read_world_file(wf)
+    else:
+        found = _world_file_candidates(p)
+        if not found:
+            raise InputError(f"image {p}: no world file beside it ({p.with_suffix('.wld').name} or the like); give "
+                             "`world_file` or control points (`control`)", parameters=("world_file", "control"))
+        transform = _read_world_file(found[0])
+    return GeoRaster(data, transform, target, nodata, (), str(p)), fit
+
+
+def image_to_geotiff(image: str | os.PathLike[str], output: str | os.PathLike[str], crs: object, *,
+                     world_file: str | os.PathLike[str] | None = None,
+                     control: str | os.PathLike[str] | None = None) -> tuple[GeoRaster, ControlFit | None]:
+    """Write the orthophoto of :func:`read_image_ortho` as a GeoTIFF at ``output`` (atomically); returns the same."""
+    raster, fit = read_image_ortho(image, crs, world_file=world_file, control=control)
+    write_geotiff(output, raster.data, raster.transform, raster.crs, nodata=raster.nodata)
+    return raster, fit
+
+
+def image_corners(raster: GeoRaster) -> np.ndarray:
+    """Map coordinates (4, 2) of the outer corners of ``raster``: top-left, top-right, bottom-right, bottom-left."""
+    cols = np.array([0.0, raster.cols, raster.cols, 0.0])
+    rows = np.array([0.0, 0.0, raster.rows, raster.rows])
+    x, y = pixel_to_map(raster.transform, cols, rows)
+    return np.column_stack([x, y])

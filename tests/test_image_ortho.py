@@ -1,0 +1,131 @@
+"""An orthophoto from a georeferenced image that is not a GeoTIFF (issue 29, part 4): a PNG/JPG with a world file
+(parameters of the top-left pixel's centre) or 3+ control points, and a CRS; compared with a GeoTIFF of the same
+data."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from affine import Affine
+
+from cli_support import invoke
+from trafficgeo.errors import InputError
+from trafficgeo.geo.image_ortho import fit_affine, image_to_geotiff, read_image_ortho
+from trafficgeo.geo.raster import pixel_to_map, read_raster, write_geotiff
+
+CRS = "EPSG:2949"
+# 0.1 m pixels, rotated 10 degrees, top-left corner at large coordinates (5e6: precision matters)
+_ROT = Affine.rotation(-10.0)
+TRUTH = Affine.translation(245010.0, 5182620.0) @ _ROT @ Affine.scale(0.1, -0.1)
+
+
+def _data(rows: int = 60, cols: int = 80) -> np.ndarray:
+    rng = np.random.default_rng(4)
+    return rng.integers(0, 256, (3, rows, cols), dtype=np.uint8)
+
+
+def _write_png(path: Path, data: np.ndarray) -> Path:
+    cv2.imwrite(str(path), np.ascontiguousarray(data[::-1].transpose(1, 2, 0)))  # RGB bands -> BGR for OpenCV
+    return path
+
+
+def _world_file_text(t: Affine) -> str:
+    """A, D, B, E, C, F with (C, F) the centre of the top-left pixel."""
+    c, f = t @ (0.5, 0.5)
+    return "\n".join(f"{v:.12f}" for v in (t.a, t.d, t.b, t.e, c, f)) + "\n"
+
+
+@pytest.fixture
+def geotiff(tmp_path: Path) -> Path:
+    write_geotiff(tmp_path / "truth.tif", _data(), TRUTH, CRS)
+    return tmp_path / "truth.tif"
+
+
+def _same_as(raster, truth_path: Path, tol: float) -> None:
+    truth = read_raster(truth_path)
+    assert raster.crs == truth.crs
+    np.testing.assert_array_equal(raster.data, truth.data)
+    # transform coefficients: CRS units (the translation) and CRS units per pixel
+    np.testing.assert_allclose(np.array(raster.transform)[:6], np.array(truth.transform)[:6], rtol=0, atol=tol)
+
+
+def test_a_png_with_a_world_file_is_the_geotiff_of_the_same_data(tmp_path: Path, geotiff: Path) -> None:
+    img = _write_png(tmp_path / "ortho.png", _data())
+    (tmp_path / "ortho.pgw").write_text(_world_file_text(TRUTH))
+    out = tmp_path / "ortho.tif"
+    image_to_geotiff(img, out, CRS)
+    _same_as(read_raster(out), geotiff, 1e-6)  # 12 decimals in the world file
+
+
+def test_a_world_file_given_by_name(tmp_path: Path, geotiff: Path) -> None:
+    img = _write_png(tmp_path / "photo.png", _data())
+    (tmp_path / "georef.wld").write_text(_world_file_text(TRUTH))
+    raster, fit = read_image_ortho(img, CRS, world_file=tmp_path / "georef.wld")
+    assert fit is None
+    _same_as(raster, geotiff, 1e-6)
+
+
+def test_control_points_fit_the_affine(tmp_path: Path, geotiff: Path) -> None:
+    img = _write_png(tmp_path / "photo.png", _data())
+    # the four outer corners by name, plus a point in the middle given as a pixel centre
+    corners = {"top-left": (0, 0), "top-right": (80, 0), "bottom-right": (80, 60), "bottom-left": (0, 60)}
+    lines = ["corner,u,v,x,y"]
+    for name, (c, r) in corners.items():
+        x, y = TRUTH @ (c, r)
+        lines.append(f"{name},,,{x:.6f},{y:.6f}")
+    x, y = TRUTH @ (30.5, 20.5)  # centre of pixel (30, 20)
+    lines.append(f",30,20,{x:.6f},{y:.6f}")
+    (tmp_path / "control.csv").write_text("\n".join(lines) + "\n")
+    raster, fit = read_image_ortho(img, CRS, control=tmp_path / "control.csv")
+    assert fit.n_points == 5 and fit.rmse < 1e-5  # CRS units: the coordinates are written to 1e-6
+    _same_as(raster, geotiff, 1e-5)
+
+
+def test_the_affine_fit_reports_what_does_not_fit() -> None:
+    uv = np.array([[0.0, 0.0], [99.0, 0.0], [99.0, 49.0], [0.0, 49.0]])
+    xy = np.column_stack(pixel_to_map(TRUTH, uv[:, 0] + 0.5, uv[:, 1] + 0.5))
+    exact = fit_affine(uv[:3], xy[:3])
+    assert exact.rmse < 1e-9
+    np.testing.assert_allclose(np.array(exact.transform)[:6], np.array(TRUTH)[:6], atol=1e-7)
+    xy[2] += (3.0, 0.0)  # one point 3 CRS units off
+    fit = fit_affine(uv, xy)
+    # an affine through four corners of a rectangle spreads one point's error d as d / 4 on each of them
+    assert fit.rmse == pytest.approx(0.75, abs=1e-6) and fit.max_error == pytest.approx(0.75, abs=1e-6)
+
+
+@pytest.mark.parametrize(("kwargs", "needle"), [
+    ({"crs": None}, "needs a projected CRS"),
+    ({"crs": "EPSG:4326"}, "needs a projected CRS"),
+    ({"world_file": "missing.wld"}, "world_file"),
+    ({"control": "line.csv"}, "on one line"),
+    ({"control": "two.csv"}, "at least 3"),
+    ({"control": "bad.csv"}, "columns"),
+    ({}, "no world file"),
+])
+def test_bad_inputs_raise_one_line(tmp_path: Path, kwargs: dict, needle: str) -> None:
+    img = _write_png(tmp_path / "photo.png", _data())
+    (tmp_path / "line.csv").write_text("u,v,x,y\n0,0,1,1\n10,10,2,2\n20,20,3,3\n")
+    (tmp_path / "two.csv").write_text("u,v,x,y\n0,0,1,1\n10,10,2,2\n")
+    (tmp_path / "bad.csv").write_text("a,b\n1,2\n")
+    args = {"crs": CRS, **kwargs}
+    for key in ("world_file", "control"):
+        if key in args:
+            args[key] = tmp_path / args[key]
+    with pytest.raises(InputError) as info:
+        read_image_ortho(img, args.pop("crs"), **args)
+    assert needle in str(info.value) and "\n" not in str(info.value)
+
+
+def test_the_command_writes_the_orthophoto(tmp_path: Path, geotiff: Path) -> None:
+    img = _write_png(tmp_path / "ortho.png", _data())
+    (tmp_path / "ortho.pgw").write_text(_world_file_text(TRUTH))
+    code, stdout, stderr = invoke("ortho-from-image", img, "--crs", CRS, "-o", tmp_path / "out.tif")
+    assert code == 0, stderr
+    _same_as(read_raster(tmp_path / "out.tif"), geotiff, 1e-6)
+    assert "80x60 px" in stdout
+    code, _out, stderr = invoke("ortho-from-image", img, "--crs", CRS, "-o", tmp_path / "o2.tif",
+                                "--corners", tmp_path / "nope.csv")
+    assert code == 2 and "--corners" in stderr
