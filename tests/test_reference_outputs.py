@@ -5,29 +5,27 @@ tests/data/api-reference/pipeline holds what ``process`` (whole video, and two o
 (:func:`trafficgeo.cli.main`, i.e. through the library entry points they now call) must write the same tables and
 summaries, value for value.
 
-Compared by what they mean, never by their bytes (see tests/reference_values.py): the world is rebuilt here on this
-machine, and its files are checked by their content (``input_meaning``). When the video decodes to the very pixels
-of the reference, every number must agree to :data:`SAME_PIXELS` (measured: 4e-9 under another SIMD dispatch);
-when its pixels differ a little (a renderer on another CPU), a detection may come or go and only what a user reads
-must agree (``assert_what_a_user_reads``).
+Compared by what they mean, never by their bytes (see tests/reference_values.py). The world is rebuilt here on this
+machine and its files are checked by their content (``input_meaning``). The commands then run on that world with the
+reference's own video instead of the one rendered here (pipeline/video.mp4: H.264 decodes to the same pixels
+on any CPU), because the detector cannot promise the same counts from other pixels: re-encoding the video with +-1
+grey level on 2 % of its pixels cost the background detector one of its 3 crossings (measured 2026-12-04). From the
+same pixels every number must agree to reference_values.TRAFFIC (measured: within 4e-9 under another SIMD dispatch).
 """
 
 from __future__ import annotations
 
 import importlib.util
 import json
+import shutil
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
-from reference_values import TRAFFIC, assert_csv_close, assert_json_close, assert_what_a_user_reads
+from reference_values import TRAFFIC, assert_csv_close, assert_json_close
 
 pytestmark = [pytest.mark.slow, pytest.mark.reference]
-
-#: Tables and summaries from the same pixels (reference_values.TRAFFIC)
-SAME_PIXELS = TRAFFIC
-
 REF = Path(__file__).parent / "data" / "api-reference"
 
 
@@ -42,23 +40,26 @@ def test_process_stitch_and_compare_write_what_the_release_before_the_api_wrote(
                                                                                 tmp_path: Path) -> None:
     maker = _maker()
     recorded = json.loads((REF / "pipeline" / "inputs.json").read_text(encoding="utf-8"))
-    here = maker.input_meaning(small_world)
-    assert not maker.inputs_differ(here, recorded), (
-        f"the small world's inputs changed ({', '.join(maker.inputs_differ(here, recorded))}: synth or SMALL_WORLD): "
-        "write the reference again as its SOURCE.txt says")
-    same_pixels = here["video.mp4"]["decoded_pixels_sha1"] == recorded["video.mp4"]["decoded_pixels_sha1"]
-    maker.run_all(small_world, tmp_path)
+    differ = maker.inputs_differ(maker.input_meaning(small_world), recorded, video=False)
+    assert not differ, (f"the small world's inputs changed ({', '.join(differ)}: synth or SMALL_WORLD): write the "
+                        "reference again as its SOURCE.txt says")
+    world = tmp_path / "world"  # the small world, with the reference's video
+    world.mkdir()
+    for item in small_world.iterdir():
+        (world / item.name).symlink_to(item)
+    (world / "video.mp4").unlink()
+    shutil.copyfile(REF / "pipeline" / "video.mp4", world / "video.mp4")
+    assert not maker.inputs_differ(maker.input_meaning(world), recorded)  # the video decodes to the same pixels
+    maker.run_all(world, tmp_path)
     compared = 0
     for run, names in maker.KEEP.items():
         for name in names:
             new_path, old_path = tmp_path / run / name, REF / "pipeline" / run / name
-            if not same_pixels:
-                assert_what_a_user_reads(new_path, old_path, f"{run}/{name}")
-            elif name.endswith(".csv"):
-                assert_csv_close(new_path, old_path, f"{run}/{name}", SAME_PIXELS)
+            if name.endswith(".csv"):
+                assert_csv_close(new_path, old_path, f"{run}/{name}", TRAFFIC)
             else:
                 assert_json_close(json.loads(new_path.read_text()), json.loads(old_path.read_text()),
-                                  f"{run}/{name}", SAME_PIXELS)
+                                  f"{run}/{name}", TRAFFIC)
             compared += 1
     assert compared == sum(len(v) for v in maker.KEEP.values()) == 16
     # the reference is not empty: vehicles were counted in every run and the comparison found them
