@@ -203,8 +203,8 @@ def aggregate_counts(crossings: pd.DataFrame, interval_s: float, start: float, e
 
     Every interval is listed, with a count of 0 where no vehicle crossed, for every line, lane and direction seen
     and, when ``lines`` are given, for every line x lane x direction (+1 and -1) that could be counted: the line's
-    own lanes, else all ``lanes``, else ``""`` (so a line nobody crossed is listed with zeros, not left out). Zero
-    rows have NaN speeds and headways.
+    own lanes (else all ``lanes``) when ``lanes`` are given, else ``""`` (so a line nobody crossed is listed with
+    zeros, not left out). Zero rows have a flow of 0 and NaN speeds and headways.
     """
     return _aggregate(crossings, interval_edges(start, end, interval_s), _expected_groups(lines, lanes),
                       nominal_s=check_interval(interval_s))
@@ -228,11 +228,11 @@ def flow_rule(observed_s: object, interval_s: float) -> np.ndarray:
 
 
 def _expected_groups(lines: list[CountLine] | None, lanes: Lanes | None) -> list[tuple[str, str, int]]:
-    """(line, lane, direction) of every count a set of ``lines`` can give: the line's own lanes, else all
-    ``lanes``, else the lane ``""``; both directions."""
+    """(line, lane, direction) of every count a set of ``lines`` can give: with ``lanes``, the line's own lanes
+    (else all of them); without, the lane ``""``; both directions."""
     out = []
     for line in lines or []:
-        names = line.lanes or (tuple(lanes.names) if lanes is not None else ("",))
+        names = (line.lanes or tuple(lanes.names)) if lanes is not None else ("",)
         out += [(line.name, str(lane), d) for lane in names for d in (-1, 1)]
     return out
 

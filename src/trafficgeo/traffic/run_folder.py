@@ -7,7 +7,7 @@ and units are defined once here (:data:`SCHEMAS`):
 ============================  =========================================================================
 ``vehicles.csv``              one row per vehicle (track): class, times, speed, length, lane (:data:`VEHICLES`)
 ``crossings.csv``             one row per counting-line crossing (:data:`CROSSINGS`)
-``counts.csv``                every line x lane x direction x interval (zeros too): counts, flow, speeds (:data:`COUNTS`)
+``counts.csv``                every line x lane x direction x interval, zeros too: counts, flow, speeds (:data:`COUNTS`)
 ``trajectories.csv``          one row per vehicle and frame, on the ground (:data:`TRAJECTORIES`)
 ``trajectories.gpkg/.parquet``the same as GIS layers (paths, points, lanes, count lines) when the camera has a CRS
 ``summary.json``              totals, the options used and the CRS (WKT)
