@@ -267,7 +267,8 @@ def test_counted_groups_keeps_the_groups_with_vehicles() -> None:
              CountLine("L3", shapely.LineString([(0, 90), (7, 90)]))]
     counts = aggregate_counts(_one_crossing().assign(lane=""), 60.0, 0.0, 150.0, lines=lines)
     kept = counted_groups(counts)
-    assert set(zip(kept["line"], kept["direction"], strict=True)) == {("L1", 1)} and len(kept) == 3
+    assert len(counts) == 2 * 2 * 3  # the zero groups are listed ...
+    assert set(zip(kept["line"], kept["direction"], strict=True)) == {("L1", 1)} and len(kept) == 3  # ... and left
 
 
 def test_flow_is_left_out_where_less_than_half_an_interval_was_observed() -> None:

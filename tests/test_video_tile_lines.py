@@ -114,3 +114,24 @@ def test_the_learned_detector_plans_around_the_lines_and_reports_their_reach() -
     assert plan is not None and plan.source == "lines" and len(plan.tiles)
     assert [r.name for r in plan.lines] == ["near", "far", "horizon"]
     assert [w.split(":")[0] for w in plan.line_warnings()] == ["counting line horizon"]
+
+
+def test_process_plans_around_the_lines_when_given_only_lines(tmp_path) -> None:
+    """The pipeline hands the counting lines to the detector: the plan in process.json is made from them and says
+    what it reaches at each line; the notice says where the plan came from."""
+    import json
+
+    from trafficgeo.camera.model import Camera
+    from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
+    from video_support import write_two_car_video
+
+    video = write_two_car_video(tmp_path / "v.mp4", 10, 0.5, rows=(60, 120), seed=2)
+    cam = Camera.from_orientation((320, 180), 300.0, [13.0, 0.0, 8.0], 355.0, 4.0)
+    seen: dict = {}
+    told: list[str] = []
+    detect_and_track(video, cam, FLAT, tmp_path / "a", ProcessOptions(detector="nanodet"), notice=told.append,
+                     detector_info=seen.update, lines=[across("near", 20.0), across("far", 60.0)])
+    tiling = seen["tiling"]
+    assert tiling["source"] == "lines" and [d["name"] for d in tiling["lines"]] == ["near", "far"]
+    assert "planned around the counting lines" in told[0]
+    json.dumps(seen)
