@@ -153,10 +153,22 @@ def test_analyze_outputs_equal_those_of_the_release_before_the_api(tmp_path: Pat
     run.write_traffic(result, cam)
     for name in ("vehicles.csv", "crossings.csv", "counts.csv", "trajectories.csv"):
         new, old = pd.read_csv(tmp_path / "run" / name), pd.read_csv(ref / name)
+        if name == "counts.csv":
+            # Since issue 29 every line x lane x direction x interval is listed (zeros too) and observed_s added:
+            # the groups counted before are unchanged, the others are zeros.
+            from trafficgeo.traffic.lines import counted_groups
+
+            np.testing.assert_allclose(new["observed_s"], new["interval_end"] - new["interval_start"], atol=1e-9)
+            zeros = new.drop(counted_groups(new).index)
+            assert len(zeros) and (zeros["count"] == 0).all() and (zeros["flow_veh_h"] == 0).all()
+            new = counted_groups(new).drop(columns="observed_s").reset_index(drop=True)
         pd.testing.assert_frame_equal(new, old, check_exact=False, rtol=1e-9, atol=1e-9, obj=name)
     assert len(result.vehicles) == 10 and len(result.crossings) == 3
     old_summary = json.loads((ref / "summary.json").read_text())
     new_summary = run.summary()
-    for key in ("period_s", "vehicles", "points", "dropped_points", "crossings", "options", "classes"):
+    for key in ("period_s", "vehicles", "points", "dropped_points", "options", "classes"):
         assert new_summary[key] == old_summary[key], key
+    # the crossings per line, lane and direction: those of before, and the other direction's zero (issue 29)
+    assert [c for c in new_summary["crossings"] if c["count"]] == old_summary["crossings"]
+    assert {c["count"] for c in new_summary["crossings"] if c not in old_summary["crossings"]} == {0}
     assert pyproj.CRS.from_wkt(new_summary["crs"]) == pyproj.CRS.from_wkt(old_summary["crs"])

@@ -52,7 +52,7 @@ def test_a_far_line_is_tiled_from_the_lines_alone(planner) -> None:
     """The far line (130 m) is too small for the full frame alone; planned from the lines, the car crossing it
     reaches the minimum size in the detector input on the line and 10-20 m before and after it."""
     cam = junction_camera()
-    lines = [across("near", 40.0), across("far", 130.0)]
+    lines = [across("near", 70.0), across("far", 130.0)]
     boxes = crossing_boxes(cam, 130.0)
     assert np.isfinite(boxes).all()
     full_only = TilePlan((H, W), INPUT, 24.0, 2.0, np.zeros((0, 4)))
@@ -79,10 +79,11 @@ def test_line_band_covers_a_few_metres_along_and_tens_across() -> None:
 
 def test_a_line_below_reach_warns_naming_it_and_its_size() -> None:
     cam = junction_camera()
-    lines = [across("near", 40.0), across("horizon", 600.0)]
+    lines = [across("near", 70.0), across("horizon", 600.0)]
     plan = plan_tiles(cam, FLAT, lines, input_size=INPUT)
     object.__setattr__(plan, "lines", line_reach(plan, cam, FLAT, lines))
     reach = {r.name: r for r in plan.lines}
+    assert reach["near"].in_view == reach["horizon"].in_view == 1.0
     assert reach["near"].short == 0.0 and reach["horizon"].short == 1.0
     assert reach["horizon"].input_px[1] < 24.0
     warned = plan.line_warnings()
@@ -94,13 +95,13 @@ def test_a_line_below_reach_warns_naming_it_and_its_size() -> None:
 
 
 def test_line_reach_with_a_lanes_plan_warns_where_the_lanes_do_not_reach() -> None:
-    """The line warnings do not depend on where the plan came from: lanes that stop at 60 m get no tile at 130 m."""
+    """The line warnings do not depend on where the plan came from: lanes that stop at 90 m get no tile at 130 m."""
     from trafficgeo.traffic.lanes import Lanes
 
     cam = junction_camera()
-    lanes = Lanes(("A",), (shapely.box(0.0, 5.0, ROAD_W, 60.0),))
+    lanes = Lanes(("A",), (shapely.box(0.0, 5.0, ROAD_W, 90.0),))
     plan = plan_tiles(cam, FLAT, lanes, input_size=INPUT)
-    lines = [across("near", 40.0), across("far", 130.0)]
+    lines = [across("near", 70.0), across("far", 130.0)]
     object.__setattr__(plan, "lines", line_reach(plan, cam, FLAT, lines))
     assert [w.split(":")[0] for w in plan.line_warnings()] == ["counting line far"]
 
@@ -109,7 +110,7 @@ def test_the_learned_detector_plans_around_the_lines_and_reports_their_reach() -
     from trafficgeo.video.detectors.learned import detector_plan, make_learned_detector
 
     cam = junction_camera()
-    lines = [across("near", 40.0), across("far", 130.0), across("horizon", 600.0)]
+    lines = [across("near", 70.0), across("far", 130.0), across("horizon", 600.0)]
     plan = detector_plan(make_learned_detector(camera=cam, surface=FLAT, lines=lines, threads=1))
     assert plan is not None and plan.source == "lines" and len(plan.tiles)
     assert [r.name for r in plan.lines] == ["near", "far", "horizon"]
