@@ -227,3 +227,31 @@ def test_a_counting_line_beyond_the_usable_range_is_warned_about(scene: dict[str
     code, stdout, _ = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
                              "--lines", scene["lines"], "--out", tmp_path / "near")
     assert "warning" not in stdout
+
+
+@pytest.mark.slow
+def test_a_line_nobody_crossed_is_listed_with_zeros_and_warned_about(scene: dict[str, Path], tmp_path: Path) -> None:
+    """Issue 29: a line without vehicles must not vanish from the counts (0 vehicles vs not loaded), the run warns
+    about it, and 6 s of video give no flow for a 60 s interval."""
+    lines = gpd.GeoDataFrame({"name": ["north40", "aside"]}, geometry=[
+        shapely.LineString([(E0 - 8, N0 + 40), (E0 + 1, N0 + 40)]),
+        shapely.LineString([(E0 + 5, N0 + 40), (E0 + 14, N0 + 40)])], crs=CRS)  # beside the road
+    lines.to_file(tmp_path / "lines.gpkg")
+    out = tmp_path / "out"
+    code, stdout, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
+                                  "--lanes", scene["lanes"], "--lines", tmp_path / "lines.gpkg", "--interval", 60,
+                                  "--out", out)
+    assert code == 0, stderr
+    words = " ".join(stdout.split())
+    assert "counting line aside: no vehicle crossed it" in words and "counting line north40: no" not in words
+    assert "no flows (veh/h)" in words
+    counts = pd.read_csv(out / "counts.csv", dtype={"lane": str}, keep_default_na=False, na_values=[""])
+    aside = counts[counts["line"] == "aside"]
+    assert sorted(zip(aside["lane"], aside["direction"], strict=True)) == [
+        ("inner", -1), ("inner", 1), ("outer", -1), ("outer", 1)]
+    assert (aside["count"] == 0).all() and aside["time_mean_speed_kmh"].isna().all()
+    assert len(counts) == 8 and counts["count"].sum() == 3
+    assert counts["flow_veh_h"].isna().all() and counts["observed_s"].lt(30.0).all()  # ~6 s of a 60 s interval
+    summary = json.loads((out / "summary.json").read_text())
+    assert {(c["line"], c["count"]) for c in summary["crossings"] if c["line"] == "aside"} == {("aside", 0)}
+    assert any(w.startswith("counting line aside: no vehicle crossed it") for w in summary["warnings"])

@@ -223,3 +223,78 @@ def test_every_straight_track_through_the_line_is_counted_once(offset: float, he
     # the line is drawn towards the vehicle's right, so its left side is ahead of the vehicle: the vehicle
     # crosses from the line's right side to its left side
     assert cr["direction"].iloc[0] == -1
+
+
+# ---------------------------------------------------------------------------------------------------- no silent misses
+def _one_crossing() -> pd.DataFrame:
+    return pd.DataFrame({"line": ["L1"], "track_id": ["a"], "class": ["car"], "lane": ["1"], "direction": [1],
+                         "time": [10.0], "speed_kmh": [50.0], "x": [0.0], "y": [0.0]})
+
+
+def test_counts_list_every_line_lane_direction_and_interval_with_zeros() -> None:
+    """A line nobody crossed, a lane and a direction without vehicles are rows of zeros, not missing rows."""
+    from trafficgeo.traffic.lanes import Lanes
+
+    lanes = Lanes(("1", "2"), (shapely.box(0, 0, 3.5, 100), shapely.box(3.5, 0, 7, 100)))
+    lines = [CountLine("L1", shapely.LineString([(0, 50), (7, 50)])),
+             CountLine("L2", shapely.LineString([(0, 80), (7, 80)]), lanes=("2",)),
+             CountLine("L3", shapely.LineString([(0, 90), (7, 90)]))]
+    counts = aggregate_counts(_one_crossing(), 60.0, 0.0, 150.0, lines=lines, lanes=lanes)
+    keys = set(zip(counts["line"], counts["lane"], counts["direction"], counts["interval_start"], strict=True))
+    expected = {(line, lane, d, t0) for line, lanes_ in (("L1", "12"), ("L2", "2"), ("L3", "12"))
+                for lane in lanes_ for d in (-1, 1) for t0 in (0.0, 60.0, 120.0)}
+    assert keys == expected and len(counts) == len(expected) == 30
+    assert counts["count"].sum() == 1
+    zero = counts[counts["count"] == 0]
+    assert (zero["flow_veh_h"] == 0).all() and (zero["count_car"] == 0).all()
+    for col in ("time_mean_speed_kmh", "space_mean_speed_kmh", "mean_headway_s", "min_headway_s", "mean_gap_s"):
+        assert zero[col].isna().all(), col
+    hit = counts[counts["count"] == 1].iloc[0]
+    assert (hit["line"], hit["lane"], hit["direction"], hit["interval_start"]) == ("L1", "1", 1, 0.0)
+    # without lanes: the lane "" of each line, both directions
+    bare = aggregate_counts(_one_crossing().assign(lane=""), 60.0, 0.0, 60.0, lines=lines)
+    assert sorted(zip(bare["line"], bare["lane"], bare["direction"], strict=True)) == [
+        ("L1", "", -1), ("L1", "", 1), ("L2", "", -1), ("L2", "", 1), ("L3", "", -1), ("L3", "", 1)]
+    # no crossing at all: still every row, of zeros
+    none = aggregate_counts(_one_crossing().iloc[:0], 60.0, 0.0, 60.0, lines=lines[2:])
+    assert len(none) == 2 and (none["count"] == 0).all()
+
+
+def test_counted_groups_keeps_the_groups_with_vehicles() -> None:
+    from trafficgeo.traffic.lines import counted_groups
+
+    lines = [CountLine("L1", shapely.LineString([(0, 50), (7, 50)])),
+             CountLine("L3", shapely.LineString([(0, 90), (7, 90)]))]
+    counts = aggregate_counts(_one_crossing().assign(lane=""), 60.0, 0.0, 150.0, lines=lines)
+    kept = counted_groups(counts)
+    assert len(counts) == 2 * 2 * 3  # the zero groups are listed ...
+    assert set(zip(kept["line"], kept["direction"], strict=True)) == {("L1", 1)} and len(kept) == 3  # ... and left
+
+
+def test_flow_is_left_out_where_less_than_half_an_interval_was_observed() -> None:
+    """3 vehicles in the last 6.8 s of a run would read 1588 veh/h: no flow there, and observed_s says why."""
+    from trafficgeo.traffic.lines import MIN_FLOW_SHARE, flow_rule
+
+    cr = pd.DataFrame({"line": "L", "track_id": ["a", "b", "c", "d"], "class": "car", "lane": "", "direction": 1,
+                       "time": [10.0, 61.0, 63.0, 65.0], "speed_kmh": 50.0, "x": 0.0, "y": 0.0})
+    counts = aggregate_counts(cr, 60.0, 0.0, 66.8)
+    assert counts["observed_s"].tolist() == pytest.approx([60.0, 6.8])
+    assert counts["count"].tolist() == [1, 3]
+    assert counts["flow_veh_h"].iloc[0] == pytest.approx(60.0)
+    assert np.isnan(counts["flow_veh_h"].iloc[1])  # 3 * 3600 / 6.8 = 1588 veh/h would be an extrapolation
+    assert counts["time_mean_speed_kmh"].iloc[1] == pytest.approx(50.0)  # speeds are measured, kept
+    # the rule: at least half the interval observed
+    assert MIN_FLOW_SHARE == 0.5
+    assert flow_rule([29.9, 30.0, 60.0], 60.0).tolist() == [False, True, True]
+    half = aggregate_counts(cr, 60.0, 0.0, 90.0)
+    assert half["flow_veh_h"].iloc[1] == pytest.approx(3 * 120.0)  # 30 s of 60: enough
+
+
+def test_a_line_nobody_crossed_is_warned_about_by_name() -> None:
+    from trafficgeo.traffic.analyze import uncrossed_warnings
+
+    lines = [CountLine("L1", shapely.LineString([(0, 50), (7, 50)])),
+             CountLine("L3", shapely.LineString([(0, 90), (7, 90)]))]
+    warned = uncrossed_warnings(lines, _one_crossing(), (0.0, 66.8))
+    assert len(warned) == 1 and warned[0].startswith("counting line L3: no vehicle crossed it in the 66.8 s observed")
+    assert len(uncrossed_warnings(lines, _one_crossing().iloc[:0], (0.0, 1.0))) == 2

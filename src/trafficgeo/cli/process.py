@@ -33,8 +33,9 @@ def process(
     every: Annotated[int | None, typer.Option(help="detect on every n-th frame (default: every frame for background "
                                               "subtraction, about 10 a second for a learned detector)")] = None,
     tiles: Annotated[bool, typer.Option(help="with the built-in learned detector: also run it on tiles over the far "
-                                        "road (planned from the camera and --lanes or --roi) so that far vehicles "
-                                        "are large enough for it")] = True,
+                                        "road (planned from the camera and --lanes, else --roi, else a band of road "
+                                        "around each of the --lines) so that far vehicles are large enough for it; "
+                                        "warns per counting line where they stay too small")] = True,
     tiling: Annotated[str, typer.Option(help="how the tiles are planned: 'squares' (the most accurate on the demo "
                                         "world) or 'bands' (rectangles at their own input size: about 2.5x less "
                                         "detector work)")] = "squares",

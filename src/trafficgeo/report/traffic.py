@@ -6,6 +6,7 @@ from rich.console import Console
 from rich.table import Table
 
 from trafficgeo.traffic.analyze import TrafficResult, summary
+from trafficgeo.traffic.lines import MIN_FLOW_SHARE, flow_rule
 from trafficgeo.traffic.validation import Comparison
 
 
@@ -30,13 +31,22 @@ def print_analysis(analysis: TrafficResult, console: Console) -> None:
         table = Table(title="crossings per counting line")
         for col in ("line", "lane", "direction", "vehicles", "flow veh/h", "mean speed km/h"):
             table.add_column(col, justify="right")
-        dur = max(t1 - t0, 1e-9)
+        dur = t1 - t0
+        interval_s = float(analysis.options.get("interval_s", 60.0))  # type: ignore[arg-type]
+        flows = bool(dur > 0 and flow_rule(dur, interval_s))
         cr = analysis.crossings
         for row in s["crossings"]:
-            sel = cr[(cr["line"] == row["line"]) & (cr["lane"] == row["lane"]) & (cr["direction"] == row["direction"])]
+            sel = cr[(cr["line"].astype(str) == row["line"]) & (cr["lane"].fillna("").astype(str) == row["lane"])
+                     & (cr["direction"] == row["direction"])] if len(cr) else cr
             table.add_row(row["line"], row["lane"] or "-", f"{row['direction']:+d}", str(row["count"]),
-                          f"{row['count'] * 3600.0 / dur:.0f}", _kmh(sel["speed_kmh"].mean()))
+                          f"{row['count'] * 3600.0 / dur:.0f}" if flows else "-",
+                          _kmh(sel["speed_kmh"].mean() if len(sel) else float("nan")))
         console.print(table)
+        if not flows:
+            console.print(f"no flows (veh/h): {dur:.1f} s of video were observed, less than "
+                          f"{MIN_FLOW_SHARE:.0%} of the {interval_s:g} s counting interval, too short to extrapolate "
+                          "to an hour (counts.csv leaves flow_veh_h empty where an interval was observed for less "
+                          f"than {MIN_FLOW_SHARE:.0%} of its length; observed_s says how long)")
         if s["hidden_crossings"]:
             console.print(f"{s['hidden_crossings']} of these crossings are of vehicles hidden behind a nearer one at "
                           "the line, carried on from where they vanished ('hidden' in crossings.csv; --coast-hidden)")

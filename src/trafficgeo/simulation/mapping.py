@@ -34,7 +34,7 @@ import shapely
 from trafficgeo.crs import crs_label, transform_xy
 from trafficgeo.errors import InputError
 from trafficgeo.io.sumo_net import NetLocation, _location, _same_projection
-from trafficgeo.traffic.lines import CountLine, _segment_crossings
+from trafficgeo.traffic.lines import CountLine, _segment_crossings, counted_groups
 from trafficgeo.traffic.validation import ObservedRun
 
 __all__ = ["MAX_DISTANCE_M", "LaneMapping", "MappingError", "SumoLaneCrossing", "map_observations",
@@ -183,7 +183,7 @@ def _groups(observed: ObservedRun) -> pd.DataFrame:
         med = g[["x", "y"]].median().join(g.size().rename("vehicles")).reset_index()
     else:
         med = pd.DataFrame(columns=[*keys, "x", "y", "vehicles"])
-    counts = observed.counts[observed.counts["line"].astype(str).isin(names)]
+    counts = counted_groups(observed.counts[observed.counts["line"].astype(str).isin(names)])
     seen = counts.assign(line=counts["line"].astype(str), lane=counts["lane"].fillna("").astype(str),
                          direction=counts["direction"].astype(int))[keys].drop_duplicates()
     out = seen.merge(med, on=keys, how="outer").sort_values(keys, kind="stable").reset_index(drop=True)

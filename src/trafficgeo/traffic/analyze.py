@@ -146,6 +146,17 @@ def line_warnings(camera: Camera, surface: Surface, lines: list[CountLine], opti
     return out
 
 
+def uncrossed_warnings(lines: list[CountLine], crossings: pd.DataFrame, period: tuple[float, float]) -> list[str]:
+    """One warning per counting line that no vehicle crossed in the ``period`` (s) observed: its counts are zeros,
+    which may be true (no traffic) or a miss (the line is off the road, or vehicles there go undetected)."""
+    crossed = set(crossings["line"].astype(str)) if len(crossings) else set()
+    seconds = period[1] - period[0]
+    return [f"counting line {line.name}: no vehicle crossed it in the {seconds:.1f} s observed (counts.csv lists it "
+            "with zeros); if vehicles did pass, check that the line lies across the road where they drive and that "
+            "they are detected there"
+            for line in lines if line.name not in crossed]
+
+
 def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lanes | None = None,
             lines: list[CountLine] | None = None, interval_s: float = 60.0,
             options: TrajectoryOptions | None = None, progress=None) -> TrafficResult:
@@ -174,8 +185,8 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
     if len(hidden):
         crossings = pd.concat([crossings, hidden.assign(hidden=True)], ignore_index=True).sort_values(
             ["line", "time"], kind="stable").reset_index(drop=True)
-    counts = aggregate_counts(crossings, interval_s, *period)
-    warnings = line_warnings(camera, surface, lines or [], opts)
+    counts = aggregate_counts(crossings, interval_s, *period, lines=lines, lanes=lanes)
+    warnings = line_warnings(camera, surface, lines or [], opts) + uncrossed_warnings(lines or [], crossings, period)
     lane_problem = lanes_warning(camera, surface, lanes, world.points)
     if lane_problem is not None:
         warnings.append(lane_problem)
@@ -247,7 +258,10 @@ def gis_layers(analysis: TrafficResult, crs: pyproj.CRS) -> list:
 def summary(analysis: TrafficResult) -> dict[str, object]:
     """Totals for the terminal and ``summary.json``."""
     veh = analysis.vehicles
-    per_line = analysis.crossings.groupby(["line", "lane", "direction"]).size() if len(analysis.crossings) else []
+    c = analysis.counts
+    # every line x lane x direction of the counts table, zeros too (a line nobody crossed is listed)
+    per_line = (c.assign(line=c["line"].astype(str), lane=c["lane"].fillna("").astype(str))
+                .groupby(["line", "lane", "direction"], sort=True)["count"].sum() if len(c) else [])
     return {
         "period_s": list(analysis.period),
         "vehicles": len(veh),

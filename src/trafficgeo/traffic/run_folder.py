@@ -7,7 +7,7 @@ and units are defined once here (:data:`SCHEMAS`):
 ============================  =========================================================================
 ``vehicles.csv``              one row per vehicle (track): class, times, speed, length, lane (:data:`VEHICLES`)
 ``crossings.csv``             one row per counting-line crossing (:data:`CROSSINGS`)
-``counts.csv``                per line x lane x direction x interval: counts, flow, speeds, headways (:data:`COUNTS`)
+``counts.csv``                every line x lane x direction x interval, zeros too: counts, flow, speeds (:data:`COUNTS`)
 ``trajectories.csv``          one row per vehicle and frame, on the ground (:data:`TRAJECTORIES`)
 ``trajectories.gpkg/.parquet``the same as GIS layers (paths, points, lanes, count lines) when the camera has a CRS
 ``summary.json``              totals, the options used and the CRS (WKT)
@@ -170,8 +170,9 @@ COUNTS = TableSchema("counts.csv", (
     Column("direction", "int", "", "+1 / -1, as in crossings.csv"),
     Column("interval_start", "float", S, "interval start"),
     Column("interval_end", "float", S, "interval end"),
+    Column("observed_s", "float", S, "seconds of the interval observed (interval_end - interval_start)"),
     Column("count", "int", "", "vehicles"),
-    Column("flow_veh_h", "float", "veh/h", "count / interval length"),
+    Column("flow_veh_h", "float", "veh/h", "count / observed_s; empty when less than half the interval was observed"),
     Column("time_mean_speed_kmh", "float", KMH, "mean speed at the line"),
     Column("space_mean_speed_kmh", "float", KMH, "harmonic mean speed at the line"),
     Column("mean_headway_s", "float", S, "mean time between successive vehicles"),

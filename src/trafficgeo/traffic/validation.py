@@ -30,7 +30,7 @@ from trafficgeo.traffic.compare import (
     travel_times,
 )
 from trafficgeo.traffic.lanes import Lanes, lanes_from_polygons
-from trafficgeo.traffic.lines import CountLine, aggregate_counts, find_crossings
+from trafficgeo.traffic.lines import CountLine, aggregate_counts, counted_groups, find_crossings
 
 RUN_HINT = "give the output folder of 'trafficgeo analyze' or 'process' (a run folder)"
 
@@ -137,7 +137,7 @@ def compare_with_simulation(observed: ObservedRun, simulated: pd.DataFrame, *,
     sim_cross = sim_cross[(sim_cross["time"] >= t0) & (sim_cross["time"] < t1)].reset_index(drop=True)
     sim_counts = aggregate_counts(sim_cross, observed.interval_s, t0, t1)
     names = [ln.name for ln in lines]
-    obs_counts = observed.counts[observed.counts["line"].isin(names)]
+    obs_counts = counted_groups(observed.counts[observed.counts["line"].isin(names)])  # as before zero rows
     table = compare_counts(obs_counts, sim_counts)
     obs_cross = observed.crossings[observed.crossings["line"].isin(names)]
     speeds = compare_speeds_by(obs_cross, sim_cross, by=("line", "lane"))

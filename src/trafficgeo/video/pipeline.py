@@ -44,6 +44,7 @@ from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.io.atomic import remove_stale_temporaries, write_csv_atomic, write_json_atomic
 from trafficgeo.traffic.lanes import Lanes
+from trafficgeo.traffic.lines import CountLine
 from trafficgeo.video.checkpoint import (
     CHECKPOINT_DIR,
     Checkpoint,
@@ -182,7 +183,7 @@ def _write_tables(folder: Path, state: Checkpoint, out: Path) -> tuple[pd.DataFr
 
 def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface | None, out_dir: str | Path,
                      options: ProcessOptions | None = None, *, roi: np.ndarray | None = None,
-                     restart: bool = False, lanes: Lanes | None = None,
+                     restart: bool = False, lanes: Lanes | None = None, lines: list[CountLine] | None = None,
                      progress: Callable[[int, int, float], None] | None = None,
                      notice: Callable[[str], None] | None = None,
                      detector_info: Callable[[dict], None] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -190,7 +191,8 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     ``detections.csv`` and ``tracks.csv`` in ``out_dir``). ``progress(frames_done, frames_total, video_time_s)``
     is called per frame; ``notice(text)`` with one line when a checkpoint is resumed ("resuming from 8.0 s") or
     ignored (and why), and with the built-in learned detector's tile plan (:mod:`trafficgeo.video.detectors.tiling`: the
-    tiles over the counted road, ``lanes`` else ``roi``, and the road too far for it); ``detector_info(doc)`` once
+    tiles over the counted road, ``lanes`` else ``roi`` else a band around each of the counting ``lines``, the road
+    too far for it, and the counting lines where vehicles stay too small for it); ``detector_info(doc)`` once
     with that plan as plain data (for ``process.json``). Without a ``camera`` (and ``surface``) the detector has no
     size filter or class in metres and no tiles. Holds the lock on ``out_dir`` while it runs (:class:`InputError` if
     another process holds it)."""
@@ -216,7 +218,7 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     def new_detector():
         return make_detector(opts.detector, camera=cam, surface=surface, roi=roi,
                              detector_format=opts.detector_format, road=lanes, tiles=opts.tiles,
-                             tiling=opts.tiling)
+                             tiling=opts.tiling, lines=lines)
 
     detector = new_detector()  # before anything is written: a bad --detector leaves nothing behind
     learns = isinstance(detector, BackgroundDetector)

@@ -12,7 +12,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -160,7 +160,7 @@ def process_video(video: PathLike, camera: Camera | PathLike, surface: Surface |
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", VideoReadWarning)
             detections, tracks = detect_and_track(video, cam, surf, out, opts, roi=mask, restart=restart,
-                                                  lanes=lane_set, progress=tick, notice=notice,
+                                                  lanes=lane_set, lines=count_lines, progress=tick, notice=notice,
                                                   detector_info=detector_doc.update)
         elapsed = time.perf_counter() - t0
         read_doc, short = _what_was_read(video, opts, read, caught)
@@ -170,6 +170,9 @@ def process_video(video: PathLike, camera: Camera | PathLike, surface: Surface |
 
         result = analyze(cam, surf, tracks_from_table(tracks), lanes=lane_set, lines=count_lines,
                          interval_s=interval_s, options=trajectory)
+        plan_doc = detector_doc.get("tiling") or {}
+        if plan_doc.get("line_warnings"):  # the counting lines too far for the detector: in summary.json too
+            result = replace(result, warnings=[*plan_doc["line_warnings"], *result.warnings])
         written = folder.write_traffic(result, cam, publish=False)
         if annotate is not None:
             from trafficgeo.video.annotate import annotate_video

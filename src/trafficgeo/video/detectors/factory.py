@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera
     from trafficgeo.geo.mapping import Surface
     from trafficgeo.traffic.lanes import Lanes
+    from trafficgeo.traffic.lines import CountLine
 
 
 # ---------------------------------------------------------------------------------------------------- factory
@@ -54,14 +55,15 @@ def make_detector(spec: str = "background", *, camera: Camera | None = None, sur
                   learning_rate: float | None = None, rules: SizeRules | None = None, conf: float | None = None,
                   iou: float = 0.5, input_size: int | None = None, class_map: Mapping[int, str] | None = None,
                   detector_format: str | None = None, road: Lanes | None = None, tiles: bool = True,
-                  tiling: str = "squares") -> Detector:
+                  tiling: str = "squares", lines: list[CountLine] | None = None) -> Detector:
     """A detector from a short spec (:func:`detector_kind`): a background subtraction name
     (:class:`BackgroundDetector` with MOG2 for "background", "bg" or "mog2", with KNN for "knn") or the path of a
     ``.onnx`` model (:class:`OnnxDetector` of layout ``detector_format``, default recognised from the model;
     ``conf`` default the layout's; ``camera`` and ``surface`` are not used, ``roi`` keeps detections whose bottom
     centre lies inside it), or "nanodet", the built-in learned detector
     (:func:`trafficgeo.video.detectors.learned.make_learned_detector`: tiled over the counted ``road`` (lanes,
-    else ``roi``) when ``tiles`` and a calibrated ``camera`` and ``surface`` are given). ``warmup_s``: the
+    else ``roi``, else a band around each of the counting ``lines``) when ``tiles`` and a calibrated ``camera`` and
+    ``surface`` are given; its plan tells what it reaches at the ``lines``). ``warmup_s``: the
     background detector's warm-up (s of video)."""
     kind = detector_kind(spec)
     fmt = _check_format(kind, spec, detector_format)
@@ -69,7 +71,7 @@ def make_detector(spec: str = "background", *, camera: Camera | None = None, sur
         from trafficgeo.video.detectors.learned import make_learned_detector
 
         return make_learned_detector(camera=camera, surface=surface, road=road, roi=roi, tiles=tiles, conf=conf,
-                                     iou=iou, tiling=tiling)
+                                     iou=iou, tiling=tiling, lines=lines)
     if kind == "onnx":
         return OnnxDetector(str(spec).strip(), format=fmt, input_size=input_size, conf=conf, iou=iou,
                             class_map=class_map, roi=roi)

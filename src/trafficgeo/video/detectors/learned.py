@@ -20,12 +20,15 @@ from trafficgeo.video.detectors.builtin import builtin_model, builtin_model_path
 from trafficgeo.video.detectors.onnx import OnnxDetector
 from trafficgeo.video.detectors.sizes import SizeRules, blob_ground_size, classify_sizes
 from trafficgeo.video.detectors.tile_bands import plan_bands
-from trafficgeo.video.detectors.tiling import TiledDetector, TilePlan, plan_tiles
+from trafficgeo.video.detectors.tiling import TiledDetector, TilePlan, line_reach, plan_tiles
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from trafficgeo.camera.model import Camera
     from trafficgeo.geo.mapping import Surface
     from trafficgeo.traffic.lanes import Lanes
+    from trafficgeo.traffic.lines import CountLine
 
 BUILTIN = "nanodet"
 # How the tiles are planned: "squares" (plan_tiles: square tiles at the model's 416 px input) or "bands"
@@ -58,23 +61,27 @@ class SizeClasses:
 def make_learned_detector(*, camera: Camera | None = None, surface: Surface | None = None,
                           road: Lanes | np.ndarray | None = None, roi: np.ndarray | None = None, tiles: bool = True,
                           conf: float | None = None, iou: float = 0.5, threads: int | None = None,
-                          tiling: str = "squares") -> Detector:
+                          tiling: str = "squares", lines: Sequence[CountLine] | None = None) -> Detector:
     """The built-in learned detector. With a calibrated ``camera`` and its ``surface`` and a counted ``road`` (lanes,
-    else the ``roi`` mask), tiles are planned so that vehicles on that road are large enough for it (``tiles``) and
-    classes come from the ground size; the plan is the detector's ``plan`` (None without tiling). ``roi`` (bool
-    (H, W)) keeps boxes whose bottom centre lies inside it. ``conf``: the score threshold (default the model's).
-    ``tiling``: one of :data:`TILINGS`."""
+    else the ``roi`` mask, else a band of road around each counting line of ``lines``), tiles are planned so that
+    vehicles on that road are large enough for it (``tiles``) and classes come from the ground size; the plan is the
+    detector's ``plan`` (None without tiling), with what it reaches at each of the ``lines``
+    (:func:`~trafficgeo.video.detectors.tiling.line_reach`: its line warnings). ``roi`` (bool (H, W)) keeps boxes
+    whose bottom centre lies inside it. ``conf``: the score threshold (default the model's). ``tiling``: one of
+    :data:`TILINGS`."""
     if tiling not in TILINGS:
         raise InputError(f"tiling {tiling!r}: use one of {', '.join(TILINGS)}")
     model = builtin_model(BUILTIN)
     path = builtin_model_path(BUILTIN)
-    area = road if road is not None else roi
+    area = road if road is not None else roi if roi is not None else (list(lines) if lines else None)
     plan = None
     if tiles and camera is not None and surface is not None and area is not None:
         if tiling == "bands":
             plan = plan_bands(camera, surface, area, input_size=model.input_size_px, min_size_px=BANDS_MIN_SIZE_PX)
         else:
             plan = plan_tiles(camera, surface, area, input_size=model.input_size_px)
+        if lines:
+            object.__setattr__(plan, "lines", line_reach(plan, camera, surface, lines))
     tiled = plan is not None and len(plan.tiles) > 0
     base: Detector = OnnxDetector(path, format=model.layout, conf=conf, iou=iou, roi=None if tiled else roi,
                                   threads=threads)

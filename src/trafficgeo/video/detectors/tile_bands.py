@@ -31,11 +31,11 @@ import numpy as np
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
-from trafficgeo.traffic.lanes import Lanes
 from trafficgeo.video.detectors.tiled import CUT_MARGIN_PX
 from trafficgeo.video.detectors.tiling import (
     LARGE_VEHICLE_M,
     REFERENCE_CAR_M,
+    Road,
     TilePlan,
     _clip_boxes,
     finish_plan,
@@ -125,17 +125,17 @@ def _bands(zoom: np.ndarray, ratio: float) -> list[np.ndarray]:
     return out
 
 
-def plan_bands(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame_shape: tuple[int, int] | None = None,
+def plan_bands(camera: Camera, surface: Surface, road: Road, frame_shape: tuple[int, int] | None = None,
                *, input_size: int = 416, min_size_px: float = 24.0, max_upscale: float = 2.0,
                min_tiled_size_px: float = 16.0, vehicle_m: Sequence[float] = REFERENCE_CAR_M,
                large_vehicle_m: Sequence[float] = LARGE_VEHICLE_M, max_distance_m: float | None = None,
                step_m: float = 1.0, roi_step_px: int = 8, stride_px: int = 32, pass_cost_px: float = PASS_COST_PX,
                ratios: Sequence[float] = ZOOM_RATIOS) -> TilePlan:
     """Rectangular tiles, each with its own model input size, so that the reference car ``vehicle_m`` reaches
-    ``min_size_px`` (shorter side) in the model input everywhere on the counted road ``road`` (lanes, or a bool ROI
-    mask (H, W)) within ``max_distance_m`` (m), at the least input pixels per frame (see the module docstring). The
-    full frame runs at ``input_size`` px on its longer side. Points that even ``max_upscale`` cannot bring to
-    ``min_tiled_size_px`` get no tile (the plan's warnings name them)."""
+    ``min_size_px`` (shorter side) in the model input everywhere on the counted road ``road`` (lanes, a bool ROI
+    mask (H, W), or counting lines: a band of road around each) within ``max_distance_m`` (m), at the least input
+    pixels per frame (see the module docstring). The full frame runs at ``input_size`` px on its longer side. Points
+    that even ``max_upscale`` cannot bring to ``min_tiled_size_px`` get no tile (the plan's warnings name them)."""
     if not (isinstance(stride_px, int) and stride_px >= 1) or not (np.isfinite(pass_cost_px) and pass_cost_px >= 0):
         raise InputError(f"tiling: stride_px {stride_px!r} must be a whole number >= 1 and pass_cost_px "
                          f"{pass_cost_px!r} a number >= 0")

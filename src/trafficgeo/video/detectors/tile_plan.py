@@ -18,7 +18,7 @@ from trafficgeo.video.detectors.tiled import CUT_MARGIN_PX
 if TYPE_CHECKING:
     from trafficgeo.video.detectors.tiling import RoadSamples
 
-__all__ = ["REFERENCE_CAR_M", "RegionReach", "TilePlan", "box_size_px"]
+__all__ = ["LINE_SHORT_SHARE", "REFERENCE_CAR_M", "LineReach", "RegionReach", "TilePlan", "box_size_px"]
 
 REFERENCE_CAR_M = (4.4, 1.8, 1.5)  # length, width, height (m): the small vehicle that must be detectable
 
@@ -56,6 +56,30 @@ class RegionReach:
     unit: str = "m"
 
 
+LINE_SHORT_SHARE = 0.1  # a line warns when more than this share of it (in view) is below the detector's reach
+
+
+@dataclass(frozen=True)
+class LineReach:
+    """How well the detector sees vehicles crossing one counting line with a plan.
+
+    Attributes:
+        name: the counting line's name.
+        in_view: share of the line's sample points in view.
+        short: share of the points in view where the reference car, crossing the line, stays below the minimum size
+            in the detector input over the full frame and the tiles.
+        input_px: (smallest, largest) size (px, shorter side) of that car in the detector input over those short
+            points (over all the points in view when none is short); None when no point is in view.
+        distance_m: (nearest, farthest) horizontal distance (m) from the camera of the same points; None likewise.
+    """
+
+    name: str
+    in_view: float
+    short: float
+    input_px: tuple[float, float] | None
+    distance_m: tuple[float, float] | None
+
+
 @dataclass(frozen=True, eq=False)
 class TilePlan:
     """Tiles for one camera (see the module docstring).
@@ -71,6 +95,10 @@ class TilePlan:
         size_px: (N,) the reference car's size at each sample in full-frame px (NaN: not in view).
         best_input_px: (N,) its largest size in the detector input over the full frame and the tiles that hold it
             whole (NaN: not in view).
+        source: what the road was taken from: ``"lanes"``, ``"roi"`` or ``"lines"`` (a band of road around each
+            counting line, when neither lanes nor an ROI are given); ``""`` for a plan made otherwise.
+        lines: per counting line, what the detector reaches there
+            (:func:`~trafficgeo.video.detectors.tiling.line_reach`); empty when no lines were given.
     """
 
     frame_shape: tuple[int, int]
@@ -88,6 +116,8 @@ class TilePlan:
     cut_margin_px: float = CUT_MARGIN_PX  # see cut_by_tile
     tile_input_hw: np.ndarray | None = None  # (K, 2) model input (h, w) px per tile; None: input_size square
     full_input_hw: tuple[int, int] | None = None  # model input (h, w) px of the full frame; None: square
+    source: str = ""
+    lines: tuple[LineReach, ...] = ()
 
     def __post_init__(self) -> None:
         h, w = (int(v) for v in self.frame_shape)
@@ -167,7 +197,8 @@ class TilePlan:
         lines = []
         in_view = np.isfinite(self.size_px)
         if not in_view.any():
-            lines.append("tiling: no part of the counted road is in view; check the lanes or the ROI")
+            lines.append("tiling: no part of the counted road is in view; check the "
+                         + ("counting lines" if self.source == "lines" else "lanes or the ROI"))
         elif not len(self.tiles):
             smallest = float(np.nanmin(self.best_input_px))
             lines.append(f"tiling: not needed - {car} is at least {smallest:.0f} px across in the detector's {s} px "
@@ -183,6 +214,9 @@ class TilePlan:
                          f"{zoom.min():.2f}-{zoom.max():.2f}x){where} besides the full frame: the detector runs "
                          f"{n + 1} times per frame on {total / 1e6:.2f} Mpx of input "
                          f"({total / self.full_input_pixels:.1f}x the full frame's)")
+        if self.source == "lines" and in_view.any():
+            lines[0] += ("; planned around the counting lines (a band of road across each), as neither lanes nor "
+                         "an ROI were given")
         lines.extend(self.warnings())
         return lines
 
@@ -190,7 +224,7 @@ class TilePlan:
         """One warning per lane (or the ROI) with road where the reference car stays below the minimum size."""
         out = []
         car = f"a car {self.vehicle_m[0]:g} m long"
-        for r in self.regions:
+        for r in self.regions if self.source != "lines" else ():  # a line band: the line's own warning says it
             if r.beyond_m <= 0 or r.beyond_distance_m is None:
                 continue
             what = f"lane {r.name}" if r.unit == "m" else "the ROI"
@@ -201,6 +235,24 @@ class TilePlan:
                        f"stays below {self.min_size_px:g} px across in its {self.input_size} px input even at "
                        f"{self.max_upscale:g}x zoom, so vehicles there may go undetected and uncounted; count nearer "
                        "the camera, or film with a longer lens or a higher resolution")
+        return out + self.line_warnings()
+
+    def line_warnings(self) -> list[str]:
+        """One warning per counting line where, on more than :data:`LINE_SHORT_SHARE` of it in view, the reference
+        car crossing it stays below the minimum size in the detector input (with the tiles of this plan)."""
+        out = []
+        car = f"a car {self.vehicle_m[0]:g} m long"
+        for r in self.lines:
+            if r.short <= LINE_SHORT_SHARE or r.input_px is None or r.distance_m is None:
+                continue
+            (lo, hi), (d0, d1) = r.input_px, r.distance_m
+            size = f"{lo:.0f} px" if round(lo) == round(hi) else f"{lo:.0f}-{hi:.0f} px"
+            where = f"{d0:.0f} m" if round(d0) == round(d1) else f"{d0:.0f}-{d1:.0f} m"
+            out.append(f"counting line {r.name}: {car} crossing it ({where} from the camera) is only {size} across in "
+                       f"the detector's input on {r.short:.0%} of the line, below the {self.min_size_px:g} px the "
+                       "detector needs, so vehicles there may go undetected and uncounted; plan tiles there (lanes or "
+                       "an ROI that include the line), count nearer the camera, or film with a longer lens or a higher "
+                       "resolution")
         return out
 
     def _tiled_distance_m(self) -> tuple[float, float] | None:
@@ -228,6 +280,12 @@ class TilePlan:
                          [round(v, 1) for v in r.beyond_distance_m],
                          "in_view_distance_m": None if r.in_view_distance_m is None else
                          [round(v, 1) for v in r.in_view_distance_m]} for r in self.regions],
+            "source": self.source,
+            "lines": [{"name": r.name, "in_view": round(r.in_view, 3), "below_reach": round(r.short, 3),
+                       "input_px": None if r.input_px is None else [round(v, 1) for v in r.input_px],
+                       "distance_m": None if r.distance_m is None else [round(v, 1) for v in r.distance_m]}
+                      for r in self.lines],
+            "line_warnings": self.line_warnings(),
             "warnings": self.warnings(),
         }
 

@@ -14,6 +14,11 @@ big a vehicle is at each point of the road, so the tiles can be planned once per
   detector input everywhere on the counted road, and so that a *large* vehicle (a truck) at any road point lies whole
   in the tile that serves that point (the tiles overlap by that vehicle's extent). No tiles when the full frame
   suffices. The plan reports, per lane (or for the ROI), the road that stays too small even at the maximum zoom.
+* The counted road is the lanes (:func:`lane_samples`), else the ROI (:func:`roi_samples`), else a band of road
+  around each counting line (:func:`line_samples`: :data:`LINE_BAND_ALONG_M` beyond each end of the line and
+  :data:`LINE_BAND_ACROSS_M` to each side, so vehicles are tracked before and after it), so that the simplest run
+  (counting lines only) still tiles the far lines. :func:`line_reach` tells, per counting line, how large a car
+  crossing it is in the detector input with a plan (the plan's line warnings).
 * :class:`~trafficgeo.video.detectors.tile_plan.TilePlan` (re-exported here) holds a plan and what it reaches per lane.
 * :class:`~trafficgeo.video.detectors.tiled.TiledDetector` (re-exported here) - a
   :class:`~trafficgeo.video.detections.Detector` running a base detector on the full frame and on every tile crop,
@@ -40,9 +45,11 @@ from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface, camera_crs, pixels_to_world, world_to_pixels
 from trafficgeo.traffic.boxes import VEHICLE_DIMENSIONS, cuboid_boxes
 from trafficgeo.traffic.lanes import Lanes
+from trafficgeo.traffic.lines import CountLine
 from trafficgeo.video.detections import check_roi
 from trafficgeo.video.detectors.tile_plan import (
     REFERENCE_CAR_M,
+    LineReach,
     RegionReach,
     TilePlan,
     _clip_boxes,
@@ -53,12 +60,16 @@ from trafficgeo.video.detectors.tile_plan import (
 )
 from trafficgeo.video.detectors.tiled import CUT_MARGIN_PX, TiledDetector, cut_by_tile, merge_boxes
 
-__all__ = ["LARGE_VEHICLE_M", "REFERENCE_CAR_M", "RegionReach", "RoadSamples", "RoadView", "TilePlan",
-           "TiledDetector", "box_size_px", "cut_by_tile", "finish_plan", "lane_samples", "merge_boxes", "plan_tiles",
-           "road_view", "roi_samples", "vehicle_boxes", "vehicle_size_px"]
+__all__ = ["LARGE_VEHICLE_M", "LINE_BAND_ACROSS_M", "LINE_BAND_ALONG_M", "REFERENCE_CAR_M", "LineReach", "RegionReach",
+           "RoadSamples", "RoadView", "TilePlan", "TiledDetector", "box_size_px", "cut_by_tile", "finish_plan",
+           "lane_samples", "line_reach", "line_samples", "merge_boxes", "plan_tiles", "road_view", "roi_samples",
+           "vehicle_boxes", "vehicle_size_px"]
 
 LARGE_VEHICLE_M = VEHICLE_DIMENSIONS["truck"]  # the vehicle that must lie whole in a tile (its extent = overlap)
 UNKNOWN_HEADINGS_DEG = (0.0, 45.0, 90.0, 135.0)  # tried where the direction of travel is unknown (ROI)
+Road = Lanes | np.ndarray | Sequence[CountLine]  # the counted road: lanes, an ROI mask (H, W) or counting lines
+LINE_BAND_ALONG_M = 3.0  # m of road planned beyond each end of a counting line (no lanes or ROI given)
+LINE_BAND_ACROSS_M = 30.0  # m of road planned to each side of a counting line: ~2 s of travel at 50 km/h
 
 
 # ---------------------------------------------------------------------------------------------------- sizes
@@ -168,6 +179,83 @@ def lane_samples(lanes: Lanes, surface: Surface, *, step_m: float = 1.0, metres_
                        np.full(xy.shape[0], step_m * step_m), widths)
 
 
+def _line_crossing_heading_deg(line: shapely.LineString) -> float:
+    """Direction of travel across a counting line (deg clockwise from grid north, modulo 180): square to its chord
+    (first to last vertex)."""
+    xy = np.asarray(line.coords, dtype=np.float64)[:, :2]
+    d = xy[-1] - xy[0]
+    return float((np.degrees(np.arctan2(d[0], d[1])) + 90.0) % 180.0)
+
+
+def _line_band(line: shapely.LineString, along: float, across: float) -> shapely.Polygon:
+    """The band of ground around ``line``: the line stretched by ``along`` beyond each end (along its end
+    segments), widened by ``across`` to each side (flat ends); CRS units."""
+    xy = np.asarray(line.coords, dtype=np.float64)[:, :2]
+    ends = []
+    for a, b in ((xy[0], xy[1]), (xy[-1], xy[-2])):
+        d = a - b
+        ends.append(a + along * d / max(float(np.hypot(*d)), 1e-12))
+    stretched = shapely.LineString(np.vstack([ends[0], xy[1:-1], ends[1]]))
+    return shapely.buffer(stretched, across, cap_style="flat", join_style="mitre")
+
+
+def line_samples(lines: Sequence[CountLine], surface: Surface, *, step_m: float = 1.0, metres_per_unit_: float = 1.0,
+                 along_m: float = LINE_BAND_ALONG_M, across_m: float = LINE_BAND_ACROSS_M) -> RoadSamples:
+    """Points on a square grid of ``step_m`` metres in a band of road around every counting line (``along_m`` m
+    beyond its ends, ``across_m`` m to each side; :func:`_line_band`), at the surface's height, heading across the
+    line (:func:`_line_crossing_heading_deg`). The region of a point is its line's name, its "lane width" the
+    band's length along the line (so the plan's lengths are metres of travel across it)."""
+    if not (np.isfinite(step_m) and step_m > 0):
+        raise InputError(f"tiling: the road sampling step {step_m!r} m must be a positive number of metres")
+    if not lines:
+        raise InputError("tiling: no counting lines to plan tiles around; give lanes, an ROI or counting lines")
+    step = step_m / metres_per_unit_
+    out_xy, out_h, out_r, widths = [], [], [], {}
+    for line in lines:
+        band = _line_band(line.geometry, along_m / metres_per_unit_, across_m / metres_per_unit_)
+        x0, y0, x1, y1 = band.bounds
+        X, Y = (a.reshape(-1) for a in np.meshgrid(np.arange(x0 + 0.5 * step, x1, step),
+                                                   np.arange(y0 + 0.5 * step, y1, step)))
+        inside = shapely.contains_xy(band, X, Y)
+        widths[line.name] = line.geometry.length * metres_per_unit_ + 2.0 * along_m
+        out_xy.append(np.column_stack([X[inside], Y[inside]]))
+        out_h.append(np.full(int(inside.sum()), _line_crossing_heading_deg(line.geometry)))
+        out_r.append(np.full(int(inside.sum()), line.name, dtype=object))
+    xy = np.concatenate(out_xy)
+    z = np.asarray(surface.elevation(xy[:, 0], xy[:, 1]), dtype=np.float64).reshape(-1)
+    return RoadSamples(np.column_stack([xy, z]), np.concatenate(out_h), np.concatenate(out_r),
+                       np.full(xy.shape[0], step_m * step_m), widths)
+
+
+def line_reach(plan: TilePlan, camera: Camera, surface: Surface, lines: Sequence[CountLine], *, samples: int = 21
+               ) -> tuple[LineReach, ...]:
+    """Per counting line, how large the plan's reference car crossing it (heading square to the line, standing at
+    ``samples`` points evenly along it) is in the detector input over the full frame and the plan's tiles
+    (:meth:`TilePlan.input_size_px`), against the plan's minimum size."""
+    mpu = _mpu(camera)
+    out = []
+    for line in lines:
+        at = shapely.line_interpolate_point(line.geometry, np.linspace(0.0, 1.0, samples), normalized=True)
+        xy = shapely.get_coordinates(at)[:, :2]
+        xyz = np.column_stack([xy, np.asarray(surface.elevation(xy[:, 0], xy[:, 1]), dtype=np.float64).reshape(-1)])
+        seen = world_to_pixels(camera, xyz, surface).ok
+        best = np.full(samples, np.nan)
+        if seen.any():
+            boxes = vehicle_boxes(camera, xyz[seen], _line_crossing_heading_deg(line.geometry), plan.vehicle_m)
+            best[seen] = plan.input_size_px(boxes)
+        seen &= np.isfinite(best)
+        if not seen.any():
+            out.append(LineReach(line.name, 0.0, 0.0, None, None))
+            continue
+        short = seen & (best < plan.min_size_px)
+        pick = short if short.any() else seen
+        dist = _horizontal_distance_m(xyz[pick], camera.position[:2], mpu)
+        out.append(LineReach(line.name, float(seen.mean()), float(short.sum() / seen.sum()),
+                             (float(best[pick].min()), float(best[pick].max())),
+                             (float(dist.min()), float(dist.max()))))
+    return tuple(out)
+
+
 def _roi_heading_deg(xy: np.ndarray, radius: float, min_ratio: float = 2.0) -> np.ndarray:
     """Direction (deg clockwise from grid north, modulo 180) of the road at ground points (N, 2) spread evenly over
     it: the major axis of the points within ``radius`` of each, where that neighbourhood is at least ``min_ratio``
@@ -266,14 +354,15 @@ def grid_plan(frame_shape: tuple[int, int], n: int = 2, *, overlap: float = 0.2,
     return TilePlan((h, w), int(input_size), 0.0, max(input_size / min(tw, th), 1.0), tiles)
 
 
-def plan_tiles(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame_shape: tuple[int, int] | None = None,
+def plan_tiles(camera: Camera, surface: Surface, road: Road, frame_shape: tuple[int, int] | None = None,
                *, input_size: int = 416, min_size_px: float = 24.0, max_upscale: float = 2.0,
                min_tiled_size_px: float = 16.0, vehicle_m: Sequence[float] = REFERENCE_CAR_M,
                large_vehicle_m: Sequence[float] = LARGE_VEHICLE_M, max_distance_m: float | None = None,
                step_m: float = 1.0, roi_step_px: int = 8, candidates: int = 17) -> TilePlan:
     """Tiles so that the reference car ``vehicle_m`` (length, width, height; m) reaches ``min_size_px`` (shorter
-    side) in the detector's ``input_size`` px input at every point of the counted road ``road`` (lanes, or a bool
-    ROI mask (H, W)) within ``max_distance_m`` (m; None = all) of the camera.
+    side) in the detector's ``input_size`` px input at every point of the counted road ``road`` (lanes, a bool
+    ROI mask (H, W), or counting lines: a band of road around each, :func:`line_samples`) within
+    ``max_distance_m`` (m; None = all) of the camera.
 
     A tile of side ``T`` px is scaled by ``input_size / T``; the smallest tile is ``input_size / max_upscale`` px and
     the largest the frame's shorter side. Greedy, from the farthest road to the nearest: the point with the smallest
@@ -328,7 +417,8 @@ def plan_tiles(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame
 class RoadView:
     """The counted road as the camera sees it, for a tile planner: the ``samples``, their horizontal distance
     ``dist_m`` (m) from the camera, whether each is in view (``seen``), the reference car's size ``size_px``
-    (full-frame px, NaN out of view) and box ``car_box`` (N, 4) there; ``unit`` ``"m"`` (lanes) or ``"m2"`` (ROI)."""
+    (full-frame px, NaN out of view) and box ``car_box`` (N, 4) there; ``unit`` ``"m"`` (lanes, line bands) or
+    ``"m2"`` (ROI); ``source`` what the road was taken from (:attr:`TilePlan.source`)."""
 
     frame_shape: tuple[int, int]
     samples: RoadSamples
@@ -338,14 +428,16 @@ class RoadView:
     size_px: np.ndarray
     car_box: np.ndarray
     metres_per_unit: float
+    source: str = ""  # "lanes", "roi" or "lines"
 
 
-def road_view(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame_shape: tuple[int, int] | None = None,
+def road_view(camera: Camera, surface: Surface, road: Road, frame_shape: tuple[int, int] | None = None,
               *, input_size: float = 416, min_size_px: float = 24.0, max_upscale: float = 2.0,
               min_tiled_size_px: float = 16.0, vehicle_m: Sequence[float] = REFERENCE_CAR_M,
               max_distance_m: float | None = None, step_m: float = 1.0, roi_step_px: int = 8) -> RoadView:
-    """The :class:`RoadView` of ``road`` (lanes, or a bool ROI mask (H, W)) within ``max_distance_m`` (m; None =
-    all) of the camera; InputError for frames of another size than the calibration or a non-positive setting."""
+    """The :class:`RoadView` of ``road`` (lanes, a bool ROI mask (H, W), or counting lines) within
+    ``max_distance_m`` (m; None = all) of the camera; InputError for frames of another size than the calibration
+    or a non-positive setting."""
     h, w = camera.height, camera.width
     if frame_shape is not None and tuple(int(v) for v in frame_shape[:2]) != (h, w):
         raise InputError(f"tiling: frames of {frame_shape[1]}x{frame_shape[0]} px do not match the camera's "
@@ -356,9 +448,11 @@ def road_view(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame_
             raise InputError(f"tiling: {name} {value!r} must be a positive number")
     mpu = _mpu(camera)
     if isinstance(road, Lanes):
-        samples, unit = lane_samples(road, surface, step_m=step_m, metres_per_unit_=mpu), "m"
+        samples, unit, source = lane_samples(road, surface, step_m=step_m, metres_per_unit_=mpu), "m", "lanes"
+    elif isinstance(road, np.ndarray):
+        samples, unit, source = roi_samples(camera, surface, road, step_px=roi_step_px), "m2", "roi"
     else:
-        samples, unit = roi_samples(camera, surface, np.asarray(road), step_px=roi_step_px), "m2"
+        samples, unit, source = line_samples(list(road), surface, step_m=step_m, metres_per_unit_=mpu), "m", "lines"
     dist_m = _horizontal_distance_m(samples.xyz, camera.position[:2], mpu)
     seen = world_to_pixels(camera, samples.xyz, surface).ok
     if max_distance_m is not None:
@@ -369,7 +463,7 @@ def road_view(camera: Camera, surface: Surface, road: Lanes | np.ndarray, frame_
     size[~seen] = np.nan
     car_box = np.full((len(dist_m), 4), np.nan)
     car_box[seen] = vehicle_boxes(camera, samples.xyz[seen], samples.heading_deg[seen], vehicle_m)
-    return RoadView((h, w), samples, unit, dist_m, seen, size, car_box, mpu)
+    return RoadView((h, w), samples, unit, dist_m, seen, size, car_box, mpu, source)
 
 
 def finish_plan(camera: Camera, view: RoadView, tiles: np.ndarray, *, input_size: int, min_size_px: float,
@@ -380,7 +474,8 @@ def finish_plan(camera: Camera, view: RoadView, tiles: np.ndarray, *, input_size
                     max_upscale=float(max_upscale), tiles=tiles, regions=(), samples=view.samples,
                     size_px=view.size_px, best_input_px=np.full(len(view.size_px), np.nan),
                     vehicle_m=tuple(float(v) for v in vehicle_m), camera_xy=camera.position[:2].copy(),
-                    unit_m=view.metres_per_unit, tile_input_hw=tile_input_hw, full_input_hw=full_input_hw)
+                    unit_m=view.metres_per_unit, tile_input_hw=tile_input_hw, full_input_hw=full_input_hw,
+                    source=view.source)
     best = np.full(len(view.size_px), np.nan)
     if view.seen.any():
         best[view.seen] = plan.input_size_px(view.car_box[view.seen])
