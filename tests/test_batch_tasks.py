@@ -194,6 +194,19 @@ def test_rerun_skips_and_changed_options_redo(anchor: dict, tmp_path: Path) -> N
     assert task_key(det, ctx2) != task_key(det, ctx30)
 
 
+def test_without_lanes_the_counting_lines_enter_the_detect_key(anchor: dict, tmp_path: Path) -> None:
+    # with no lanes the counting lines plan the learned detector's tiles (issue 29): a detect task must be redone
+    # when they change; with lanes they plan nothing and only the track task depends on them
+    ctx, det, trk = anchor["ctx"], anchor["detect"], anchor["track"]
+    moved = tmp_path / "other_lines.geojson"
+    moved.write_text('{"type": "FeatureCollection", "features": []}')
+    for lanes, detect_depends in ((None, True), (ctx.cameras["cam1"].lanes, False)):
+        entry = replace(ctx.cameras["cam1"], lanes=lanes)
+        a, b = (replace(ctx, cameras={"cam1": replace(entry, lines=lines)}) for lines in (entry.lines, moved))
+        assert (task_key(det, a) != task_key(det, b)) == detect_depends
+        assert task_key(trk, a) != task_key(trk, b)
+
+
 def test_analysis_origin_puts_intervals_on_the_clock() -> None:
     midnight = datetime(2026, 5, 4, 22, 0, tzinfo=UTC)  # Europe/Berlin midnight in summer
     first = midnight + timedelta(hours=7, minutes=30, seconds=20.5)

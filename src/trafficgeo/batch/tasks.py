@@ -124,9 +124,10 @@ def _entry(task: Task, ctx: BatchContext) -> CameraEntry:
 def task_key(task: Task, ctx: BatchContext) -> str:
     """SHA-256 (hex) of what the task's outputs depend on. detect: the video fingerprint and window (and its start
     time), the camera, surface and lanes (the detector's size filter and tiles), the detector, the options (but the
-    counting interval) and the trafficgeo version; track: the keys of its dependencies, the camera, surface, lanes,
-    lines, time zone and day, the detector, the options, the dataset CRS and the version. Counting lines and the
-    interval do not enter a detect key, so changing them re-does only the track tasks."""
+    counting interval) and the trafficgeo version, and the counting lines when no lanes are given (they plan the
+    detector's tiles then); track: the keys of its dependencies, the camera, surface, lanes, lines, time zone and day,
+    the detector, the options, the dataset CRS and the version. With lanes, counting lines and the interval do not
+    enter a detect key, so changing them re-does only the track tasks."""
     from trafficgeo import __version__
 
     entry = _entry(task, ctx)
@@ -141,6 +142,8 @@ def task_key(task: Task, ctx: BatchContext) -> str:
             options.pop(name, None)
         doc.update(video=_video_fingerprint(task.video), window=[task.video_start_s, task.video_end_s],
                    start_utc=utc_text(task.start_utc))
+        if entry.lanes is None:
+            doc["lines"] = _input_id(entry.lines)
     elif task.stage == "track":
         doc.update(lines=_input_id(entry.lines), day=task.day, timezone=entry.timezone, crs=ctx.crs,
                    depends=[_dependency_key(d, ctx) for d in task.depends])
@@ -288,10 +291,10 @@ def _run_detect(task: Task, ctx: BatchContext, entry: CameraEntry, work: Path):
         raise InputError(f"task {task.task_id}: video {task.video} not found; check the path or plan again")
     video = Path(task.video)
     opts = process_options(entry, start_s=task.video_start_s, end_s=task.video_end_s)
-    cam, surface, lane_set, _ = _load(entry, lines=False)
+    cam, surface, lane_set, count_lines = _load(entry, lines=entry.lanes is None)  # no lanes: lines plan the tiles
     info = video_info(video)
     opts = settled_options(opts, info.fps)
-    detect_and_track(video, cam, surface, work, opts, lanes=lane_set)
+    detect_and_track(video, cam, surface, work, opts, lanes=lane_set, lines=count_lines)
     index, times, det = _checkpoint_rows(work / CHECKPOINT_DIR)
     file_start = task.start_utc - timedelta(seconds=task.video_start_s)
     frames = pd.DataFrame({"frame": index, "time_s": times, "time_utc": _utc(file_start, times),
