@@ -47,7 +47,7 @@ from trafficgeo.crs import metres_per_unit
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import GroundPoints, Surface, camera_crs, lonlat_of, pixels_to_world
 from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, along_track, smooth_track, travel_direction
-from trafficgeo.traffic.speed import ScaleKnowledge, SpeedOptions, cumulative_travel_m, scale_sigma, window_speed
+from trafficgeo.traffic.speed import ScaleKnowledge, SpeedOptions, cumulative_travel_m, scale_terms, window_speed
 from trafficgeo.traffic.tracks import ImageTracks
 
 MIN_MOVING_SPEED = 1.0  # m/s: below this a smoothed heading is noise
@@ -478,13 +478,12 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
     directions = [travel_direction(sm) for _n, _s, _r, sm, _l in parts]
     if knowledge is not None and parts:
         xy_all = np.concatenate([origin + np.column_stack([sm.x, sm.y]) / m for _n, _s, _r, sm, _l in parts])
-        total, cal = scale_sigma(camera, surface, knowledge, xy_all, np.concatenate(directions), speed_opts)
-        cuts = np.cumsum([sm.time.size for _n, _s, _r, sm, _l in parts])[:-1]
-        sigmas = list(zip(np.split(total, cuts), np.split(cal, cuts), strict=True))
+        terms = scale_terms(camera, surface, knowledge, xy_all, np.concatenate(directions))
+        bounds = np.cumsum([0] + [sm.time.size for _n, _s, _r, sm, _l in parts])
+        known = [terms.part(slice(bounds[k], bounds[k + 1])) for k in range(len(parts))]
     else:
-        sigmas = [(None, None)] * len(parts)
-    for (name, source, rows, sm, (length, length_std)), d, (s_total, s_cal) in zip(parts, directions, sigmas,
-                                                                                    strict=True):
+        known = [None] * len(parts)
+    for (name, source, rows, sm, (length, length_std)), d, part_terms in zip(parts, directions, known, strict=True):
         x = origin[0] + sm.x / m
         y = origin[1] + sm.y / m
         vclass = _vehicle_class(tracks.vclass[rows])
@@ -493,7 +492,7 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
         glimpse_ok = duration >= MIN_SPEED_DURATION_S
         path = float(step.sum())
         along, travel = along_track(sm)
-        head = window_speed(sm.time, cumulative_travel_m(sm.x, sm.y, d), sm.position_std, s_total, s_cal,
+        head = window_speed(sm.time, cumulative_travel_m(sm.x, sm.y, d), sm.position_std, part_terms,
                             speed_opts) if glimpse_ok else None
         point_tables.append(pd.DataFrame({
             "track_id": name, "source_track": source, "frame": tracks.frame[rows], "time": sm.time,
