@@ -44,7 +44,7 @@ TILT_DEG = 20.0
 IMAGE_SIZE = (1920, 1080)
 LANES_X_M = (3.0, 6.5)  # lane centres (m east of the camera): northbound, southbound
 CONTROL_M = (25.0, 55.0)  # control points lie this far north of the camera (m)
-ROAD_M = (5.0, 75.0)  # vehicles drive between these distances north of the camera (beyond the view at both ends)
+ROAD_M = (5.0, 75.0)  # vehicles drive between these distances north of the camera (the near end out of view)
 WRONG = ("exact", "pitch", "focal", "warp")
 
 
@@ -148,24 +148,28 @@ def _ar1(rng: np.random.Generator, n: int, sigma: float, correlation_s: float, f
 
 
 def tracks_through_true_camera(speeds_kmh: np.ndarray, noise: PixelNoise, *, warp: bool = False,
-                               fps: float = 30.0, headway_s: float = 2.0,
+                               fps: float = 30.0, headway_s: float = 2.0, far_m: float = ROAD_M[1],
                                seed: int = 0) -> tuple[ImageTracks, dict[str, float]]:
-    """Image tracks of vehicles at constant ``speeds_kmh`` (alternately northbound and southbound), projected
-    through :func:`true_camera` (of :func:`scale_warp`-ed positions with ``warp``) with pixel ``noise``; points in
-    the image only. Returns the tracks (ids ``"v0", "v1", ...``) and each track's true speed (km/h)."""
+    """Image tracks of vehicles at constant ``speeds_kmh`` (alternately northbound and southbound) between
+    ``ROAD_M[0]`` and ``far_m`` m north of the camera, projected through :func:`true_camera` (of
+    :func:`scale_warp`-ed positions with ``warp``) with pixel ``noise``; points in the image only. Returns the
+    tracks (ids ``"v0", "v1", ...``) and each track's true speed (km/h)."""
     speeds = np.asarray(speeds_kmh, dtype=np.float64).reshape(-1)
     if not (np.all(np.isfinite(speeds)) and np.all(speeds > 0)):
         raise InputError("tracks_through_true_camera: speeds must be positive km/h", parameters=("speeds_kmh",))
+    if not ROAD_M[0] + 20.0 <= far_m <= 200.0:
+        raise InputError(f"tracks_through_true_camera: far_m {far_m:g} must be between {ROAD_M[0] + 20:g} and 200 m",
+                         parameters=("far_m",))
     rng = np.random.default_rng(seed)
     cam = true_camera()
     cols: dict[str, list] = {"id": [], "frame": [], "time": [], "u": [], "v": []}
     for k, kmh in enumerate(speeds):
         v = kmh / 3.6
         start = round(k * headway_s * fps)
-        t = np.arange(start, start + (ROAD_M[1] - ROAD_M[0]) / v * fps) / fps
+        t = np.arange(start, start + (far_m - ROAD_M[0]) / v * fps) / fps
         s = v * (t - t[0])
         north = k % 2 == 0
-        y = ROAD_M[0] + s if north else ROAD_M[1] - s
+        y = ROAD_M[0] + s if north else far_m - s
         xy = np.column_stack([np.full(t.size, LANES_X_M[0 if north else 1]), y])
         if warp:
             xy = scale_warp(xy, cam)
