@@ -3,15 +3,16 @@ calibrations are: for checking speed estimators against calibration error with a
 
 The scene: a straight two-way road running north from beside a camera :data:`HEIGHT_M` m up (1920 x 1080, focal
 :data:`FOCAL_PX` px, looking north :data:`TILT_DEG` deg down), vehicles at constant speeds in both directions from
-~15 m to ~120 m away. Control points (:func:`control_points`) lie on the road between :data:`CONTROL_M` m from the
-camera, as a surveyor would put them in the middle of the view.
+the bottom of the image (~14 m) to ``far_m`` (default 75 m) away. Control points (:func:`control_points`) lie on
+the road between :data:`CONTROL_M` m from the camera, as a surveyor would put them in the middle of the view.
 
-Wrong cameras (:func:`wrong_camera`), each still fitting the control points as a calibration would:
+Wrong cameras (:func:`wrong_camera`), each still placing the control points where they are, as a calibration
+would (re-fitted by least squares on the control points' ground positions from their true pixels, in metres):
 
 * ``exact`` - the true camera;
-* ``pitch`` - the tilt off by ``+0.4`` deg (the camera taken to look that much higher), position, heading and roll
-  re-fitted to the control points' pixels;
-* ``focal`` - the focal length ``+2.5`` %, the pose re-fitted;
+* ``pitch`` - the tilt off by ``+0.4`` deg (the camera taken to look that much higher), position, heading, roll,
+  focal length and k1 re-fitted (the control points' pixels then move by up to 3.5 px);
+* ``focal`` - the focal length ``+2.5`` %, position, heading, tilt, roll and k1 re-fitted (up to 2.2 px);
 * ``warp`` - the true camera, but the ground positions it gives are warped radially from the camera: the ground
   scale along the line of sight is ``+4`` % near the camera, right among the control points and ``-1`` % far
   (:func:`scale_warp`: a distortion-like error the camera model does not have).

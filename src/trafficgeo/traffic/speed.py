@@ -6,16 +6,18 @@ along a track, and "distance travelled / time seen" averages the drift over the 
 
 The headline ``speed_kmh`` (:func:`window_speed`) is therefore the distance travelled along the direction of
 travel (the smoothed path's steps projected on it) over one window of the time seen, divided by the window's
-time: a chord of the smoothed path, whose position noise only enters through the window's two ends. The window
-spans ``core_fraction`` of the time seen (at least ``min_core_s``) and sits where the calibration knows the scale
-best (:class:`ScaleKnowledge`):
+time: a chord of the smoothed path, whose position noise only enters through the window's two ends. Without
+anything known of the calibration (a camera made by hand) the window is the middle ``core_fraction`` of the time
+seen. With what the calibration knows (:class:`ScaleKnowledge`, from the camera JSON) the window, of that length
+or 1/2 or 3/4 of it, minimizes the speed's expected squared error from:
 
-* with the camera JSON's ``covariance`` block, each point's 1-sigma relative scale error along its direction of
-  travel (:func:`trafficgeo.geo.uncertainty.along_scale_sigma`);
-* with its GCPs, a scale error assumed to grow by ``hull_scale_pct`` % per hull radius outside the convex hull of
-  the control points (the calibration model is only checked where they are);
-* the window minimizes the speed's variance from both and from the smoothed positions' noise at its ends. Without
-  either (a camera made by hand) it is the middle of the time seen.
+* the position noise at its two ends (the smoothed positions' 1-sigma);
+* the covariance's relative scale sigma along the direction of travel over it (the camera JSON's ``covariance``
+  block; :func:`trafficgeo.geo.uncertainty.along_scale_sigma`);
+* a scale-bias risk of ``hull_scale_pct`` % per hull radius (sqrt(area / pi) of the convex hull of the control
+  points) of its mean distance outside that hull and of its mean position's distance from the hull's centroid:
+  the calibration model is only checked among the control points, and a scale error growing away from them
+  cancels to first order over a window centred on them.
 
 ``speed_std_kmh`` combines the position noise at the window's ends and the covariance's scale sigma over the
 window (not the hull's assumed one). :func:`scale_drift_warning` looks for the symptom: vehicles as a whole
