@@ -252,7 +252,8 @@ def scale_drift_warning(camera: Camera, points: pd.DataFrame, vehicles: pd.DataF
     m = metres_per_unit(crs) if crs is not None else 1.0
     head = vehicles.set_index("track_id")["speed_kmh"]
     pts = points[list(need)].copy()
-    pts["ratio"] = pts["speed_kmh"].to_numpy() / pts["track_id"].map(head).to_numpy()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pts["ratio"] = pts["speed_kmh"].to_numpy() / pts["track_id"].map(head).to_numpy()
     pts["distance_m"] = np.hypot(pts["x"] - camera.position[0], pts["y"] - camera.position[1]) * m
     grp = pts.groupby("track_id", sort=False)["time"]
     inner = (pts["time"] >= grp.transform("min") + opts.drift_end_s) & \
