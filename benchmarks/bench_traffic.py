@@ -3,8 +3,9 @@
 Part 0, synthetic tracks: vehicles at known constant speeds (60-120 km/h) on a straight road and on a curve of
 radius 250 m, with 0.1-0.5 m position noise sideways and along the road (white; correlated over 0.3 s; or a 1 Hz
 sideways sway the smoother keeps), seen by a camera looking straight down (:mod:`trafficgeo.synth.noisy_paths`):
-bias and mean absolute error of the vehicle speed ``speed_kmh`` (distance along the direction of travel / time)
-and of the former headline, the smoothed path's arc length / time (``mean_speed_kmh``).
+bias and mean absolute error of the vehicle speed ``speed_kmh`` (distance along the direction of travel / time;
+with this camera made by hand, over the middle half of the time seen: :mod:`trafficgeo.traffic.speed`) and of the
+former headline, the smoothed path's arc length / time (``mean_speed_kmh``).
 
 Part 1, the demo world (SUMO traffic seen by the world's true camera, 60 s, 1080p, counting lines at stations
 -20, 20 and 60 m). Truth boxes become tracker output with realistic faults (:mod:`trafficgeo.synth.detections`:
