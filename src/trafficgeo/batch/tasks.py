@@ -470,6 +470,10 @@ def _run_track(task: Task, ctx: BatchContext, entry: CameraEntry):
     check_interval(interval_s)
     midnight, next_midnight = day_bounds(task.day, entry.timezone)
     cam, surface, lane_set, count_lines = _load(entry, lines=True)
+    from trafficgeo.traffic.loading import load_camera_document
+    from trafficgeo.traffic.speed import ScaleKnowledge
+
+    knowledge = ScaleKnowledge.from_document(load_camera_document(entry.camera)[1], cam, str(entry.camera))
     frames, dets = _day_frames(task, ctx, midnight, next_midnight)
     results = []
     for k, rows in enumerate(_segments(frames) if frames is not None else []):
@@ -481,7 +485,7 @@ def _run_track(task: Task, ctx: BatchContext, entry: CameraEntry):
         origin_us = (origin - datetime(1970, 1, 1, tzinfo=UTC)) // timedelta(microseconds=1)
         tracks["time"] = (tracks["time_us"].to_numpy() - origin_us) / 1e6
         result = analyze(cam, surface, tracks_from_table(tracks), lanes=lane_set, lines=count_lines,
-                         interval_s=interval_s)
+                         interval_s=interval_s, knowledge=knowledge)
         results.append((result, origin, tracks))
     day = merge_day(results, midnight, lane_set, count_lines)
     tables = day_tables(day, cam, ctx.crs, midnight, task.camera_id)

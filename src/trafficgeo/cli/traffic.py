@@ -61,6 +61,7 @@ def analyze(
     from trafficgeo.traffic.lines import check_interval
     from trafficgeo.traffic.loading import check_resolution, load_surface
     from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.traffic.speed import ScaleKnowledge
     from trafficgeo.traffic.tracks import read_tracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
 
@@ -70,14 +71,15 @@ def analyze(
     check_resolution(resolution)
     opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
                              max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
-    cam, _doc = _camera(camera)  # a bad camera file is named before the tracks are read
+    cam, doc = _camera(camera)  # a bad camera file is named before the tracks are read
+    knowledge = ScaleKnowledge.from_document(doc, cam, str(camera))
     image_tracks = read_tracks(tracks, fps=fps)
     surf = load_surface(surface, camera, surface_crs=surface_crs, resolution_m=resolution)
     console.print(f"surface: {surf.describe()}")
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task("tracks", total=len(image_tracks.track_ids))
         analysis = analyze_tracks(cam, surf, image_tracks, lanes, lines, interval_s=interval, options=opts,
-                                  progress=lambda i, n: progress.update(task, completed=i))
+                                  progress=lambda i, n: progress.update(task, completed=i), knowledge=knowledge)
     written = RunFolder(out).write_traffic(analysis, cam)
     print_analysis(analysis, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")

@@ -254,3 +254,42 @@ def footprint_polygon(grid: GroundGrid, min_area_cells: int = 4) -> Any:
         return Polygon()
     merged = unary_union(polys)
     return merged.simplify(grid.resolution * 0.5, preserve_topology=True)
+
+
+def along_scale_sigma(camera: Camera, xyz: np.ndarray, direction_xy: np.ndarray, surface: Surface,
+                      covariance: CameraCovariance, *, length_m: float = 5.0, step: float = 0.1) -> np.ndarray:
+    """Relative 1-sigma (dimensionless, 0.01 = 1 %) of the ground scale along ``direction_xy`` (N, 2; any length)
+    at ground points ``xyz`` (N, 3; CRS units) from the calibration's ``covariance``: how much the ground distance
+    between the point and the point ``length_m`` m further along the direction, seen through the camera, changes
+    with the camera's parameters (first order, each principal direction of the covariance). NaN where either
+    point is behind the camera."""
+    p0 = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    d = np.asarray(direction_xy, dtype=np.float64).reshape(-1, 2)
+    n = p0.shape[0]
+    out = np.full(n, np.nan)
+    if n == 0:
+        return out
+    crs = camera_crs(camera)
+    m = metres_per_unit(crs) if crs is not None else 1.0
+    norm = np.hypot(d[:, 0], d[:, 1])
+    unit = d / np.where(norm > 1e-12, norm, 1.0)[:, None]
+    q_xy = p0[:, :2] + unit * (length_m / m)
+    p1 = np.column_stack([q_xy, surface.elevation(q_xy[:, 0], q_xy[:, 1])])
+    p1[:, 2] = np.where(np.isfinite(p1[:, 2]), p1[:, 2], p0[:, 2])
+    uv0, uv1 = camera.project(p0), camera.project(p1)
+    ok = np.all(np.isfinite(uv0), axis=1) & np.all(np.isfinite(uv1), axis=1) & (norm > 1e-12)
+    if not ok.any():
+        return out
+    n0 = surface.normal(p0[ok, 0], p0[ok, 1])
+    n1 = surface.normal(p1[ok, 0], p1[ok, 1])
+    var = np.zeros(int(ok.sum()))
+    for col in covariance.factor().T:
+        lengths = []
+        for sign in (1.0, -1.0):
+            cam = covariance.camera(covariance.values + sign * step * col, camera)
+            a = _on_tangent_plane(cam, uv0[ok], p0[ok], n0) + p0[ok, :2]
+            b = _on_tangent_plane(cam, uv1[ok], p1[ok], n1) + p1[ok, :2]
+            lengths.append(np.einsum("ij,ij->i", b - a, unit[ok]) * m)
+        var += ((lengths[0] - lengths[1]) / (2.0 * step) / length_m) ** 2
+    out[ok] = np.sqrt(var)
+    return out

@@ -32,6 +32,7 @@ from trafficgeo.geo.mapping import Surface, camera_crs
 from trafficgeo.traffic.lanes import Lanes, lane_visits, main_lane
 from trafficgeo.traffic.lines import CountLine, aggregate_counts, find_crossings
 from trafficgeo.traffic.occlusion import hidden_crossings
+from trafficgeo.traffic.speed import ScaleKnowledge, SpeedOptions, scale_drift_warning
 from trafficgeo.traffic.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions, WorldTracks, world_trajectories
 
@@ -159,8 +160,11 @@ def uncrossed_warnings(lines: list[CountLine], crossings: pd.DataFrame, period: 
 
 def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lanes | None = None,
             lines: list[CountLine] | None = None, interval_s: float = 60.0,
-            options: TrajectoryOptions | None = None, progress=None) -> TrafficResult:
-    """The whole analysis of one set of image tracks (see the module docstring)."""
+            options: TrajectoryOptions | None = None, progress=None, knowledge: ScaleKnowledge | None = None,
+            speed_options: SpeedOptions | None = None) -> TrafficResult:
+    """The whole analysis of one set of image tracks (see the module docstring). ``knowledge``: what the
+    calibration knows of its ground scale (:meth:`ScaleKnowledge.from_document` of the camera JSON; None for a
+    camera made by hand), which places each vehicle's headline speed (:mod:`trafficgeo.traffic.speed`)."""
     from trafficgeo.traffic.lines import interval_edges
     from trafficgeo.traffic.plausibility import check_camera_above_surface, lanes_warning
 
@@ -168,7 +172,9 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
     opts = options or TrajectoryOptions()
     period = (float(tracks.time.min()), float(tracks.time.max())) if len(tracks) else (0.0, 0.0)
     interval_edges(*period, interval_s)  # checks the interval before the work
-    world = world_trajectories(camera, surface, tracks, opts, progress=progress)
+    speed_opts = speed_options or SpeedOptions()
+    world = world_trajectories(camera, surface, tracks, opts, progress=progress, knowledge=knowledge,
+                               speed_options=speed_opts)
     if lanes is not None:
         add_lanes(world, lanes)
     else:
@@ -190,9 +196,14 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
     lane_problem = lanes_warning(camera, surface, lanes, world.points)
     if lane_problem is not None:
         warnings.append(lane_problem)
+    drift = scale_drift_warning(camera, world.points, world.vehicles, speed_opts)
+    if drift is not None:
+        warnings.append(drift)
     return TrafficResult(points=world.points, vehicles=world.vehicles, crossings=crossings, counts=counts,
                     period=period, dropped=world.dropped, lanes=lanes, lines=list(lines or []),
-                    options={**asdict(opts), "interval_s": interval_s}, warnings=warnings)
+                    options={**asdict(opts), "interval_s": interval_s,
+                             "speed_scale_knowledge": knowledge.describe() if knowledge is not None else "none"},
+                    warnings=warnings)
 
 
 def analyze_tracks(camera: Camera | str | os.PathLike, surface: Surface | float | str | os.PathLike,
@@ -200,12 +211,14 @@ def analyze_tracks(camera: Camera | str | os.PathLike, surface: Surface | float 
                    lanes: Lanes | str | os.PathLike | None = None,
                    lines: list[CountLine] | str | os.PathLike | None = None, *, interval_s: float = 60.0,
                    options: TrajectoryOptions | None = None, fps: float | None = None, resolution_m: float = 0.25,
-                   progress=None) -> TrafficResult:
+                   progress=None, knowledge: ScaleKnowledge | None = None) -> TrafficResult:
     """Image tracks -> world trajectories, true speeds (km/h), lanes and counts at counting lines (``trafficgeo
     analyze``). Each input is an object or a path (:mod:`trafficgeo.traffic.loading`): ``camera`` (camera JSON),
     ``surface`` (number, ``"plane"``, DEM or point cloud gridded at ``resolution_m`` m), ``tracks`` (table, tracks
     CSV or MOT file; ``fps`` when it has no time column), ``lanes`` and ``lines`` (GIS files or image CSVs). Counts
-    per ``interval_s`` seconds; ``options`` for the trajectory smoother. Nothing is written: see
+    per ``interval_s`` seconds; ``options`` for the trajectory smoother. What the calibration knows of its ground
+    scale (``knowledge``, which places the headline speeds) is read from the camera JSON; give it for a Camera
+    object. Nothing is written: see
     :meth:`trafficgeo.traffic.run_folder.RunFolder.write_traffic`.
 
     >>> import pandas as pd, trafficgeo as tg
@@ -221,8 +234,10 @@ def analyze_tracks(camera: Camera | str | os.PathLike, surface: Surface | float 
     cam, doc = load_camera_document(camera)
     surf = load_surface(surface, camera if doc is not None else cam, resolution_m=resolution_m)
     lane_set, count_lines = load_layout(cam, surf, lanes, lines)
+    if knowledge is None:
+        knowledge = ScaleKnowledge.from_document(doc, cam, str(camera))
     return analyze(cam, surf, load_tracks(tracks, fps=fps), lanes=lane_set, lines=count_lines, interval_s=interval_s,
-                   options=options, progress=progress)
+                   options=options, progress=progress, knowledge=knowledge)
 
 
 # ------------------------------------------------------------------------------------------------ writing

@@ -136,10 +136,15 @@ VEHICLES = TableSchema("vehicles.csv", (
     Column("points", "int", "", "trajectory points used"),
     Column("outliers", "int", "", "points rejected as outliers"),
     Column("path_length_m", "float", M, "length of the smoothed path"),
-    Column("travel_m", "float", M, "distance between the first and last smoothed positions"),
-    Column("speed_kmh", "float", KMH, "path length / time seen"),
-    Column("speed_std_kmh", "float", KMH, "standard uncertainty of speed_kmh"),
-    Column("mean_speed_kmh", "float", KMH, "mean of the point speeds"),
+    Column("travel_m", "float", M, "distance travelled along the direction of travel over the time seen"),
+    Column("speed_kmh", "float", KMH, "distance travelled along the direction of travel / time, over the part of "
+           "the time seen where the calibration knows the ground scale best (the middle half without a "
+           "calibration's covariance or GCPs)"),
+    Column("speed_std_kmh", "float", KMH, "standard uncertainty of speed_kmh (position noise and the calibration's "
+           "scale uncertainty)"),
+    Column("travel_speed_kmh", "float", KMH, "travel_m / duration_s: the former headline speed, over all the time "
+           "seen (reads the calibration's scale errors at the edges of the view)"),
+    Column("mean_speed_kmh", "float", KMH, "path_length_m / duration_s (reads high under position noise)"),
     Column("median_speed_kmh", "float", KMH, "median of the point speeds"),
     Column("point_speed_std_kmh", "float", KMH, "standard deviation of the point speeds"),
     Column("min_distance_m", "float", M, "nearest horizontal distance to the camera"),

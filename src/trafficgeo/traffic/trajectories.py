@@ -21,8 +21,12 @@ view allows.
 
 Speeds are along each point's direction of travel, the smoothed velocity's trend over ~+-2 s
 (:func:`trafficgeo.traffic.smoothing.along_track`): a smoothed path still wiggles sideways under position noise,
-and its arc length, or the magnitude of its velocity, includes that wiggle and reads high. A vehicle's ``speed_kmh``
-is its distance travelled along that direction (``travel_m``) over the time seen (``duration_s``);
+and its arc length, or the magnitude of its velocity, includes that wiggle and reads high. A vehicle's headline
+``speed_kmh`` is the distance travelled along that direction over a window of the time seen where the calibration
+knows the ground scale best, over the window's time (:mod:`trafficgeo.traffic.speed`: a real calibration's scale
+is a few per cent off beyond its control points, and a speed over the whole path averages that in); its
+``speed_std_kmh`` includes the calibration's scale uncertainty there. ``travel_speed_kmh`` is the former headline,
+the distance travelled along the direction of travel over the whole time seen (``travel_m`` / ``duration_s``);
 ``mean_speed_kmh`` is the smoothed path's arc length (``path_length_m``) over that time, which reads high under
 noise, and ``median_speed_kmh`` the median of the point speeds.
 
@@ -42,7 +46,8 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import GroundPoints, Surface, camera_crs, lonlat_of, pixels_to_world
-from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, along_track, smooth_track
+from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, along_track, smooth_track, travel_direction
+from trafficgeo.traffic.speed import ScaleKnowledge, SpeedOptions, cumulative_travel_m, scale_terms, window_speed
 from trafficgeo.traffic.tracks import ImageTracks
 
 MIN_MOVING_SPEED = 1.0  # m/s: below this a smoothed heading is noise
@@ -315,9 +320,12 @@ def _fill_heading(sm: SmoothedTrack) -> np.ndarray:
 
 def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
                        options: TrajectoryOptions | None = None,
-                       progress: Callable[[int, int], None] | None = None) -> WorldTracks:
+                       progress: Callable[[int, int], None] | None = None, *,
+                       knowledge: ScaleKnowledge | None = None,
+                       speed_options: SpeedOptions | None = None) -> WorldTracks:
     """Map, smooth and describe every track (see the module docstring). ``progress(done, total)`` is called per
-    track and pass."""
+    track and pass. ``knowledge`` (what the calibration knows of its ground scale) and ``speed_options`` choose
+    where each vehicle's headline speed is measured (:mod:`trafficgeo.traffic.speed`)."""
     opts = options or TrajectoryOptions()
     crs = camera_crs(camera)
     m = metres_per_unit(crs) if crs is not None else 1.0
@@ -388,7 +396,8 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
         kept[rows] = True
     dropped = {str(k): int(c) for k, c in zip(*np.unique(status[~kept].astype(str), return_counts=True),
                                                strict=True)}
-    return _assemble(camera, surface, tracks, ground, measured, named, m, dropped)
+    return _assemble(camera, surface, tracks, ground, measured, named, m, dropped, knowledge,
+                     speed_options or SpeedOptions())
 
 
 def usable_positions(camera: Camera, surface: Surface, xy: np.ndarray, opts: TrajectoryOptions) -> np.ndarray:
@@ -461,11 +470,20 @@ def _vehicle_length(camera: Camera, surface: Surface, heading: np.ndarray, boxes
 
 
 def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, measured: np.ndarray, parts: list,
-              m: float, dropped: dict[str, int]) -> WorldTracks:
+              m: float, dropped: dict[str, int], knowledge: ScaleKnowledge | None,
+              speed_opts: SpeedOptions) -> WorldTracks:
     crs = camera_crs(camera)
     origin = camera.position[:2]
     point_tables, vehicle_rows = [], []
-    for name, source, rows, sm, (length, length_std) in parts:
+    directions = [travel_direction(sm) for _n, _s, _r, sm, _l in parts]
+    if knowledge is not None and parts:
+        xy_all = np.concatenate([origin + np.column_stack([sm.x, sm.y]) / m for _n, _s, _r, sm, _l in parts])
+        terms = scale_terms(camera, surface, knowledge, xy_all, np.concatenate(directions))
+        bounds = np.cumsum([0] + [sm.time.size for _n, _s, _r, sm, _l in parts])
+        known = [terms.part(slice(bounds[k], bounds[k + 1])) for k in range(len(parts))]
+    else:
+        known = [None] * len(parts)
+    for (name, source, rows, sm, (length, length_std)), d, part_terms in zip(parts, directions, known, strict=True):
         x = origin[0] + sm.x / m
         y = origin[1] + sm.y / m
         vclass = _vehicle_class(tracks.vclass[rows])
@@ -474,6 +492,8 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
         glimpse_ok = duration >= MIN_SPEED_DURATION_S
         path = float(step.sum())
         along, travel = along_track(sm)
+        head = window_speed(sm.time, cumulative_travel_m(sm.x, sm.y, d), sm.position_std, part_terms,
+                            speed_opts) if glimpse_ok else None
         point_tables.append(pd.DataFrame({
             "track_id": name, "source_track": source, "frame": tracks.frame[rows], "time": sm.time,
             "u": tracks.u[rows], "v": tracks.v[rows], "x_obs": measured[rows, 0], "y_obs": measured[rows, 1],
@@ -486,9 +506,9 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
             "track_id": name, "source_track": source, "class": vclass, "first_time": float(sm.time[0]),
             "last_time": float(sm.time[-1]), "duration_s": duration, "points": int(rows.size),
             "outliers": int(sm.outlier.sum()), "path_length_m": path, "travel_m": travel,
-            "speed_kmh": 3.6 * travel / duration if glimpse_ok else np.nan,
-            "speed_std_kmh": 3.6 * float(np.hypot(sm.position_std[0], sm.position_std[-1])) / duration
-            if glimpse_ok else np.nan,
+            "speed_kmh": 3.6 * head.speed_mps if head is not None else np.nan,
+            "speed_std_kmh": 3.6 * head.std_mps if head is not None else np.nan,
+            "travel_speed_kmh": 3.6 * travel / duration if glimpse_ok else np.nan,
             "mean_speed_kmh": 3.6 * path / duration if glimpse_ok else np.nan,
             "median_speed_kmh": float(np.median(3.6 * along)) if glimpse_ok else np.nan,
             "point_speed_std_kmh": float(np.sqrt(np.mean(sm.speed_std**2))) * 3.6,
@@ -508,8 +528,9 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
 POINT_COLUMNS = ["track_id", "source_track", "frame", "time", "u", "v", "x_obs", "y_obs", "x", "y", "speed_kmh",
                  "speed_std_kmh", "heading_deg", "accel_mps2", "position_std_m", "outlier", "distance_m", "class"]
 VEHICLE_COLUMNS = ["track_id", "source_track", "class", "first_time", "last_time", "duration_s", "points",
-                   "outliers", "path_length_m", "travel_m", "speed_kmh", "speed_std_kmh", "mean_speed_kmh",
-                   "median_speed_kmh", "point_speed_std_kmh", "min_distance_m", "length_m", "length_std_m"]
+                   "outliers", "path_length_m", "travel_m", "speed_kmh", "speed_std_kmh", "travel_speed_kmh",
+                   "mean_speed_kmh", "median_speed_kmh", "point_speed_std_kmh", "min_distance_m", "length_m",
+                   "length_std_m"]
 
 
 def _empty_points() -> pd.DataFrame:

@@ -27,6 +27,7 @@ from trafficgeo.traffic.lanes import Lanes
 from trafficgeo.traffic.lines import CountLine, check_interval
 from trafficgeo.traffic.loading import check_resolution, load_camera_document, load_layout, load_surface
 from trafficgeo.traffic.run_folder import RunFolder
+from trafficgeo.traffic.speed import ScaleKnowledge
 from trafficgeo.traffic.trajectories import TrajectoryOptions
 from trafficgeo.video.pipeline import ProcessOptions
 
@@ -169,7 +170,8 @@ def process_video(video: PathLike, camera: Camera | PathLike, surface: Surface |
         from trafficgeo.traffic.tracks import tracks_from_table
 
         result = analyze(cam, surf, tracks_from_table(tracks), lanes=lane_set, lines=count_lines,
-                         interval_s=interval_s, options=trajectory)
+                         interval_s=interval_s, options=trajectory,
+                         knowledge=ScaleKnowledge.from_document(doc, cam, str(camera)))
         plan_doc = detector_doc.get("tiling") or {}
         if plan_doc.get("line_warnings"):  # the counting lines too far for the detector: in summary.json too
             result = replace(result, warnings=[*plan_doc["line_warnings"], *result.warnings])
@@ -244,7 +246,8 @@ def stitch(chunks: Sequence[PathLike], camera: Camera | PathLike, surface: Surfa
     joined["class"] = joined["class"].fillna("")
     from trafficgeo.traffic.tracks import tracks_from_table
 
-    result = analyze(cam, surf, tracks_from_table(joined), lanes=lane_set, lines=count_lines, interval_s=interval_s)
+    result = analyze(cam, surf, tracks_from_table(joined), lanes=lane_set, lines=count_lines, interval_s=interval_s,
+                     knowledge=ScaleKnowledge.from_document(doc, cam, str(camera)))
     folder = RunFolder(out)
     written = folder.write_traffic(result, cam, publish=False)
     write_csv_atomic(out / "tracks.csv", joined, float_format="%.3f")
