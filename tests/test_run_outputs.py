@@ -375,3 +375,21 @@ def test_stitch_tracks_sorts_tables_by_time() -> None:
     assert sorted(backward["time"]) == sorted(forward["time"])
     with pytest.raises(InputError, match="same chunk"):
         stitch_tracks([early, early])
+
+
+def test_tables_written_before_a_column_joined_still_read(tmp_path: Path) -> None:
+    # vehicles.csv gained travel_speed_kmh and counts.csv observed_s (issue 29): run folders written before read on,
+    # the new column empty; a column that was always there is still required
+    from trafficgeo.traffic.run_folder import COUNTS, VEHICLES
+
+    ref = Path(__file__).parent / "data" / "api-reference"
+    for schema, column in ((VEHICLES, "travel_speed_kmh"), (COUNTS, "observed_s")):
+        now = schema.read(ref / schema.file)
+        old = tmp_path / schema.file
+        now.drop(columns=column).to_csv(old, index=False)
+        back = schema.read(old)
+        assert list(back.columns) == list(now.columns) and back[column].isna().all()
+        pd.testing.assert_frame_equal(back.drop(columns=column), now.drop(columns=column))
+        now.drop(columns="count" if schema is COUNTS else "speed_kmh").to_csv(old, index=False)
+        with pytest.raises(InputError, match=r"no column (count|speed_kmh);"):
+            schema.read(old)

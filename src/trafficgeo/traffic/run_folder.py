@@ -47,12 +47,14 @@ __all__ = ["COUNTS", "CROSSINGS", "DETECTIONS", "SCHEMAS", "TRACKS", "TRAJECTORI
 @dataclass(frozen=True)
 class Column:
     """One column: ``dtype`` one of ``"str"``, ``"int"``, ``"float"``, ``"bool"``; ``unit`` as in the module
-    docstring (``""`` for none)."""
+    docstring (``""`` for none); ``added``: when a column joined a table that run folders already held (e.g.
+    ``"issue 29"``): a file written before it still reads, with the column empty (NaN)."""
 
     name: str
     dtype: str
     unit: str = ""
     description: str = ""
+    added: str = ""
 
 
 _PANDAS = {"str": str, "int": "Int64", "float": "float64", "bool": "boolean"}
@@ -99,13 +101,14 @@ class TableSchema:
 
     def read(self, path: Path, *, required: Iterable[str] | None = None) -> pd.DataFrame:
         """The table at ``path`` with the schema's dtypes (text columns ``""`` where empty); ``required``: the
-        columns that must be there (default: all of the schema's)."""
+        columns that must be there (default: all of the schema's but those ``added`` later, which a file written
+        before them lacks: they are read as empty)."""
         try:
             head = pd.read_csv(path, nrows=0)
         except (OSError, UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
             raise InputError(f"{path}: not a readable {self.file} ({type(exc).__name__}); run trafficgeo again to "
                              "write it") from None
-        need = list(self.names if required is None else required)
+        need = [c.name for c in self.columns if not c.added] if required is None else list(required)
         missing = [n for n in need if n not in head.columns]
         if missing:
             raise InputError(f"{path}: no column {', '.join(missing)}; not a {self.file} written by trafficgeo")
@@ -121,6 +124,12 @@ class TableSchema:
                 table[c] = table[c].map({"True": True, "False": False, "true": True, "false": False})
             elif kind == "int" and table[c].isna().any():
                 table[c] = table[c].astype("Int64")
+        later = [c for c in self.columns if c.added and c.name not in table.columns]
+        if later:  # a file written before these columns joined the table: empty, in the schema's place
+            for c in later:
+                table[c.name] = "" if c.dtype == "str" else float("nan")
+            order = [n for n in self.names if n in table.columns]
+            table = table[order + [n for n in table.columns if n not in order]]
         return table
 
 
@@ -143,7 +152,7 @@ VEHICLES = TableSchema("vehicles.csv", (
     Column("speed_std_kmh", "float", KMH, "standard uncertainty of speed_kmh (position noise and the calibration's "
            "scale uncertainty)"),
     Column("travel_speed_kmh", "float", KMH, "travel_m / duration_s: the former headline speed, over all the time "
-           "seen (reads the calibration's scale errors at the edges of the view)"),
+           "seen (reads the calibration's scale errors at the edges of the view)", added="issue 29"),
     Column("mean_speed_kmh", "float", KMH, "path_length_m / duration_s (reads high under position noise)"),
     Column("median_speed_kmh", "float", KMH, "median of the point speeds"),
     Column("point_speed_std_kmh", "float", KMH, "standard deviation of the point speeds"),
@@ -175,7 +184,8 @@ COUNTS = TableSchema("counts.csv", (
     Column("direction", "int", "", "+1 / -1, as in crossings.csv"),
     Column("interval_start", "float", S, "interval start"),
     Column("interval_end", "float", S, "interval end"),
-    Column("observed_s", "float", S, "seconds of the interval observed (interval_end - interval_start)"),
+    Column("observed_s", "float", S, "seconds of the interval observed (interval_end - interval_start)",
+           added="issue 29"),
     Column("count", "int", "", "vehicles"),
     Column("flow_veh_h", "float", "veh/h", "count / observed_s; empty when less than half the interval was observed"),
     Column("time_mean_speed_kmh", "float", KMH, "mean speed at the line"),
