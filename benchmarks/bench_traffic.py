@@ -157,8 +157,10 @@ def part_world(world_dir: Path, seed: int, options: TrajectoryOptions | None = N
     veh = veh.assign(vehicle=veh["source_track"].map(major))
     veh["true_kmh"] = [_truth_span_speed(truth, v, a, b) for v, a, b in
                        zip(veh["vehicle"], veh["first_time"], veh["last_time"], strict=True)]
-    err = (veh["speed_kmh"] - veh["true_kmh"]).to_numpy()
-    err_arc = (veh["mean_speed_kmh"] - veh["true_kmh"]).to_numpy()  # the former headline: arc length / time
+    veh["true_window_kmh"] = [_truth_span_speed(truth, v, a, b) for v, a, b in  # over the headline's window
+                              zip(veh["vehicle"], veh["speed_start_time"], veh["speed_end_time"], strict=True)]
+    err = (veh["speed_kmh"] - veh["true_window_kmh"]).to_numpy()
+    err_arc = (veh["mean_speed_kmh"] - veh["true_kmh"]).to_numpy()  # arc length / time seen
     reliable = veh["speed_std_kmh"].to_numpy() < 2.0
     veh_lane_true = [truth[(truth["vehicle"] == v) & (truth["time"] >= a) & (truth["time"] <= b)]["lane_name"]
                      .value_counts().index[0] if v in set(truth["vehicle"]) else "" for v, a, b in
@@ -193,9 +195,13 @@ def part_world(world_dir: Path, seed: int, options: TrajectoryOptions | None = N
         return f"{np.mean(np.abs(e)):.2f} (bias {np.mean(e):+.2f}, n {e.size})"
 
     print("\n| measure | trafficgeo | naive baseline | target |\n|---|---|---|---|")
-    print(f"| vehicle speed_kmh, MAE km/h, all vehicles | {mae(err)} | {mae(naive_err)} | |")
+    err_travel = (veh["travel_speed_kmh"] - veh["true_kmh"]).to_numpy()  # the former headline
+    print(f"| vehicle speed_kmh vs the truth over its window, MAE km/h, all vehicles | {mae(err)} | {mae(naive_err)} "
+          "| |")
     print(f"| vehicle speed_kmh, MAE km/h, speed std < 2 km/h | {mae(err[reliable])} | - | <= 1 |")
-    print(f"| (former: arc length / time, mean_speed_kmh), all vehicles | {mae(err_arc)} | | |")
+    print(f"| (former headline travel_speed_kmh vs the truth over the time seen), all vehicles | {mae(err_travel)} "
+          "| | |")
+    print(f"| (arc length / time, mean_speed_kmh), all vehicles | {mae(err_arc)} | | |")
     print(f"| spot speed at the lines, MAE km/h | {mae(spot)} | {mae(naive_spot)} | |")
     lp = (pts["lane"].to_numpy() == lane_true)[lane_true != ""].mean()
     lr = (raw_lane == raw_lane_true)[raw_lane_true != ""].mean()
@@ -265,6 +271,9 @@ def _ngsim_errors(camera: Camera, df: pd.DataFrame, rng: np.random.Generator) ->
         keys = list(zip(part["source_track"], part["frame"], strict=True))
         xy = xy_ft.loc[keys].to_numpy() * FT
         duration = float(veh["duration_s"])
+        tp = part["time"].to_numpy()
+        win = (tp >= veh["speed_start_time"] - 1e-6) & (tp <= veh["speed_end_time"] + 1e-6)
+        win_s = float(veh["speed_end_time"] - veh["speed_start_time"])
         out["parts"].append({  # truths: mean v_Vel over the part's frames (every 0.1 s: a time mean); the part's
             # NGSIM positions (the camera's input, before pixel noise): their path length, the distance they
             # travel (path of their 1 s moving average sampled every 0.5 s, which drops NGSIM's own position
@@ -273,8 +282,10 @@ def _ngsim_errors(camera: Camera, df: pd.DataFrame, rng: np.random.Generator) ->
             "path": 3.6 * float(np.hypot(*np.diff(xy, axis=0).T).sum()) / duration,
             "travel": 3.6 * _travelled_m(xy) / duration,
             "chord": 3.6 * float(np.hypot(*(xy[-1] - xy[0]))) / duration,
-            "speed_kmh": veh["speed_kmh"], "mean_speed_kmh": veh["mean_speed_kmh"],
-            "median_speed_kmh": veh["median_speed_kmh"]})
+            # the same two truths over the window the headline speed_kmh is measured over
+            "v_vel_window": float(np.mean(t_pt[part.index[win]])), "travel_window": 3.6 * _travelled_m(xy[win]) / win_s,
+            "speed_kmh": veh["speed_kmh"], "travel_speed_kmh": veh["travel_speed_kmh"],
+            "mean_speed_kmh": veh["mean_speed_kmh"], "median_speed_kmh": veh["median_speed_kmh"]})
     g = pixels_to_world(camera, uv, surface, with_lonlat=False)
     raw = pd.DataFrame({"id": df["track"], "t": df["time"], "x": g.xyz[:, 0], "y": g.xyz[:, 1],
                         "true": df["true_kmh"]})
@@ -330,12 +341,15 @@ def part_ngsim(seed: int, seeds: int = 5) -> None:
     print("\nper vehicle and camera (each part of a track with a speed), MAE (bias, n) km/h, against two truths: the "
           "mean of NGSIM's v_Vel over the part, and the distance the part's NGSIM positions travel / its time:")
     print("\n| estimator | truth | " + " | ".join(g for g, _ in groups) + " |\n|---|---|---|---|---|")
-    for col, label in (("speed_kmh", "speed_kmh: travel along the direction of travel / time"),
-                       ("mean_speed_kmh", "former: arc length / time (mean_speed_kmh)"),
-                       ("median_speed_kmh", "median of the point speeds (median_speed_kmh)")):
+    for col, label, window in (
+            ("speed_kmh", "speed_kmh: travel along the direction of travel over its window / the window's time", True),
+            ("travel_speed_kmh", "former headline: travel / time seen (travel_speed_kmh)", False),
+            ("mean_speed_kmh", "arc length / time seen (mean_speed_kmh)", False),
+            ("median_speed_kmh", "median of the point speeds (median_speed_kmh)", False)):
         for truth in ("v_vel", "travel"):
-            e = parts[col] - parts[truth]
-            print(f"| {label} | {truth} | " + " | ".join(_mae_bias(e[m]) for _, m in groups) + " |")
+            e = parts[col] - parts[f"{truth}_window" if window else truth]
+            name = f"{truth} over the window" if window else truth
+            print(f"| {label} | {name} | " + " | ".join(_mae_bias(e[m]) for _, m in groups) + " |")
     for truth, label in (("travel", "positions' travel"), ("chord", "positions' first-to-last chord"),
                          ("path", "positions' path length (with NGSIM's jitter)")):
         e = parts[truth] - parts["v_vel"]

@@ -133,3 +133,7 @@ def test_vehicles_table_columns() -> None:
     assert veh["speed_kmh"] == pytest.approx(72.0, abs=0.1)
     assert 0 < veh["speed_std_kmh"] < 0.5
     assert isinstance(pd.Series(veh).get("point_speed_std_kmh"), float)
+    # the window speed_kmh is measured over: the middle half of the time seen (nothing known of the calibration)
+    start, end, first, last = (veh[c] for c in ("speed_start_time", "speed_end_time", "first_time", "last_time"))
+    assert end - start == pytest.approx(0.5 * veh["duration_s"], abs=0.05)
+    assert 0.5 * (start + end) == pytest.approx(0.5 * (first + last), abs=0.05)

@@ -151,6 +151,8 @@ VEHICLES = TableSchema("vehicles.csv", (
            "calibration's covariance or GCPs)"),
     Column("speed_std_kmh", "float", KMH, "standard uncertainty of speed_kmh (position noise and the calibration's "
            "scale uncertainty)"),
+    Column("speed_start_time", "float", S, "start of the window speed_kmh is measured over", added="issue 29"),
+    Column("speed_end_time", "float", S, "end of the window speed_kmh is measured over", added="issue 29"),
     Column("travel_speed_kmh", "float", KMH, "travel_m / duration_s: the former headline speed, over all the time "
            "seen (reads the calibration's scale errors at the edges of the view)", added="issue 29"),
     Column("mean_speed_kmh", "float", KMH, "path_length_m / duration_s (reads high under position noise)"),

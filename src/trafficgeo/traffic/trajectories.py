@@ -508,6 +508,8 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
             "outliers": int(sm.outlier.sum()), "path_length_m": path, "travel_m": travel,
             "speed_kmh": 3.6 * head.speed_mps if head is not None else np.nan,
             "speed_std_kmh": 3.6 * head.std_mps if head is not None else np.nan,
+            "speed_start_time": head.start_s if head is not None else np.nan,
+            "speed_end_time": head.end_s if head is not None else np.nan,
             "travel_speed_kmh": 3.6 * travel / duration if glimpse_ok else np.nan,
             "mean_speed_kmh": 3.6 * path / duration if glimpse_ok else np.nan,
             "median_speed_kmh": float(np.median(3.6 * along)) if glimpse_ok else np.nan,
@@ -528,7 +530,8 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
 POINT_COLUMNS = ["track_id", "source_track", "frame", "time", "u", "v", "x_obs", "y_obs", "x", "y", "speed_kmh",
                  "speed_std_kmh", "heading_deg", "accel_mps2", "position_std_m", "outlier", "distance_m", "class"]
 VEHICLE_COLUMNS = ["track_id", "source_track", "class", "first_time", "last_time", "duration_s", "points",
-                   "outliers", "path_length_m", "travel_m", "speed_kmh", "speed_std_kmh", "travel_speed_kmh",
+                   "outliers", "path_length_m", "travel_m", "speed_kmh", "speed_std_kmh", "speed_start_time",
+                   "speed_end_time", "travel_speed_kmh",
                    "mean_speed_kmh", "median_speed_kmh", "point_speed_std_kmh", "min_distance_m", "length_m",
                    "length_std_m"]
 
