@@ -23,8 +23,8 @@ def print_analysis(analysis: TrafficResult, console: Console) -> None:
     classes = ", ".join(f"{k or 'unknown'} {v}" for k, v in s["classes"].items())
     console.print(f"{s['vehicles']} vehicles ({classes}) in {t1 - t0:.1f} s; {s['points']} track points, "
                   f"{s['outlier_points']} rejected as outliers; not used: {dropped}")
-    console.print(f"mean vehicle speed (distance travelled / time seen): {speed}; lane changes: "
-                  f"{s['lane_changes']}")
+    console.print(f"mean vehicle speed (speed_kmh: distance travelled over the well-calibrated window / its time): "
+                  f"{speed}; lane changes: {s['lane_changes']}")
     for text in analysis.warnings:
         console.print(f"[yellow]warning:[/yellow] {text}")
     if s["crossings"]:

@@ -190,8 +190,8 @@ def _run_summary(run: TrafficRun, s: dict[str, Any]) -> Part:
             ["vehicles", s.get("vehicles"), ""], ["classes", classes, ""],
             ["track points / rejected as outliers", f"{s.get('points')} / {s.get('outlier_points')}", ""],
             ["points not used, by reason", dropped, ""],
-            ["mean of the vehicles' speeds (distance travelled / time seen)", (s.get("mean_speed_kmh"), 1),
-             "km/h"],
+            ["mean of the vehicles' speeds (speed_kmh: distance travelled over the well-calibrated window / its time)",
+             (s.get("mean_speed_kmh"), 1), "km/h"],
             ["lane changes", s.get("lane_changes"), ""]]
     for key, label, unit in (("interval_s", "counting interval", "s"),
                              ("pixel_sigma", "pixel noise of a track point", "px"),
