@@ -260,6 +260,29 @@ def test_counts_list_every_line_lane_direction_and_interval_with_zeros() -> None
     assert len(none) == 2 and (none["count"] == 0).all()
 
 
+def test_lanes_with_a_bearing_list_only_the_direction_they_carry() -> None:
+    """A lane's zero rows are in the direction its traffic crosses the line, not the wrong way round; a lane
+    without a bearing, or one running along the line, keeps both."""
+    from trafficgeo.traffic.lanes import Lanes
+    from trafficgeo.traffic.lines import lane_directions
+
+    east = CountLine("E", shapely.LineString([(0, 50), (7, 50)]))  # drawn towards the east: its left is north
+    assert lane_directions(east, 0.0) == (-1,)  # northbound: from its right (south) to its left
+    assert lane_directions(east, 180.0) == (1,) and lane_directions(east, 170.0) == (1,)
+    assert lane_directions(east, float("nan")) == (-1, 1) and lane_directions(east, 80.0) == (-1, 1)
+    west = CountLine("W", shapely.LineString([(7, 50), (0, 50)]))
+    assert lane_directions(west, 0.0) == (1,)
+    lanes = Lanes(("up", "down", "any"), (shapely.box(0, 0, 3.5, 100), shapely.box(3.5, 0, 7, 100),
+                                          shapely.box(7, 0, 10, 100)), bearings=(0.0, 180.0, float("nan")))
+    crossing = _one_crossing().assign(line="E", lane="up", direction=-1)
+    counts = aggregate_counts(crossing, 60.0, 0.0, 60.0, lines=[east], lanes=lanes)
+    assert sorted(zip(counts["lane"], counts["direction"], counts["count"], strict=True)) == [
+        ("any", -1, 0), ("any", 1, 0), ("down", 1, 0), ("up", -1, 1)]
+    # a vehicle the wrong way round still has its row
+    wrong = aggregate_counts(crossing.assign(direction=1), 60.0, 0.0, 60.0, lines=[east], lanes=lanes)
+    assert wrong.set_index(["lane", "direction"]).loc[("up", 1), "count"] == 1
+
+
 def test_counted_groups_keeps_the_groups_with_vehicles() -> None:
     from trafficgeo.traffic.lines import counted_groups
 

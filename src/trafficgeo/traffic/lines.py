@@ -227,13 +227,36 @@ def flow_rule(observed_s: object, interval_s: float) -> np.ndarray:
     return np.asarray(observed_s, dtype=np.float64) >= MIN_FLOW_SHARE * float(interval_s) - 1e-9
 
 
+MIN_CROSSING_ANGLE_DEG = 20.0  # a lane whose bearing is nearer than this to a line's direction may cross it either way
+
+
+def lane_directions(line: CountLine, bearing_deg: float) -> tuple[int, ...]:
+    """The crossing directions (+1: left to right of the line's first-to-last direction) a lane of travel bearing
+    ``bearing_deg`` (deg clockwise from grid north; NaN: unknown) gives at ``line``: one, or both where the bearing is
+    unknown or within :data:`MIN_CROSSING_ANGLE_DEG` of the line."""
+    coords = np.asarray(line.geometry.coords, dtype=np.float64)[:, :2]
+    d = coords[-1] - coords[0]
+    if not np.isfinite(bearing_deg) or not np.any(d):
+        return (-1, 1)
+    b = np.radians(bearing_deg)
+    cross = (d[0] * np.cos(b) - d[1] * np.sin(b)) / np.hypot(*d)  # sine of the angle from the line to the heading
+    if abs(cross) < np.sin(np.radians(MIN_CROSSING_ANGLE_DEG)):
+        return (-1, 1)
+    return (1,) if cross < 0 else (-1,)
+
+
 def _expected_groups(lines: list[CountLine] | None, lanes: Lanes | None) -> list[tuple[str, str, int]]:
     """(line, lane, direction) of every count a set of ``lines`` can give: with ``lanes``, the line's own lanes
-    (else all of them); without, the lane ``""``; both directions."""
+    (else all of them) in the direction each lane's bearing crosses the line (both where it is unknown); without
+    lanes, the lane ``""`` in both directions."""
     out = []
     for line in lines or []:
-        names = (line.lanes or tuple(lanes.names)) if lanes is not None else ("",)
-        out += [(line.name, str(lane), d) for lane in names for d in (-1, 1)]
+        if lanes is None:
+            out += [(line.name, "", d) for d in (-1, 1)]
+            continue
+        bearing = dict(zip(lanes.names, lanes.bearings or [np.nan] * len(lanes.names), strict=True))
+        for lane in line.lanes or tuple(lanes.names):
+            out += [(line.name, str(lane), d) for d in lane_directions(line, bearing.get(lane, np.nan))]
     return out
 
 
