@@ -59,15 +59,18 @@ class OrtBackend:
 
 
 class OpenVinoBackend:
-    """The OpenVINO runtime on the CPU (``INFERENCE_NUM_THREADS`` = ``threads``), outputs ``out_names`` in that order
-    (an InputError when the compiled model lacks one of them)."""
+    """The OpenVINO runtime on the CPU (``INFERENCE_NUM_THREADS`` = ``threads``; ``config``: more of its properties,
+    e.g. ``{"INFERENCE_PRECISION_HINT": "f32"}``), outputs ``out_names`` in that order (an InputError when the
+    compiled model lacks one of them)."""
 
     name = OPENVINO
 
-    def __init__(self, model_path: str | Path, out_names: Sequence[str], threads: int) -> None:
+    def __init__(self, model_path: str | Path, out_names: Sequence[str], threads: int,
+                 config: Mapping[str, str] | None = None) -> None:
         import openvino as ov
 
-        self.compiled = ov.Core().compile_model(str(model_path), "CPU", {"INFERENCE_NUM_THREADS": int(threads)})
+        self.compiled = ov.Core().compile_model(str(model_path), "CPU",
+                                                {"INFERENCE_NUM_THREADS": int(threads), **dict(config or {})})
         have = {n for port in self.compiled.outputs for n in port.get_names()}
         missing = [n for n in out_names if n not in have]
         if missing:
