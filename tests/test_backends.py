@@ -161,6 +161,11 @@ def test_the_cost_line_has_the_right_arithmetic() -> None:
     assert (one.passes, one.detection_frames) == (1, 250) and math.isclose(one.seconds, 250 * 0.041)
     assert "1 pass per detection frame, every frame" in one.summary()
     assert estimate_cost(choice, None, every=4, video_s=1.0, fps=30.0, decode_ms=0, track_ms=0).detection_frames == 8
+    # a measured detection of 250 ms: 250 - 5 x 41 = 45 ms of work besides the network per detection frame
+    full = estimate_cost(choice, plan, every=3, video_s=60.0, fps=30.0, decode_ms=4.0, track_ms=3.0, detect_ms=250.0)
+    assert math.isclose(full.other_ms, 45.0) and math.isclose(full.seconds, 600 * (250.0 + 4.0 + 3.0) / 1e3)
+    assert estimate_cost(choice, plan, every=3, video_s=60.0, fps=30.0, decode_ms=4.0, track_ms=3.0,
+                         detect_ms=100.0).other_ms == 0.0  # faster than the probe: no negative allowance
 
 
 def test_passes_at_other_input_sizes_count_by_input_pixels() -> None:
@@ -193,7 +198,8 @@ def test_process_tells_and_records_the_backend_and_the_estimate(no_openvino, tmp
     assert backend["backend"] == "onnxruntime" and backend["ms_per_pass"] > 0
     passes = len(seen["tiling"]["tiles"]) + 1
     assert estimate["passes"] == passes and estimate["every"] == 2 and estimate["detection_frames"] == 5
-    per_frame = passes * backend["ms_per_pass"] + estimate["decode_ms"] + estimate["track_ms"]
+    assert estimate["other_ms"] >= 0 and estimate["decode_ms"] > 0
+    per_frame = passes * backend["ms_per_pass"] + estimate["other_ms"] + estimate["decode_ms"] + estimate["track_ms"]
     assert math.isclose(estimate["seconds"], 5 * per_frame / 1e3, rel_tol=1e-3)
     assert any(line.startswith("backend: onnxruntime") for line in told)
     assert any(line.startswith(f"detector: {passes} passes per detection frame, every 2nd frame") for line in told)

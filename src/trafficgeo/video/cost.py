@@ -3,8 +3,9 @@ and the tiles of :mod:`trafficgeo.video.detectors.tiling`), how often (``every``
 backend probe (:mod:`trafficgeo.video.detectors.backends`) and the whole run's estimated wall-clock time.
 
 A pass at an input other than the probe's (the bands of ``tiling="bands"``) is counted in proportion to its input
-pixels. The decode allowance is measured on the video at the start of the run; the tracker's is
-:data:`TRACK_MS_PER_FRAME`.
+pixels. The probe times the network alone; the rest of a detection (cropping, letterboxing, decoding the outputs,
+merging the tiles, the size classes) and decoding the video are measured at the start of the run (one detection on
+the first frame, a few frames decoded); the tracker's allowance is :data:`TRACK_MS_PER_FRAME`.
 """
 
 from __future__ import annotations
@@ -26,15 +27,16 @@ TRACK_MS_PER_FRAME = 3.0
 @dataclass(frozen=True)
 class RunCost:
     """The estimate: ``passes`` per detection frame (``pass_units``: the same counted in probe-input pixels), one
-    detection frame in ``every``, ``ms_per_pass`` of ``backend``, ``decode_ms`` and ``track_ms`` per detection frame,
-    ``detection_frames`` over ``video_s`` s of video -> ``seconds`` of wall clock, ``realtime_factor`` (video s per
-    wall-clock s)."""
+    detection frame in ``every``, ``ms_per_pass`` of ``backend``; per detection frame ``other_ms`` (the detector's
+    work besides the network), ``decode_ms`` and ``track_ms``; ``detection_frames`` over ``video_s`` s of video ->
+    ``seconds`` of wall clock, ``realtime_factor`` (video s per wall-clock s)."""
 
     passes: int
     pass_units: float
     every: int
     backend: str
     ms_per_pass: float
+    other_ms: float
     decode_ms: float
     track_ms: float
     detection_frames: int
@@ -80,12 +82,15 @@ def plan_passes(plan: TilePlan | None, probe_input_hw: tuple[int, int]) -> tuple
 
 
 def estimate_cost(choice: BackendChoice, plan: TilePlan | None, *, every: int, video_s: float, fps: float,
-                  decode_ms: float, track_ms: float = TRACK_MS_PER_FRAME) -> RunCost:
+                  decode_ms: float, track_ms: float = TRACK_MS_PER_FRAME, detect_ms: float | None = None) -> RunCost:
     """The run's cost: detection frames = ceil(``video_s`` x ``fps`` / ``every``), each costing the plan's passes
-    (:func:`plan_passes`) x the probe's time per pass plus ``decode_ms`` (decoding the frame and skipping the
-    ``every`` - 1 before it) and ``track_ms``."""
+    (:func:`plan_passes`) x the probe's time per pass, plus the rest of the detection (``detect_ms``, a whole
+    detection's measured time, minus those passes; 0 when not given or less), ``decode_ms`` (decoding the frame and
+    skipping the ``every`` - 1 before it) and ``track_ms``."""
     passes, units = plan_passes(plan, choice.probe_input_hw)
     frames = max(1, math.ceil(video_s * fps / every - 1e-9))
-    seconds = frames * (units * choice.ms_per_pass + decode_ms + track_ms) / 1e3
-    return RunCost(passes, units, int(every), choice.backend, choice.ms_per_pass, float(decode_ms), float(track_ms),
-                   frames, float(video_s), seconds, video_s / seconds if seconds > 0 else math.inf)
+    network_ms = units * choice.ms_per_pass
+    other_ms = max(0.0, float(detect_ms) - network_ms) if detect_ms is not None else 0.0
+    seconds = frames * (network_ms + other_ms + decode_ms + track_ms) / 1e3
+    return RunCost(passes, units, int(every), choice.backend, choice.ms_per_pass, other_ms, float(decode_ms),
+                   float(track_ms), frames, float(video_s), seconds, video_s / seconds if seconds > 0 else math.inf)

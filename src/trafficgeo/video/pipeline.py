@@ -273,19 +273,33 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
         return _write_tables(ck, state, out)
 
 
-def _decode_ms(video: Path, start_s: float, end_s: float, every: int, frames: int = 4) -> float:
+def _decode_ms(video: Path, start_s: float, end_s: float, every: int, frames: int = 4) -> tuple[float, object]:
     """Wall-clock ms to decode one frame in ``every`` (and skip the others) at ``start_s``: the mean over up to
-    ``frames`` - 1 frames after the first (which pays for the seek)."""
+    ``frames`` - 1 frames after the first (which pays for the seek); and the first frame (None if none)."""
     import time
 
     from trafficgeo.video.reader import iter_frames
 
-    stamps = []
-    for _frame in itertools.islice(iter_frames(video, start_s=start_s, end_s=end_s, every=every), frames):
+    stamps, first = [], None
+    for frame in itertools.islice(iter_frames(video, start_s=start_s, end_s=end_s, every=every), frames):
         stamps.append(time.perf_counter())
+        first = first or frame
     if len(stamps) < 2:
-        return 0.0
-    return 1e3 * (stamps[-1] - stamps[0]) / (len(stamps) - 1)
+        return 0.0, first
+    return 1e3 * (stamps[-1] - stamps[0]) / (len(stamps) - 1), first
+
+
+def _detect_ms(detector: object, frame) -> float | None:
+    """Wall-clock ms of one detection on ``frame`` (a second call, after one that warms the runtime up for the
+    plan's input sizes), or None without a frame. The learned detectors keep no state between frames."""
+    import time
+
+    if frame is None:
+        return None
+    detector.detect(frame.image, frame.time_s)
+    t0 = time.perf_counter()
+    detector.detect(frame.image, frame.time_s)
+    return 1e3 * (time.perf_counter() - t0)
 
 
 def _announce_cost(detector: object, plan, video: Path, fps: float, opts: ProcessOptions, end_s: float,
@@ -298,8 +312,9 @@ def _announce_cost(detector: object, plan, video: Path, fps: float, opts: Proces
     choice = detector_backend(detector)
     if choice is None:
         return None
-    cost = estimate_cost(choice, plan, every=opts.every, video_s=end_s - opts.start_s, fps=fps,
-                         decode_ms=_decode_ms(video, opts.start_s, end_s, opts.every))
+    decode_ms, first = _decode_ms(video, opts.start_s, end_s, opts.every)
+    cost = estimate_cost(choice, plan, every=opts.every, video_s=end_s - opts.start_s, fps=fps, decode_ms=decode_ms,
+                         detect_ms=_detect_ms(detector, first))
     tell(choice.summary())
     tell(cost.summary())
     return choice, cost
