@@ -35,6 +35,21 @@ def _digest(folder: Path) -> dict[str, str]:
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _own_cache_folder(tmp_path_factory: pytest.TempPathFactory):
+    """The backend probe's cache (trafficgeo.video.detectors.backends) in a folder of the session, never the
+    user's."""
+    import os
+
+    before = os.environ.get("TRAFFICGEO_CACHE_DIR")
+    os.environ["TRAFFICGEO_CACHE_DIR"] = str(tmp_path_factory.mktemp("trafficgeo-cache"))
+    yield
+    if before is None:
+        os.environ.pop("TRAFFICGEO_CACHE_DIR", None)
+    else:
+        os.environ["TRAFFICGEO_CACHE_DIR"] = before
+
+
 @pytest.fixture(scope="session")
 def small_world(tmp_path_factory: pytest.TempPathFactory):
     """Folder of :data:`SMALL_WORLD` built by ``trafficgeo.synth.world.build_world`` (video.mp4,

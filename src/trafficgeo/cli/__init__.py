@@ -252,7 +252,7 @@ from trafficgeo.cli import video as _video  # noqa: E402, F401  (registers the f
 FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint_s": "--checkpoint",
          "tiling": "--tiling", "out_dir": "--out", "interval_s": "--interval", "resolution_m": "--resolution",
          "time_offset_s": "--time-offset", "output": "--output", "annotate": "--annotate", "surface": "--surface",
-         "surface_crs": "--surface-crs", "radius_m": "--radius",
+         "surface_crs": "--surface-crs", "radius_m": "--radius", "backend": "--backend",
          "crs": "--crs", "gcp_crs": "--gcp-crs", "odm_image": "--odm-image", "image_size": "--image-size",
          "pattern": "--pattern", "focal_px": "--focal-px", "intrinsics": "--intrinsics",
          "fps": "--fps", "coast_hidden_s": "--coast-hidden", "pixel_sigma": "--pixel-sigma",

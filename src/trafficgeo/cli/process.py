@@ -39,6 +39,10 @@ def process(
     tiling: Annotated[str, typer.Option(help="how the tiles are planned: 'squares' (the most accurate on the demo "
                                         "world) or 'bands' (rectangles at their own input size: about 2.5x less "
                                         "detector work)")] = "squares",
+    backend: Annotated[str, typer.Option(help="what runs a learned detector's network: 'auto' (the fastest installed "
+                                         "runtime that agrees with onnxruntime, by a short probe cached per machine "
+                                         "and model), 'onnxruntime' or 'openvino' (pip install "
+                                         "trafficgeo[openvino])")] = "auto",
     roi: Annotated[Path | None, typer.Option(help="region of interest: mask image or CSV polygon u,v")] = None,
     checkpoint: Annotated[float, typer.Option(help="seconds of video between checkpoints")] = 30.0,
     restart: Annotated[bool, typer.Option(help="ignore a checkpoint and start again")] = False,
@@ -65,7 +69,7 @@ def process(
     _check_out_dir(out)
     check_html_path(report_html)
     opts = ProcessOptions(detector=detector, detector_format=detector_format, start_s=start, end_s=end, every=every,
-                          checkpoint_s=checkpoint, tiles=tiles, tiling=tiling)
+                          checkpoint_s=checkpoint, tiles=tiles, tiling=tiling, backend=backend)
     columns = (TextColumn("[progress.description]{task.description}"), BarColumn(),
                TextColumn("{task.completed}/{task.total} frames, {task.fields[rate]:.1f} fps, video {task.fields[t]}"),
                TimeRemainingColumn())

@@ -84,9 +84,15 @@ class ProcessOptions:
     tiling: str = "squares"  # how they are planned: "squares" or "bands" (video.learned.TILINGS)
     checkpoint_s: float = 30.0
     tracker: TrackerOptions | None = None  # None: the detector's (settled_options)
+    backend: str = "auto"  # what runs a learned detector's network (video.detectors.backends.BACKENDS)
 
     def __post_init__(self) -> None:
         check_detector(self.detector, self.detector_format)  # a bad name or model fails here, before writing
+        from trafficgeo.video.detectors.backends import check_backend
+        from trafficgeo.video.detectors.names import is_background
+
+        if not is_background(self.detector):
+            check_backend(self.backend)  # openvino asked but not installed: fails here, before writing
         if not (self.start_s >= 0 and (self.end_s is None or self.end_s > self.start_s)):
             raise InputError(f"start_s {self.start_s} / end_s {self.end_s}: need 0 <= start_s < end_s (seconds)",
                              parameters=("start_s", "end_s"))
@@ -190,12 +196,14 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     """Decode, detect and track (with checkpoints); returns the detections and track tables (also written as
     ``detections.csv`` and ``tracks.csv`` in ``out_dir``). ``progress(frames_done, frames_total, video_time_s)``
     is called per frame; ``notice(text)`` with one line when a checkpoint is resumed ("resuming from 8.0 s") or
-    ignored (and why), and with the built-in learned detector's tile plan (:mod:`trafficgeo.video.detectors.tiling`: the
-    tiles over the counted road, ``lanes`` else ``roi`` else a band around each of the counting ``lines``, the road
-    too far for it, and the counting lines where vehicles stay too small for it); ``detector_info(doc)`` once
-    with that plan as plain data (for ``process.json``). Without a ``camera`` (and ``surface``) the detector has no
-    size filter or class in metres and no tiles. Holds the lock on ``out_dir`` while it runs (:class:`InputError` if
-    another process holds it)."""
+    ignored (and why), with the built-in learned detector's tile plan (:mod:`trafficgeo.video.detectors.tiling`:
+    the tiles over the counted road, ``lanes`` else ``roi`` else a band around each of the counting ``lines``, the
+    road too far for it, and the counting lines where vehicles stay too small for it), and with a learned
+    detector's backend and the run's estimated cost (:mod:`trafficgeo.video.cost`); ``detector_info(doc)`` once
+    with the plan (``tiling``), the backend choice (``backend``) and the estimate (``estimate``) as plain data
+    (for ``process.json``). Without a ``camera`` (and ``surface``) the detector has no size filter or class in
+    metres and no tiles. Holds the lock on ``out_dir`` while it runs (:class:`InputError` if another process
+    holds it)."""
     from trafficgeo.video.detectors.background import BackgroundDetector
     from trafficgeo.video.detectors.factory import make_detector
     from trafficgeo.video.detectors.learned import detector_plan
@@ -218,7 +226,7 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     def new_detector():
         return make_detector(opts.detector, camera=cam, surface=surface, roi=roi,
                              detector_format=opts.detector_format, road=lanes, tiles=opts.tiles,
-                             tiling=opts.tiling, lines=lines)
+                             tiling=opts.tiling, lines=lines, backend=opts.backend)
 
     detector = new_detector()  # before anything is written: a bad --detector leaves nothing behind
     learns = isinstance(detector, BackgroundDetector)
@@ -226,8 +234,10 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     if plan is not None:
         for line in plan.summary_lines():
             tell(line)
+    cost = _announce_cost(detector, plan, video, info.fps, opts, end_s, tell)
     if detector_info is not None:
-        detector_info({"tiling": plan.to_dict() if plan is not None else None})
+        detector_info({"tiling": plan.to_dict() if plan is not None else None,
+                       **({"backend": cost[0].to_dict(), "estimate": cost[1].to_dict()} if cost else {})})
     model = Path(opts.detector) if not learns and Path(opts.detector).is_file() else None
     tiles = plan.tiles.tolist() if plan is not None else None  # the lanes enter the detections through the tiles
     key = run_key(video, camera=camera, surface=surface, roi=roi,
@@ -261,6 +271,53 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
         _run_segments(video, info, end_s, opts, ck, state, tracker, detector if not learns else None,
                       new_detector, _prime_seconds(detector), progress)
         return _write_tables(ck, state, out)
+
+
+def _decode_ms(video: Path, start_s: float, end_s: float, every: int, frames: int = 4) -> tuple[float, object]:
+    """Wall-clock ms to decode one frame in ``every`` (and skip the others) at ``start_s``: the mean over up to
+    ``frames`` - 1 frames after the first (which pays for the seek); and the first frame (None if none)."""
+    import time
+
+    from trafficgeo.video.reader import iter_frames
+
+    stamps, first = [], None
+    for frame in itertools.islice(iter_frames(video, start_s=start_s, end_s=end_s, every=every), frames):
+        stamps.append(time.perf_counter())
+        first = first or frame
+    if len(stamps) < 2:
+        return 0.0, first
+    return 1e3 * (stamps[-1] - stamps[0]) / (len(stamps) - 1), first
+
+
+def _detect_ms(detector: object, frame) -> float | None:
+    """Wall-clock ms of one detection on ``frame`` (a second call, after one that warms the runtime up for the
+    plan's input sizes), or None without a frame. The learned detectors keep no state between frames."""
+    import time
+
+    if frame is None:
+        return None
+    detector.detect(frame.image, frame.time_s)
+    t0 = time.perf_counter()
+    detector.detect(frame.image, frame.time_s)
+    return 1e3 * (time.perf_counter() - t0)
+
+
+def _announce_cost(detector: object, plan, video: Path, fps: float, opts: ProcessOptions, end_s: float,
+                   tell: Callable[[str], None]):
+    """Tell the detector's backend choice and the run's estimated cost (:mod:`trafficgeo.video.cost`); returns
+    (choice, cost), or None for a detector without a backend choice (background subtraction)."""
+    from trafficgeo.video.cost import estimate_cost
+    from trafficgeo.video.detectors.learned import detector_backend
+
+    choice = detector_backend(detector)
+    if choice is None:
+        return None
+    decode_ms, first = _decode_ms(video, opts.start_s, end_s, opts.every)
+    cost = estimate_cost(choice, plan, every=opts.every, video_s=end_s - opts.start_s, fps=fps, decode_ms=decode_ms,
+                         detect_ms=_detect_ms(detector, first))
+    tell(choice.summary())
+    tell(cost.summary())
+    return choice, cost
 
 
 def _run_segments(video: Path, info, end_s: float, opts: ProcessOptions, ck: Path, state: Checkpoint,
@@ -346,6 +403,6 @@ def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: Pro
     doc = {"video": video, "camera": camera,
            "options": {"detector": options.detector, "detector_format": options.detector_format,
                        "start_s": options.start_s, "end_s": options.end_s, "every": options.every,
-                       "tiles": options.tiles, "tiling": options.tiling},
+                       "tiles": options.tiles, "tiling": options.tiling, "backend": options.backend},
            "detector": detector, "read": read, "seconds": seconds, "detections": detections, "track_rows": track_rows}
     write_json_atomic(Path(out_dir) / "process.json", doc)

@@ -55,7 +55,8 @@ def make_detector(spec: str = "background", *, camera: Camera | None = None, sur
                   learning_rate: float | None = None, rules: SizeRules | None = None, conf: float | None = None,
                   iou: float = 0.5, input_size: int | None = None, class_map: Mapping[int, str] | None = None,
                   detector_format: str | None = None, road: Lanes | None = None, tiles: bool = True,
-                  tiling: str = "squares", lines: list[CountLine] | None = None) -> Detector:
+                  tiling: str = "squares", lines: list[CountLine] | None = None, backend: str | None = None
+                  ) -> Detector:
     """A detector from a short spec (:func:`detector_kind`): a background subtraction name
     (:class:`BackgroundDetector` with MOG2 for "background", "bg" or "mog2", with KNN for "knn") or the path of a
     ``.onnx`` model (:class:`OnnxDetector` of layout ``detector_format``, default recognised from the model;
@@ -64,16 +65,17 @@ def make_detector(spec: str = "background", *, camera: Camera | None = None, sur
     (:func:`trafficgeo.video.detectors.learned.make_learned_detector`: tiled over the counted ``road`` (lanes,
     else ``roi``, else a band around each of the counting ``lines``) when ``tiles`` and a calibrated ``camera`` and
     ``surface`` are given; its plan tells what it reaches at the ``lines``). ``warmup_s``: the
-    background detector's warm-up (s of video)."""
+    background detector's warm-up (s of video). ``backend``: the runtime of a learned detector
+    (:mod:`trafficgeo.video.detectors.backends`: "auto", "onnxruntime", "openvino"; None: onnxruntime, untimed)."""
     kind = detector_kind(spec)
     fmt = _check_format(kind, spec, detector_format)
     if kind == "nanodet":
         from trafficgeo.video.detectors.learned import make_learned_detector
 
         return make_learned_detector(camera=camera, surface=surface, road=road, roi=roi, tiles=tiles, conf=conf,
-                                     iou=iou, tiling=tiling, lines=lines)
+                                     iou=iou, tiling=tiling, lines=lines, backend=backend)
     if kind == "onnx":
         return OnnxDetector(str(spec).strip(), format=fmt, input_size=input_size, conf=conf, iou=iou,
-                            class_map=class_map, roi=roi)
+                            class_map=class_map, roi=roi, backend=backend)
     return BackgroundDetector(method=kind, scale=scale, warmup_s=warmup_s, learning_rate=learning_rate,
                               camera=camera, surface=surface, roi=roi, rules=rules)

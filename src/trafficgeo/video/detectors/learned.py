@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from trafficgeo.geo.mapping import Surface
     from trafficgeo.traffic.lanes import Lanes
     from trafficgeo.traffic.lines import CountLine
+    from trafficgeo.video.detectors.backends import BackendChoice
 
 BUILTIN = "nanodet"
 # How the tiles are planned: "squares" (plan_tiles: square tiles at the model's 416 px input) or "bands"
@@ -61,14 +62,17 @@ class SizeClasses:
 def make_learned_detector(*, camera: Camera | None = None, surface: Surface | None = None,
                           road: Lanes | np.ndarray | None = None, roi: np.ndarray | None = None, tiles: bool = True,
                           conf: float | None = None, iou: float = 0.5, threads: int | None = None,
-                          tiling: str = "squares", lines: Sequence[CountLine] | None = None) -> Detector:
+                          tiling: str = "squares", lines: Sequence[CountLine] | None = None,
+                          backend: str | None = None) -> Detector:
     """The built-in learned detector. With a calibrated ``camera`` and its ``surface`` and a counted ``road`` (lanes,
     else the ``roi`` mask, else a band of road around each counting line of ``lines``), tiles are planned so that
     vehicles on that road are large enough for it (``tiles``) and classes come from the ground size; the plan is the
     detector's ``plan`` (None without tiling), with what it reaches at each of the ``lines``
     (:func:`~trafficgeo.video.detectors.tiling.line_reach`: its line warnings). ``roi`` (bool (H, W)) keeps boxes
     whose bottom centre lies inside it. ``conf``: the score threshold (default the model's). ``tiling``: one of
-    :data:`TILINGS`."""
+    :data:`TILINGS`. ``backend``: the runtime
+    (:class:`~trafficgeo.video.detectors.onnx.OnnxDetector`; ``"auto"`` probes for the fastest); its choice is
+    :func:`detector_backend`'s."""
     if tiling not in TILINGS:
         raise InputError(f"tiling {tiling!r}: use one of {', '.join(TILINGS)}")
     model = builtin_model(BUILTIN)
@@ -84,7 +88,7 @@ def make_learned_detector(*, camera: Camera | None = None, surface: Surface | No
             object.__setattr__(plan, "lines", line_reach(plan, camera, surface, lines))
     tiled = plan is not None and len(plan.tiles) > 0
     base: Detector = OnnxDetector(path, format=model.layout, conf=conf, iou=iou, roi=None if tiled else roi,
-                                  threads=threads)
+                                  threads=threads, backend=backend)
     if plan is not None:
         base = TiledDetector(base, plan, iou=iou, roi=roi if tiled else None)  # its plan, even with no tile
     if camera is not None and surface is not None:
@@ -95,3 +99,14 @@ def make_learned_detector(*, camera: Camera | None = None, surface: Surface | No
 def detector_plan(detector: object) -> TilePlan | None:
     """The tile plan a detector runs with (:func:`make_learned_detector`), or None."""
     return getattr(detector, "plan", None)
+
+
+def detector_backend(detector: object) -> BackendChoice | None:
+    """The runtime choice (:class:`~trafficgeo.video.detectors.backends.BackendChoice`) of an ONNX detector, also
+    inside the tiled and size-class wrappers; None for other detectors or one built without ``backend``."""
+    for _ in range(8):
+        choice = getattr(detector, "backend_choice", None)
+        if choice is not None or not hasattr(detector, "base"):
+            return choice
+        detector = detector.base
+    return None

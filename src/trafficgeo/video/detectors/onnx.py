@@ -6,7 +6,7 @@ RT-DETR/D-FINE/DEIM, ultralytics RT-DETR, RF-DETR, NanoDet). trafficgeo never do
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -14,6 +14,20 @@ import numpy as np
 
 from trafficgeo.errors import InputError
 from trafficgeo.video.detections import Detections, check_image, in_roi
+from trafficgeo.video.detectors.backends import (
+    OPENVINO,
+    ORT_CPU,
+    ORT_CUDA,
+    ORT_OPENVINO,
+    Backend,
+    BackendChoice,
+    OpenVinoBackend,
+    OrtBackend,
+    check_backend,
+    choose_backend,
+    file_sha256,
+    openvino_version,
+)
 from trafficgeo.video.detectors.names import DETECTOR_PARAMETERS, ONNX_HINT
 from trafficgeo.video.detectors.onnx_formats import (
     IDENTITY,
@@ -36,6 +50,7 @@ from trafficgeo.video.detectors.onnx_formats import (
 ONNX_SHAPES = SUPPORTED  # the layouts decoded, for messages
 PREFERRED_PROVIDERS = ("CUDAExecutionProvider", "OpenVINOExecutionProvider")
 CPU = "CPUExecutionProvider"
+EP_NAMES = {"CUDAExecutionProvider": ORT_CUDA, "OpenVINOExecutionProvider": ORT_OPENVINO}  # backend names
 MAX_BATCH = 16  # images per run of a model with a dynamic batch dimension
 MAX_CANDIDATES = 1000  # boxes per image going into the non-maximum suppression (the best scores)
 
@@ -124,13 +139,18 @@ class OnnxDetector:
     ``providers``: onnxruntime execution providers (:func:`pick_providers`; default CUDA or OpenVINO when
     installed, else the CPU); ``threads``: intra-op threads (default: the ``TRAFFICGEO_THREADS`` environment
     variable, which batch workers set to their share of the machine, else 2).
+    ``backend``: what runs the network (:mod:`trafficgeo.video.detectors.backends`): ``None`` onnxruntime with
+    ``providers``, untimed; ``"onnxruntime"`` or ``"openvino"`` that runtime, timed on a probe input (for the cost
+    estimate); ``"auto"`` the fastest of the installed runtimes that agrees with onnxruntime CPU, by a probe cached
+    per machine and model. :attr:`backend_choice` says which and how fast (None with ``backend=None``).
     """
 
     def __init__(self, model_path: str | Path, *, format: str | None = None, input_size: int | None = None,
                  conf: float | None = None, iou: float = 0.5, inside: float | None = 0.8,
                  class_map: Mapping[int, str] | None = None, roi: np.ndarray | None = None, threads: int | None = None,
-                 providers: str | Sequence[str] | None = None) -> None:
+                 providers: str | Sequence[str] | None = None, backend: str | None = None) -> None:
         p = Path(model_path)
+        asked = None if backend is None else check_backend(backend)
         if not p.is_file():
             raise InputError(f"{p}: ONNX model not found; put the .onnx file there or pass its path with "
                              f"`detector` ({ONNX_HINT})", parameters=DETECTOR_PARAMETERS)
@@ -143,10 +163,16 @@ class OnnxDetector:
         import onnxruntime as ort
 
         opts = ort.SessionOptions()
-        opts.intra_op_num_threads = int(threads) if threads is not None else default_threads()
+        self.threads = int(threads) if threads is not None else default_threads()
+        opts.intra_op_num_threads = self.threads
         opts.inter_op_num_threads = 1
         opts.log_severity_level = 3
-        chosen = pick_providers(providers, ort.get_available_providers())
+        self._opts = opts
+        # auto: onnxruntime CPU is the reference the other runtimes are checked against
+        chosen = [CPU] if asked == "auto" and providers is None else pick_providers(providers,
+                                                                                     ort.get_available_providers())
+        self._runner: Backend | None = None
+        self.backend_choice: BackendChoice | None = None
         try:
             self._session = ort.InferenceSession(str(p), sess_options=opts, providers=chosen)
         except Exception as exc:  # onnxruntime raises its own exception types for bad files
@@ -178,6 +204,9 @@ class OnnxDetector:
             except InputError as exc:
                 raise InputError(f"{p}: {exc}") from None
         self.fit = fit
+        self._runner = OrtBackend(self._session, self._out_names)
+        if asked is not None:
+            self._pick_backend(asked, providers)
         names = io.names if layout.names_index else None
         if class_map is not None:
             cmap = dict(class_map)
@@ -206,6 +235,46 @@ class OnnxDetector:
         return self.layout.name
 
     # ------------------------------------------------------------------------------------------------ model
+    def _pick_backend(self, asked: str, providers: str | Sequence[str] | None) -> None:
+        """Set the runtime (``asked``: a name of :data:`~trafficgeo.video.detectors.backends.BACKENDS`) and
+        :attr:`backend_choice`, timed on a fixed synthetic frame (seed 0) at the model's input size."""
+        import onnxruntime as ort
+
+        def ort_with(provider: str) -> Callable[[], Backend]:
+            def make() -> Backend:
+                session = ort.InferenceSession(str(self.path), sess_options=self._opts, providers=[provider, CPU])
+                return OrtBackend(session, self._out_names, EP_NAMES[provider])
+            return make
+
+        def openvino() -> Backend:
+            return OpenVinoBackend(self.path, self._out_names, self.threads)
+
+        reference = OrtBackend(self._session, self._out_names)
+        candidates: dict[str, Callable[[], Backend]] = {}
+        if asked in ("auto", "onnxruntime"):
+            candidates[ORT_CPU] = lambda: reference
+        if asked == "auto" and providers is None:
+            avail = ort.get_available_providers()
+            for provider in PREFERRED_PROVIDERS:
+                if provider in avail:
+                    candidates[EP_NAMES[provider]] = ort_with(provider)
+            if openvino_version() is not None:
+                candidates[OPENVINO] = openvino
+        if asked == "openvino":
+            candidates[OPENVINO] = openvino
+        rng = np.random.default_rng(0)
+        frame = rng.integers(0, 256, (self.input_hw[0], self.input_hw[1], 3), dtype=np.uint8)
+        blob, _g = self.layout.pre.blob([frame] * (self._batch or 1), self.input_hw)
+        feeds = self._feeds(blob, (self.input_hw[1], self.input_hw[0]))
+        try:
+            self.backend_choice, self._runner = choose_backend(candidates, feeds, model_sha256=file_sha256(self.path),
+                                                               threads=self.threads, input_hw=self.input_hw)
+        except InputError:
+            raise
+        except Exception as exc:  # the asked runtime failed to build or run
+            raise InputError(f"{self.path}: backend {asked} failed on this model ({_one_line(exc)}); use backend "
+                             "auto or onnxruntime", parameters=("backend",)) from None
+
     def _describe(self, input_size: int | None) -> ModelIO:
         """The model's inputs, outputs (concrete shapes, from one run on a blank input if they are dynamic) and
         metadata; an InputError unless it has one float image input [B, 3, H, W]."""
@@ -246,8 +315,8 @@ class OnnxDetector:
                                                                                             strict=True)]
         return ModelIO(image, tuple(self._extra), tuple(outputs), meta, (int(h), int(w)))
 
-    def _run(self, blob: np.ndarray, frame_wh: tuple[int, int]) -> list[np.ndarray]:
-        """One run on a batch that fits the model; the outputs of ``self._out_names``."""
+    def _feeds(self, blob: np.ndarray, frame_wh: tuple[int, int]) -> dict[str, np.ndarray]:
+        """The model's inputs for ``blob`` [B, 3, h, w] of frames of ``frame_wh`` (w, h) px."""
         feeds = {self._image.name: blob.astype(self._in_dtype, copy=False)}
         for extra in self._extra:
             if extra is self._sizes:
@@ -256,7 +325,14 @@ class OnnxDetector:
             else:
                 raise InputError(f"{self.path}: the model has an input {extra.name} {list(extra.shape)} that "
                                  f"trafficgeo does not know how to fill; {SUPPORTED}")
+        return feeds
+
+    def _run(self, blob: np.ndarray, frame_wh: tuple[int, int]) -> list[np.ndarray]:
+        """One run on a batch that fits the model; the outputs of ``self._out_names``."""
+        feeds = self._feeds(blob, frame_wh)
         try:
+            if self._runner is not None:
+                return self._runner.run(feeds)
             return self._session.run(self._out_names, feeds)
         except Exception as exc:  # onnxruntime's own exception types (shape mismatch inside the graph, ...)
             raise InputError(f"{self.path}: the model failed on a {frame_wh[0]}x{frame_wh[1]} frame fed as "

@@ -1,0 +1,96 @@
+"""What a ``process`` run will cost, said before it starts: the detector passes per detection frame (the full frame
+and the tiles of :mod:`trafficgeo.video.detectors.tiling`), how often (``every``), the time per pass measured by the
+backend probe (:mod:`trafficgeo.video.detectors.backends`) and the whole run's estimated wall-clock time.
+
+A pass at an input other than the probe's (the bands of ``tiling="bands"``) is counted in proportion to its input
+pixels. The probe times the network alone; the rest of a detection (cropping, letterboxing, decoding the outputs,
+merging the tiles, the size classes) and decoding the video are measured at the start of the run (one detection on
+the first frame, a few frames decoded); the tracker's allowance is :data:`TRACK_MS_PER_FRAME`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from trafficgeo.video.detectors.backends import BackendChoice
+    from trafficgeo.video.detectors.tiling import TilePlan
+
+# Tracking and the rest of the per-frame work (ms per detection frame): ByteTrack on the learned detector's
+# detections of NGSIM seq2 (24 a frame, 2 x 2 tiles) took 1.6 ms a frame on average, 6.1 ms at the 95th percentile
+# (bench_backends, 2026-12-04, 2 threads).
+TRACK_MS_PER_FRAME = 3.0
+
+
+@dataclass(frozen=True)
+class RunCost:
+    """The estimate: ``passes`` per detection frame (``pass_units``: the same counted in probe-input pixels), one
+    detection frame in ``every``, ``ms_per_pass`` of ``backend``; per detection frame ``other_ms`` (the detector's
+    work besides the network), ``decode_ms`` and ``track_ms``; ``detection_frames`` over ``video_s`` s of video ->
+    ``seconds`` of wall clock, ``realtime_factor`` (video s per wall-clock s)."""
+
+    passes: int
+    pass_units: float
+    every: int
+    backend: str
+    ms_per_pass: float
+    other_ms: float
+    decode_ms: float
+    track_ms: float
+    detection_frames: int
+    video_s: float
+    seconds: float
+    realtime_factor: float
+
+    def to_dict(self) -> dict[str, object]:
+        return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in asdict(self).items()}
+
+    def summary(self) -> str:
+        """One line for the terminal."""
+        often = "every frame" if self.every == 1 else f"every {_ordinal(self.every)} frame"
+        units = f" ({self.pass_units:.2f} probe-size passes)" if abs(self.pass_units - self.passes) > 0.01 else ""
+        return (f"detector: {self.passes} pass{'es' if self.passes != 1 else ''} per detection frame{units}, {often}, "
+                f"{self.ms_per_pass:.0f} ms per pass ({self.backend}) -> about {duration_text(self.seconds)} for "
+                f"{duration_text(self.video_s)} of video ({self.realtime_factor:.2f}x real time)")
+
+
+def _ordinal(n: int) -> str:
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
+
+
+def duration_text(seconds: float) -> str:
+    """``seconds`` in words: "45 s", "2 min 10 s", "3 h 5 min"."""
+    s = round(max(0.0, seconds))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60} s" if s % 60 else f"{s // 60} min"
+    return f"{s // 3600} h {(s % 3600) // 60} min"
+
+
+def plan_passes(plan: TilePlan | None, probe_input_hw: tuple[int, int]) -> tuple[int, float]:
+    """Detector passes per detection frame of a tile ``plan`` (None: the full frame only) and the same in passes of
+    the probe's input size (``probe_input_hw``, (h, w) px), counted by input pixels."""
+    probe_px = float(probe_input_hw[0] * probe_input_hw[1])
+    if plan is None or not probe_px > 0:
+        return 1, 1.0
+    passes = 1 + len(plan.tiles)
+    return passes, (plan.full_input_pixels + plan.added_input_pixels) / probe_px
+
+
+def estimate_cost(choice: BackendChoice, plan: TilePlan | None, *, every: int, video_s: float, fps: float,
+                  decode_ms: float, track_ms: float = TRACK_MS_PER_FRAME, detect_ms: float | None = None) -> RunCost:
+    """The run's cost: detection frames = ceil(``video_s`` x ``fps`` / ``every``), each costing the plan's passes
+    (:func:`plan_passes`) x the probe's time per pass, plus the rest of the detection (``detect_ms``, a whole
+    detection's measured time, minus those passes; 0 when not given or less), ``decode_ms`` (decoding the frame and
+    skipping the ``every`` - 1 before it) and ``track_ms``."""
+    passes, units = plan_passes(plan, choice.probe_input_hw)
+    frames = max(1, math.ceil(video_s * fps / every - 1e-9))
+    network_ms = units * choice.ms_per_pass
+    other_ms = max(0.0, float(detect_ms) - network_ms) if detect_ms is not None else 0.0
+    seconds = frames * (network_ms + other_ms + decode_ms + track_ms) / 1e3
+    return RunCost(passes, units, int(every), choice.backend, choice.ms_per_pass, other_ms, float(decode_ms),
+                   float(track_ms), frames, float(video_s), seconds, video_s / seconds if seconds > 0 else math.inf)
