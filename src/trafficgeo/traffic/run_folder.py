@@ -48,7 +48,7 @@ __all__ = ["COUNTS", "CROSSINGS", "DETECTIONS", "SCHEMAS", "TRACKS", "TRAJECTORI
 class Column:
     """One column: ``dtype`` one of ``"str"``, ``"int"``, ``"float"``, ``"bool"``; ``unit`` as in the module
     docstring (``""`` for none); ``added``: when a column joined a table that run folders already held (e.g.
-    ``"issue 29"``): a file written before it still reads, with the column empty (NaN)."""
+    ``"2026-12-04"``, the day it joined): a file written before it still reads, with the column empty (NaN)."""
 
     name: str
     dtype: str
@@ -151,10 +151,10 @@ VEHICLES = TableSchema("vehicles.csv", (
            "calibration's covariance or GCPs)"),
     Column("speed_std_kmh", "float", KMH, "standard uncertainty of speed_kmh (position noise and the calibration's "
            "scale uncertainty)"),
-    Column("speed_start_time", "float", S, "start of the window speed_kmh is measured over", added="issue 29"),
-    Column("speed_end_time", "float", S, "end of the window speed_kmh is measured over", added="issue 29"),
+    Column("speed_start_time", "float", S, "start of the window speed_kmh is measured over", added="2026-12-04"),
+    Column("speed_end_time", "float", S, "end of the window speed_kmh is measured over", added="2026-12-04"),
     Column("travel_speed_kmh", "float", KMH, "travel_m / duration_s: the former headline speed, over all the time "
-           "seen (reads the calibration's scale errors at the edges of the view)", added="issue 29"),
+           "seen (reads the calibration's scale errors at the edges of the view)", added="2026-12-04"),
     Column("mean_speed_kmh", "float", KMH, "path_length_m / duration_s (reads high under position noise)"),
     Column("median_speed_kmh", "float", KMH, "median of the point speeds"),
     Column("point_speed_std_kmh", "float", KMH, "standard deviation of the point speeds"),
@@ -187,7 +187,7 @@ COUNTS = TableSchema("counts.csv", (
     Column("interval_start", "float", S, "interval start"),
     Column("interval_end", "float", S, "interval end"),
     Column("observed_s", "float", S, "seconds of the interval observed (interval_end - interval_start)",
-           added="issue 29"),
+           added="2026-12-04"),
     Column("count", "int", "", "vehicles"),
     Column("flow_veh_h", "float", "veh/h", "count / observed_s; empty when less than half the interval was observed"),
     Column("time_mean_speed_kmh", "float", KMH, "mean speed at the line"),
