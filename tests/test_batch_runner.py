@@ -270,3 +270,28 @@ def test_an_execute_that_cannot_be_pickled_is_refused_before_anything_runs(clust
     with pytest.raises(InputError, match=r"cannot be sent to the Dask workers \(.*lock.*\); keep models, ONNX"):
         run_batch(make_plan(1, 1), tmp_path, on(cluster), execute=Holding())
     assert attempts(tmp_path, "detect/cam0/00") == 0
+
+
+def test_a_ctrl_c_while_futures_are_built_waits_until_the_block_ends() -> None:
+    """SIGINT inside ``held`` (where the runner builds Dask futures: an interrupt half-way through a Future's
+    ``__init__`` leaves one whose ``__del__`` prints a traceback) raises only when the block ends; outside, at once."""
+    import signal
+
+    from trafficgeo.batch.runner import _DeferredInterrupt
+
+    interrupt = _DeferredInterrupt()
+    steps = []
+    with interrupt.installed():
+        with pytest.raises(KeyboardInterrupt):
+            with interrupt.held():
+                os.kill(os.getpid(), signal.SIGINT)
+                steps.append("after the signal, inside")
+        steps.append("raised at the end of the block")
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(1000):  # the handler runs at the next bytecode boundary
+                steps.append("not reached")
+        with interrupt.held():
+            steps.append("no signal: nothing raised")
+    assert steps == ["after the signal, inside", "raised at the end of the block", "no signal: nothing raised"]
+    assert signal.getsignal(signal.SIGINT) is not interrupt

@@ -27,8 +27,9 @@
   rewritten atomically at the start and after each finished task; ``progress`` gets a :class:`BatchProgress`.
 - **Ctrl-C**: outstanding work is cancelled, the cluster closed, status.csv written, and the report says
   ``interrupted``; a rerun skips the tasks already done (their idempotence). Local workers ignore SIGINT (the
-  terminal sends it to them too), so they print nothing; a Ctrl-C during the local cluster's start (1-2 s) is
-  ignored. Call :func:`run_batch` under ``if __name__ == "__main__":`` in a script (worker processes are spawned).
+  terminal sends it to them too), so they print nothing; a Ctrl-C during the cluster's start (1-2 s) or while a
+  task is being submitted takes effect right after. Call :func:`run_batch` under ``if __name__ == "__main__":``
+  in a script (worker processes are spawned).
 
 The execute callable is ``execute(task, dataset) -> TaskOutcome`` (``dataset`` a :class:`~pathlib.Path`); on Dask it
 must pickle (cloudpickle; best a module-level function or a small object of an importable module). The default runs
@@ -457,6 +458,47 @@ def _sigint_ignored() -> Iterator[None]:
         signal.signal(signal.SIGINT, old)
 
 
+class _DeferredInterrupt:
+    """A SIGINT handler that raises KeyboardInterrupt only while the runner waits, never inside :meth:`held` (Dask
+    calls that build futures: an interrupt half-way through one leaves a future whose ``__del__`` prints a
+    traceback). A Ctrl-C arriving inside raises when the block ends. Main thread on POSIX only; a no-op elsewhere."""
+
+    def __init__(self) -> None:
+        self.holding = False
+        self.pending = False
+
+    def __call__(self, signum: int, frame: Any) -> None:
+        if self.holding:
+            self.pending = True
+            return
+        raise KeyboardInterrupt
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator[None]:
+        import signal
+        import threading
+
+        if os.name != "posix" or threading.current_thread() is not threading.main_thread():
+            yield
+            return
+        old = signal.signal(signal.SIGINT, self)
+        try:
+            yield
+        finally:
+            signal.signal(signal.SIGINT, old)
+
+    @contextlib.contextmanager
+    def held(self) -> Iterator[None]:
+        self.holding = True
+        try:
+            yield
+        finally:
+            self.holding = False
+        if self.pending:
+            self.pending = False
+            raise KeyboardInterrupt
+
+
 def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options: RunOptions) -> BatchReport:
     distributed = _import_distributed()
     _check_sendable(execute)
@@ -466,8 +508,10 @@ def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options
     dashboard = None
     in_flight: dict[Any, str] = {}
     saved_env = {k: os.environ.get(k) for k in THREAD_VARIABLES + ("MALLOC_TRIM_THRESHOLD_",)}
-    with _quiet():
+    interrupt = _DeferredInterrupt()
+    with _quiet(), interrupt.installed():
         try:
+            interrupt.holding = True  # a Ctrl-C while the cluster starts takes effect once it is up
             if options.scheduler:
                 try:
                     client = distributed.Client(options.scheduler, timeout="10s", set_as_default=False)
@@ -499,15 +543,18 @@ def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options
                     in_flight[fut] = task.task_id
                     done_set.add(fut)
 
-            fill()
-            book.write_status()
-            for fut in done_set:
-                tid = in_flight.pop(fut)
-                book.finish(_result(fut, tid, allowed_deaths))
-                fut.release()
+            with interrupt.held():
                 fill()
+                book.write_status()
+            for fut in done_set:  # Ctrl-C raises only while this waits
+                with interrupt.held():
+                    tid = in_flight.pop(fut)
+                    book.finish(_result(fut, tid, allowed_deaths))
+                    fut.release()
+                    fill()
         except KeyboardInterrupt:
             interrupted = True
+            interrupt.holding = True  # a second Ctrl-C does not break the clean-up
             if client is not None and in_flight:
                 with contextlib.suppress(Exception):
                     client.cancel(list(in_flight), force=True)
@@ -516,6 +563,7 @@ def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options
                     book.state[tid] = "pending"
             book.write_status()
         finally:
+            interrupt.holding = True  # closing: a Ctrl-C now (after the last task, too) must not break it
             if client is not None:
                 with contextlib.suppress(Exception):
                     client.close(timeout=10)
