@@ -167,11 +167,13 @@ def part_real_frames() -> None:
 
 
 RUN_KINDS = {"background": ("background", False, "squares"), "nanodet-full": ("nanodet", False, "squares"),
-             "nanodet": ("nanodet", True, "squares"), "nanodet-bands": ("nanodet", True, "bands")}
+             "nanodet": ("nanodet", True, "squares"), "nanodet-bands": ("nanodet", True, "bands"),
+             "nanodet-all": ("nanodet", True, "squares")}
 RUN_LABELS = {"background": "background subtraction", "nanodet-full": "learned (NanoDet), full frame",
-              "nanodet": "learned (NanoDet) + camera-aware tiles", "nanodet-bands": "learned (NanoDet) + zoom bands"}
+              "nanodet": "learned (NanoDet) + camera-aware tiles", "nanodet-bands": "learned (NanoDet) + zoom bands",
+              "nanodet-all": "learned (NanoDet) + camera-aware tiles, all tiles"}
 CAMERAS = {"demo": (WORLD, "bench-video-world", "background,nanodet-full,nanodet@3,nanodet-bands@3"),
-           "high": (HIGH_WORLD, "bench-video-high-world", "nanodet,nanodet@auto")}
+           "high": (HIGH_WORLD, "bench-video-high-world", "nanodet,nanodet-all@auto,nanodet@auto")}
 
 
 def cpu_flags() -> str:
@@ -195,12 +197,14 @@ def cpu_flags() -> str:
     return f"{model}, {os.cpu_count()} logical cores; SIMD: {' '.join(have) or 'none of ' + ' '.join(wanted)}"
 
 
-def run_options(spec: str, end: float, checkpoint_s: float) -> ProcessOptions:
+def run_options(spec: str, end: float, checkpoint_s: float, backend: str = "auto") -> ProcessOptions:
     """The options of one benchmark run: ``name[@N]`` (``N`` a frame step, or ``auto`` for ``process``'s own)."""
     name, _, every = spec.partition("@")
     detector, tiles, tiling = RUN_KINDS[name]
+    schedule = "all" if name.endswith("-all") or not every else "auto"  # no '@': the every-frame, all-tiles run
     return ProcessOptions(detector=detector, end_s=end, checkpoint_s=checkpoint_s, tiles=tiles, tiling=tiling,
-                          every=None if every == "auto" else int(every or 1))
+                          every=None if every == "auto" else int(every or 1), backend=backend,
+                          tile_schedule=schedule)
 
 
 def run_label(spec: str, every: int) -> str:
@@ -209,7 +213,10 @@ def run_label(spec: str, every: int) -> str:
     when = ("every frame" if every == 1 else f"every {every}{suffix} frame") if asked else "every frame"
     if name == "nanodet" and not asked:
         when += ", all tiles"
-    return f"{RUN_LABELS[name]}, {when}" + (" (process default)" if asked == "auto" else "")
+    elif name == "nanodet" and asked:
+        when += ", tile schedule"
+    default = asked == "auto" and not name.endswith("-all")
+    return f"{RUN_LABELS[name]}, {when}" + (" (process default)" if default else "")
 
 
 def part_world(camera_name: str, wdir: Path, world: WorldOptions, specs: list[str], args: argparse.Namespace) -> None:
@@ -242,7 +249,7 @@ def part_world(camera_name: str, wdir: Path, world: WorldOptions, specs: list[st
     runs = {}
     prefix = "bench-video-run" if camera_name == "demo" else f"bench-video-{camera_name}-run"
     for spec in specs:
-        options = run_options(spec, end, args.checkpoint)
+        options = run_options(spec, end, args.checkpoint, args.backend)
         out = ROOT / "out" / f"{prefix}-{spec.replace('@', '-')}"
         run = process_video(video, camera, surface, out, lanes, lines, options=options, restart=True)
         detections, result, t_pipe = run.detections, run.traffic, run.seconds  # t_pipe: decode + detect + track
@@ -274,7 +281,12 @@ def part_world(camera_name: str, wdir: Path, world: WorldOptions, specs: list[st
             px = (plan["full_input_pixels"] + plan["added_input_pixels"]) if plan else None
             passes = f"{k} (1 + {k - 1})"
             mpx = f"{px / 1e6:.2f}" if px else "-"
-            per_s = f"{k * info.fps / int(run.options.every or 1):.0f}"
+            ran = float(k)
+            if run.schedule:  # the passes the tile schedule ran (input px in proportion: square tiles)
+                ran = 1.0 + float(run.schedule["tile_passes_per_frame"])
+                passes = f"{ran:.2f} of {k} (1 + {ran - 1:.2f})"
+                mpx = f"{px * ran / k / 1e6:.2f}" if px else "-"
+            per_s = f"{ran * info.fps / int(run.options.every or 1):.0f}"
         delta = "-" if reference is None else f"{100 * (score.accuracy - reference[2].accuracy):+.1f}"
         print(f"| {label} | {passes} | {mpx} | {per_s} | {n / t_pipe / info.fps:.2f} | {score.accuracy:.1%} | "
               f"{delta} |", flush=True)
@@ -332,6 +344,7 @@ def main() -> None:
     ap.add_argument("--checkpoint", type=float, default=30.0,
                     help="s of video per checkpoint segment (each starts a fresh background model)")
     ap.add_argument("--parts", default="real,world", help="comma-separated: real (labelled frames), world")
+    ap.add_argument("--backend", default="auto", help="the learned detector's runtime: auto, onnxruntime, openvino")
     ap.add_argument("--detectors", default=None,
                     help="comma-separated runs: background, nanodet-full (no tiles), nanodet (square tiles), "
                     "nanodet-bands (zoom bands); '@N' detects every N-th frame (e.g. nanodet@3), '@auto' as "

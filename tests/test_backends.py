@@ -168,6 +168,19 @@ def test_the_cost_line_has_the_right_arithmetic() -> None:
                          detect_ms=100.0).other_ms == 0.0  # faster than the probe: no negative allowance
 
 
+def test_a_tile_schedule_counts_each_tile_by_its_share_of_frames() -> None:
+    choice = BackendChoice("onnxruntime", 80.0, {"onnxruntime": 80.0}, probe_input_hw=(416, 416))
+    plan = grid_plan((1080, 1920), 2, input_size=416)
+    share = np.array([1.0, 0.5, 0.25, 0.25])
+    assert plan_passes(plan, (416, 416), share) == (5, 3.0)
+    cost = estimate_cost(choice, plan, every=1, video_s=1.0, fps=10.0, decode_ms=0.0, track_ms=0.0,
+                         detect_ms=500.0, tile_share=share)
+    # the measured detection ran every tile: 500 - 5 x 80 = 100 ms besides the network, whatever the schedule
+    assert math.isclose(cost.other_ms, 100.0) and math.isclose(cost.seconds, 10 * (3.0 * 80.0 + 100.0) / 1e3)
+    assert cost.passes == 5 and cost.scheduled_passes == 3.0
+    assert "5 passes per detection frame, about 3.0 with the tile schedule" in cost.summary()
+
+
 def test_passes_at_other_input_sizes_count_by_input_pixels() -> None:
     from dataclasses import replace
 
@@ -199,10 +212,16 @@ def test_process_tells_and_records_the_backend_and_the_estimate(no_openvino, tmp
     passes = len(seen["tiling"]["tiles"]) + 1
     assert estimate["passes"] == passes and estimate["every"] == 2 and estimate["detection_frames"] == 5
     assert estimate["other_ms"] >= 0 and estimate["decode_ms"] > 0
-    per_frame = passes * backend["ms_per_pass"] + estimate["other_ms"] + estimate["decode_ms"] + estimate["track_ms"]
+    per_frame = (estimate["pass_units"] * backend["ms_per_pass"] + estimate["other_ms"] + estimate["decode_ms"]
+                 + estimate["track_ms"])
     assert math.isclose(estimate["seconds"], 5 * per_frame / 1e3, rel_tol=1e-3)
+    if passes > 1:  # the tile schedule: fewer passes expected, said, and what it did recorded
+        assert 1.0 < estimate["scheduled_passes"] <= passes and estimate["pass_units"] <= passes
+        assert any(line.startswith("tile schedule: each tile runs every") for line in told)
+        assert seen["schedule"]["detection_frames"] == 5
     assert any(line.startswith("backend: onnxruntime") for line in told)
-    assert any(line.startswith(f"detector: {passes} passes per detection frame, every 2nd frame") for line in told)
+    assert any(line.startswith(f"detector: {passes} passes per detection frame") and "every 2nd frame" in line
+               for line in told)
     write_run_info(tmp_path / "a", video="v.mp4", camera="", options=opts, seconds=1.0, detections=0, track_rows=0,
                    detector=seen)
     doc = json.loads((tmp_path / "a" / "process.json").read_text())

@@ -277,9 +277,9 @@ def test_a_ctrl_c_while_futures_are_built_waits_until_the_block_ends() -> None:
     ``__init__`` leaves one whose ``__del__`` prints a traceback) raises only when the block ends; outside, at once."""
     import signal
 
-    from trafficgeo.batch.runner import _DeferredInterrupt
+    from trafficgeo.batch.interrupts import DeferredInterrupt
 
-    interrupt = _DeferredInterrupt()
+    interrupt = DeferredInterrupt()
     steps = []
     with interrupt.installed():
         with pytest.raises(KeyboardInterrupt):

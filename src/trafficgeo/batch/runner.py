@@ -27,8 +27,9 @@
   rewritten atomically at the start and after each finished task; ``progress`` gets a :class:`BatchProgress`.
 - **Ctrl-C**: outstanding work is cancelled, the cluster closed, status.csv written, and the report says
   ``interrupted``; a rerun skips the tasks already done (their idempotence). Local workers ignore SIGINT (the
-  terminal sends it to them too), so they print nothing; a Ctrl-C during the cluster's start (1-2 s) or while a
-  task is being submitted takes effect right after. Call :func:`run_batch` under ``if __name__ == "__main__":``
+  terminal sends it to them too), so they print nothing; a Ctrl-C during the local cluster's start (1-2 s) is
+  ignored, one while a task is being submitted takes effect right after
+  (:class:`~trafficgeo.batch.interrupts.DeferredInterrupt`). Call :func:`run_batch` under ``if __name__ == "__main__":``
   in a script (worker processes are spawned).
 
 The execute callable is ``execute(task, dataset) -> TaskOutcome`` (``dataset`` a :class:`~pathlib.Path`); on Dask it
@@ -52,6 +53,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from trafficgeo.batch.interrupts import DeferredInterrupt, sigint_ignored
 from trafficgeo.batch.model import Task, TaskOutcome, utc_text
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_open
@@ -424,7 +426,7 @@ def start_local_cluster(options: RunOptions = RunOptions()) -> Any:
     cluster = None
     try:
         with _quiet(), environment(env), dask.config.set(config):
-            with _sigint_ignored():  # the workers ignore Ctrl-C: this process handles it
+            with sigint_ignored():  # the workers ignore Ctrl-C: this process handles it
                 cluster = distributed.LocalCluster(n_workers=max(1, options.workers),
                                                    threads_per_worker=options.threads_per_worker,
                                                    memory_limit=options.memory_limit, processes=True,
@@ -440,65 +442,6 @@ def start_local_cluster(options: RunOptions = RunOptions()) -> Any:
     return cluster
 
 
-@contextlib.contextmanager
-def _sigint_ignored() -> Iterator[None]:
-    """Ignore SIGINT in this process for the block (main thread only; POSIX). Worker processes spawned meanwhile
-    inherit "ignored", so a Ctrl-C in the terminal reaches this process only (which cancels and closes the cluster)
-    instead of also killing each worker with a traceback. A Ctrl-C during the block (the cluster's start) is lost."""
-    import signal
-    import threading
-
-    if os.name != "posix" or threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, old)
-
-
-class _DeferredInterrupt:
-    """A SIGINT handler that raises KeyboardInterrupt only while the runner waits, never inside :meth:`held` (Dask
-    calls that build futures: an interrupt half-way through one leaves a future whose ``__del__`` prints a
-    traceback). A Ctrl-C arriving inside raises when the block ends. Main thread on POSIX only; a no-op elsewhere."""
-
-    def __init__(self) -> None:
-        self.holding = False
-        self.pending = False
-
-    def __call__(self, signum: int, frame: Any) -> None:
-        if self.holding:
-            self.pending = True
-            return
-        raise KeyboardInterrupt
-
-    @contextlib.contextmanager
-    def installed(self) -> Iterator[None]:
-        import signal
-        import threading
-
-        if os.name != "posix" or threading.current_thread() is not threading.main_thread():
-            yield
-            return
-        old = signal.signal(signal.SIGINT, self)
-        try:
-            yield
-        finally:
-            signal.signal(signal.SIGINT, old)
-
-    @contextlib.contextmanager
-    def held(self) -> Iterator[None]:
-        self.holding = True
-        try:
-            yield
-        finally:
-            self.holding = False
-        if self.pending:
-            self.pending = False
-            raise KeyboardInterrupt
-
-
 def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options: RunOptions) -> BatchReport:
     distributed = _import_distributed()
     _check_sendable(execute)
@@ -508,7 +451,7 @@ def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options
     dashboard = None
     in_flight: dict[Any, str] = {}
     saved_env = {k: os.environ.get(k) for k in THREAD_VARIABLES + ("MALLOC_TRIM_THRESHOLD_",)}
-    interrupt = _DeferredInterrupt()
+    interrupt = DeferredInterrupt()
     with _quiet(), interrupt.installed():
         try:
             interrupt.holding = True  # a Ctrl-C while the cluster starts takes effect once it is up

@@ -43,6 +43,11 @@ def process(
                                          "runtime that agrees with onnxruntime, by a short probe cached per machine "
                                          "and model), 'onnxruntime' or 'openvino' (pip install "
                                          "trafficgeo[openvino])")] = "auto",
+    tile_schedule: Annotated[str, typer.Option(help="when the tiles run: 'auto' (each tile as often as a vehicle "
+                                               "at 100 km/h needs to be seen 4 times in it, at least every 0.5 s, "
+                                               "and on the frame after a new vehicle appears in it; tiles whose "
+                                               "pixels did not change are skipped) or 'all' (every tile on every "
+                                               "detection frame)")] = "auto",
     roi: Annotated[Path | None, typer.Option(help="region of interest: mask image or CSV polygon u,v")] = None,
     checkpoint: Annotated[float, typer.Option(help="seconds of video between checkpoints")] = 30.0,
     restart: Annotated[bool, typer.Option(help="ignore a checkpoint and start again")] = False,
@@ -69,7 +74,8 @@ def process(
     _check_out_dir(out)
     check_html_path(report_html)
     opts = ProcessOptions(detector=detector, detector_format=detector_format, start_s=start, end_s=end, every=every,
-                          checkpoint_s=checkpoint, tiles=tiles, tiling=tiling, backend=backend)
+                          checkpoint_s=checkpoint, tiles=tiles, tiling=tiling, backend=backend,
+                          tile_schedule=tile_schedule)
     columns = (TextColumn("[progress.description]{task.description}"), BarColumn(),
                TextColumn("{task.completed}/{task.total} frames, {task.fields[rate]:.1f} fps, video {task.fields[t]}"),
                TimeRemainingColumn())

@@ -14,6 +14,8 @@ import math
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 if TYPE_CHECKING:
     from trafficgeo.video.detectors.backends import BackendChoice
     from trafficgeo.video.detectors.tiling import TilePlan
@@ -43,6 +45,7 @@ class RunCost:
     video_s: float
     seconds: float
     realtime_factor: float
+    scheduled_passes: float | None = None  # passes per detection frame expected under a tile schedule
 
     def to_dict(self) -> dict[str, object]:
         return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in asdict(self).items()}
@@ -51,6 +54,9 @@ class RunCost:
         """One line for the terminal."""
         often = "every frame" if self.every == 1 else f"every {_ordinal(self.every)} frame"
         units = f" ({self.pass_units:.2f} probe-size passes)" if abs(self.pass_units - self.passes) > 0.01 else ""
+        if self.scheduled_passes is not None:
+            units = (f", about {self.scheduled_passes:.1f} with the tile schedule ({self.pass_units:.2f} probe-size "
+                     "passes)")
         return (f"detector: {self.passes} pass{'es' if self.passes != 1 else ''} per detection frame{units}, {often}, "
                 f"{self.ms_per_pass:.0f} ms per pass ({self.backend}) -> about {duration_text(self.seconds)} for "
                 f"{duration_text(self.video_s)} of video ({self.realtime_factor:.2f}x real time)")
@@ -71,26 +77,35 @@ def duration_text(seconds: float) -> str:
     return f"{s // 3600} h {(s % 3600) // 60} min"
 
 
-def plan_passes(plan: TilePlan | None, probe_input_hw: tuple[int, int]) -> tuple[int, float]:
+def plan_passes(plan: TilePlan | None, probe_input_hw: tuple[int, int], tile_share: object = None
+                ) -> tuple[int, float]:
     """Detector passes per detection frame of a tile ``plan`` (None: the full frame only) and the same in passes of
-    the probe's input size (``probe_input_hw``, (h, w) px), counted by input pixels."""
+    the probe's input size (``probe_input_hw``, (h, w) px), counted by input pixels; ``tile_share`` (K,): the share
+    of detection frames each tile runs on (a tile schedule; None: all)."""
     probe_px = float(probe_input_hw[0] * probe_input_hw[1])
     if plan is None or not probe_px > 0:
         return 1, 1.0
     passes = 1 + len(plan.tiles)
-    return passes, (plan.full_input_pixels + plan.added_input_pixels) / probe_px
+    share = np.ones(len(plan.tiles)) if tile_share is None else np.asarray(tile_share, dtype=np.float64)
+    tile_px = np.prod(plan.tile_inputs_hw, axis=1).astype(np.float64)
+    return passes, (plan.full_input_pixels + float(share @ tile_px)) / probe_px
 
 
 def estimate_cost(choice: BackendChoice, plan: TilePlan | None, *, every: int, video_s: float, fps: float,
-                  decode_ms: float, track_ms: float = TRACK_MS_PER_FRAME, detect_ms: float | None = None) -> RunCost:
+                  decode_ms: float, track_ms: float = TRACK_MS_PER_FRAME, detect_ms: float | None = None,
+                  tile_share: object = None) -> RunCost:
     """The run's cost: detection frames = ceil(``video_s`` x ``fps`` / ``every``), each costing the plan's passes
-    (:func:`plan_passes`) x the probe's time per pass, plus the rest of the detection (``detect_ms``, a whole
-    detection's measured time, minus those passes; 0 when not given or less), ``decode_ms`` (decoding the frame and
-    skipping the ``every`` - 1 before it) and ``track_ms``."""
-    passes, units = plan_passes(plan, choice.probe_input_hw)
+    (:func:`plan_passes`, each tile weighted by its ``tile_share`` under a tile schedule) x the probe's time per
+    pass, plus the rest of the detection (``detect_ms``, a whole detection's measured time with every tile, minus
+    those passes; 0 when not given or less), ``decode_ms`` (decoding the frame and skipping the ``every`` - 1 before
+    it) and ``track_ms``."""
+    passes, all_units = plan_passes(plan, choice.probe_input_hw)
+    _, units = plan_passes(plan, choice.probe_input_hw, tile_share)
     frames = max(1, math.ceil(video_s * fps / every - 1e-9))
     network_ms = units * choice.ms_per_pass
-    other_ms = max(0.0, float(detect_ms) - network_ms) if detect_ms is not None else 0.0
+    other_ms = max(0.0, float(detect_ms) - all_units * choice.ms_per_pass) if detect_ms is not None else 0.0
     seconds = frames * (network_ms + other_ms + decode_ms + track_ms) / 1e3
+    scheduled = None if tile_share is None else 1.0 + float(np.sum(tile_share))
     return RunCost(passes, units, int(every), choice.backend, choice.ms_per_pass, other_ms, float(decode_ms),
-                   float(track_ms), frames, float(video_s), seconds, video_s / seconds if seconds > 0 else math.inf)
+                   float(track_ms), frames, float(video_s), seconds, video_s / seconds if seconds > 0 else math.inf,
+                   scheduled)

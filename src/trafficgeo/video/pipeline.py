@@ -35,6 +35,7 @@ import shutil
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -61,6 +62,9 @@ from trafficgeo.video.detections import Detections
 from trafficgeo.video.detectors.factory import check_detector
 from trafficgeo.video.track import TrackerOptions, VehicleTracker
 
+if TYPE_CHECKING:
+    from trafficgeo.video.detectors.schedule import TileSchedule
+
 __all__ = ["CHECKPOINT_DIR", "PRIME_S", "ProcessOptions", "detect_and_track", "finish_run", "hold_folder",
            "write_run_info"]
 
@@ -85,6 +89,7 @@ class ProcessOptions:
     checkpoint_s: float = 30.0
     tracker: TrackerOptions | None = None  # None: the detector's (settled_options)
     backend: str = "auto"  # what runs a learned detector's network (video.detectors.backends.BACKENDS)
+    tile_schedule: str = "auto"  # "auto": each tile as often as its road needs; "all": every tile, every frame
 
     def __post_init__(self) -> None:
         check_detector(self.detector, self.detector_format)  # a bad name or model fails here, before writing
@@ -102,6 +107,11 @@ class ProcessOptions:
 
         if self.tiling not in TILINGS:
             raise InputError(f"tiling {self.tiling}: use one of {', '.join(TILINGS)}", parameters=("tiling",))
+        from trafficgeo.video.detectors.schedule import SCHEDULES
+
+        if self.tile_schedule not in SCHEDULES:
+            raise InputError(f"tile_schedule {self.tile_schedule}: use one of {', '.join(SCHEDULES)}",
+                             parameters=("tile_schedule",))
         if not self.checkpoint_s > 0:
             raise InputError(f"checkpoint_s {self.checkpoint_s}: must be a positive number of seconds",
                              parameters=("checkpoint_s",))
@@ -206,7 +216,7 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     holds it)."""
     from trafficgeo.video.detectors.background import BackgroundDetector
     from trafficgeo.video.detectors.factory import make_detector
-    from trafficgeo.video.detectors.learned import detector_plan
+    from trafficgeo.video.detectors.learned import detector_plan, tiled_detector
     from trafficgeo.video.reader import video_info
 
     tell = notice or (lambda text: None)
@@ -234,7 +244,12 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     if plan is not None:
         for line in plan.summary_lines():
             tell(line)
-    cost = _announce_cost(detector, plan, video, info.fps, opts, end_s, tell)
+    schedule = _tile_schedule(detector, cam, plan, opts, info.fps)
+    if schedule is not None:
+        tell(schedule_line(schedule, opts.every / info.fps))
+    cost = _announce_cost(detector, plan, video, info.fps, opts, end_s, tell, schedule)
+    if schedule is not None:
+        tiled_detector(detector).schedule = schedule  # after the cost's trial detection
     if detector_info is not None:
         detector_info({"tiling": plan.to_dict() if plan is not None else None,
                        **({"backend": cost[0].to_dict(), "estimate": cost[1].to_dict()} if cost else {})})
@@ -269,7 +284,9 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
         elif state.parts:
             tell(f"resuming from {state.next_time_s:.1f} s")
         _run_segments(video, info, end_s, opts, ck, state, tracker, detector if not learns else None,
-                      new_detector, _prime_seconds(detector), progress)
+                      new_detector, _prime_seconds(detector), progress, schedule)
+        if schedule is not None and detector_info is not None:
+            detector_info({"schedule": schedule.to_dict()})
         return _write_tables(ck, state, out)
 
 
@@ -303,7 +320,7 @@ def _detect_ms(detector: object, frame) -> float | None:
 
 
 def _announce_cost(detector: object, plan, video: Path, fps: float, opts: ProcessOptions, end_s: float,
-                   tell: Callable[[str], None]):
+                   tell: Callable[[str], None], schedule: TileSchedule | None = None):
     """Tell the detector's backend choice and the run's estimated cost (:mod:`trafficgeo.video.cost`); returns
     (choice, cost), or None for a detector without a backend choice (background subtraction)."""
     from trafficgeo.video.cost import estimate_cost
@@ -314,17 +331,19 @@ def _announce_cost(detector: object, plan, video: Path, fps: float, opts: Proces
         return None
     decode_ms, first = _decode_ms(video, opts.start_s, end_s, opts.every)
     cost = estimate_cost(choice, plan, every=opts.every, video_s=end_s - opts.start_s, fps=fps, decode_ms=decode_ms,
-                         detect_ms=_detect_ms(detector, first))
+                         detect_ms=_detect_ms(detector, first),
+                         tile_share=None if schedule is None else 1.0 / schedule.periods)
     tell(choice.summary())
     tell(cost.summary())
     return choice, cost
 
 
 def _run_segments(video: Path, info, end_s: float, opts: ProcessOptions, ck: Path, state: Checkpoint,
-                  tracker: VehicleTracker, fixed_detector, new_detector, prime_s: float, progress) -> None:
+                  tracker: VehicleTracker, fixed_detector, new_detector, prime_s: float, progress,
+                  schedule: TileSchedule | None = None) -> None:
     """Detect and track from ``state`` to ``end_s``, writing a part and the state at each segment's end; with no
     ``fixed_detector``, each segment gets a fresh background model learnt on ``prime_s`` seconds of video before
-    it."""
+    it. A tile ``schedule`` (the fixed detector's) sees the tracker's boxes after each frame."""
     from trafficgeo.video.reader import iter_frames
 
     def boundary(k: int) -> float:
@@ -378,6 +397,8 @@ def _run_segments(video: Path, info, end_s: float, opts: ProcessOptions, ck: Pat
                     k += 1
             dets = detector.detect(frame.image, t)
             tracked = tracker.update(dets, t if info.variable_frame_rate else None)
+            if schedule is not None:
+                schedule.observe_tracks(*tracker.live_boxes())
             buffer.add(frame.index, t, dets, tracked)
             done += 1
             if progress is not None:
@@ -385,6 +406,30 @@ def _run_segments(video: Path, info, end_s: float, opts: ProcessOptions, ck: Pat
     state.parts.append(write_part(ck, len(state.parts), buffer.to_part()))
     state.next_time_s, state.frames_done, state.complete = end_s, done, True
     save_checkpoint(ck, state)
+
+
+def _tile_schedule(detector: object, camera: Camera | None, plan, opts: ProcessOptions, fps: float
+                   ) -> TileSchedule | None:
+    """The tile schedule for a tiled learned detector, or None (no tiles, ``tile_schedule="all"``)."""
+    from trafficgeo.video.detectors.learned import tiled_detector
+    from trafficgeo.video.detectors.schedule import TileSchedule, tile_dwell_m, tile_periods
+
+    tiled = tiled_detector(detector)
+    if tiled is None or plan is None or camera is None or not len(plan.tiles) or opts.tile_schedule == "all":
+        return None
+    step_s = opts.every / fps if fps > 0 else 0.1
+    return TileSchedule(plan, tile_periods(tile_dwell_m(plan, camera), step_s))
+
+
+def schedule_line(schedule: TileSchedule, step_s: float) -> str:
+    """The schedule in one line for the terminal."""
+    p = schedule.periods
+    per = 1.0 + float(np.sum(1.0 / p))
+    return (f"tile schedule: each tile runs every {p.min()}-{p.max()} detection frames ({step_s * p.min():.2f}-"
+            f"{step_s * p.max():.2f} s; each vehicle seen >= {schedule.options.looks} times per tile at "
+            f"{schedule.options.design_speed_kmh:g} km/h), and on the next frame after a new vehicle appears in it; "
+            f"tiles whose pixels did not change are skipped: about {per:.1f} passes per detection frame instead of "
+            f"{len(p) + 1} (tile_schedule='all' runs every tile every frame)")
 
 
 def finish_run(out_dir: str | Path) -> None:
@@ -403,6 +448,7 @@ def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: Pro
     doc = {"video": video, "camera": camera,
            "options": {"detector": options.detector, "detector_format": options.detector_format,
                        "start_s": options.start_s, "end_s": options.end_s, "every": options.every,
-                       "tiles": options.tiles, "tiling": options.tiling, "backend": options.backend},
+                       "tiles": options.tiles, "tiling": options.tiling, "backend": options.backend,
+                       "tile_schedule": options.tile_schedule},
            "detector": detector, "read": read, "seconds": seconds, "detections": detections, "track_rows": track_rows}
     write_json_atomic(Path(out_dir) / "process.json", doc)

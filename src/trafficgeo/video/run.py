@@ -51,6 +51,7 @@ class ProcessResult:
         warning: one line when less video was read than asked, else None.
         tiling: the built-in learned detector's tile plan (``TilePlan.to_dict()``), or None.
         files: the files written in the folder.
+        schedule: what the tile schedule did (``TileSchedule.to_dict()``), or None (no tiles, or all run).
     """
 
     traffic: TrafficResult
@@ -63,6 +64,7 @@ class ProcessResult:
     warning: str | None
     tiling: dict[str, Any] | None
     files: tuple[str, ...]
+    schedule: dict[str, Any] | None = None
 
     @property
     def realtime_factor(self) -> float | None:
@@ -188,7 +190,7 @@ def process_video(video: PathLike, camera: Camera | PathLike, surface: Surface |
         files = ("detections.csv", "tracks.csv", *(p.name for p in written), "process.json")
         folder.publish(files, command="process")
     return ProcessResult(result, detections, tracks, folder, opts, read_doc, elapsed, short,
-                         detector_doc.get("tiling"), files)
+                         detector_doc.get("tiling"), files, detector_doc.get("schedule"))
 
 
 def _chunk(folder: Path) -> tuple[pd.DataFrame, tuple[float, float], str | None]:

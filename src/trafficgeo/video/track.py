@@ -76,6 +76,15 @@ class VehicleTracker:
             ids.append(self._classes.index(name))
         return np.asarray(ids, dtype=int)
 
+    def live_boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The boxes (N, 4) px of the tracks alive after the last update (their filtered state) and (N,) bool: the
+        track is young (seen, not yet confirmed: it needs a detection on the next frame to get an id)."""
+        tracks = list(self._tracker.tracks)
+        if not tracks:
+            return np.zeros((0, 4)), np.zeros(0, dtype=bool)
+        boxes = np.array([np.asarray(t.get_state_bbox(), dtype=np.float64).reshape(4) for t in tracks])
+        return boxes, np.array([t.tracker_id == -1 for t in tracks], dtype=bool)
+
     def update(self, detections: Detections, time_s: float | None = None) -> TrackedBoxes:
         """Feed one frame's detections; returns the detections that belong to confirmed tracks, with their ids.
         ``time_s`` (the frame's timestamp) lets variable-frame-rate video keep the motion model right."""

@@ -101,6 +101,18 @@ def detector_plan(detector: object) -> TilePlan | None:
     return getattr(detector, "plan", None)
 
 
+def tiled_detector(detector: object) -> TiledDetector | None:
+    """The :class:`~trafficgeo.video.detectors.tiled.TiledDetector` inside a detector (the size-class wrapper), or
+    None."""
+    for _ in range(8):
+        if isinstance(detector, TiledDetector):
+            return detector
+        if not hasattr(detector, "base"):
+            return None
+        detector = detector.base
+    return None
+
+
 def detector_backend(detector: object) -> BackendChoice | None:
     """The runtime choice (:class:`~trafficgeo.video.detectors.backends.BackendChoice`) of an ONNX detector, also
     inside the tiled and size-class wrappers; None for other detectors or one built without ``backend``."""

@@ -14,6 +14,7 @@ from trafficgeo.errors import InputError
 from trafficgeo.video.detections import Detections, check_image, check_roi, in_roi
 
 if TYPE_CHECKING:
+    from trafficgeo.video.detectors.schedule import TileSchedule
     from trafficgeo.video.detectors.tiling import TilePlan
 
 CUT_MARGIN_PX = 2.0  # a tile box this near (px) to a tile edge inside the frame is of a vehicle the tile cuts
@@ -79,6 +80,9 @@ class TiledDetector:
 
     ``base`` must not filter by an ROI of its own (its frames are crops): give ``roi`` (bool (H, W)) here instead;
     boxes whose bottom centre lies outside it are dropped after the merge.
+
+    With a ``schedule`` (:class:`~trafficgeo.video.detectors.schedule.TileSchedule`, set as an attribute), each
+    frame runs only the tiles it chooses; a still tile gives its last detections again, the others none.
     """
 
     def __init__(self, base: object, plan: TilePlan, *, iou: float = 0.5, containment: float = 0.8,
@@ -92,6 +96,8 @@ class TiledDetector:
         self.base, self.plan = base, plan
         self.iou, self.containment = float(iou), float(containment)
         self.roi = None if roi is None else check_roi(roi, plan.frame_shape, "TiledDetector roi")
+        self.schedule: TileSchedule | None = None  # None: every tile on every frame
+        self._last: list[Detections] = [Detections.empty() for _ in range(len(plan.tiles))]
 
     def detect(self, image: np.ndarray, time_s: float = 0.0) -> Detections:
         """Vehicles in ``image`` ((H, W, 3) uint8 BGR) at ``time_s`` s, boxes in full-frame px."""
@@ -105,13 +111,20 @@ class TiledDetector:
             full = self.base.detect(image, time_s)
         else:
             full = self.base.detect_batch([image], input_hw=plan.full_input_hw)[0]
-        crops = [image[y0:y1, x0:x1] for x0, y0, x1, y1 in plan.tiles]
+        k_all = len(plan.tiles)
+        if self.schedule is not None and k_all:
+            run, reuse = self.schedule.choose(image)
+        else:
+            run, reuse = np.ones(k_all, dtype=bool), np.zeros(k_all, dtype=bool)
+        chosen = np.flatnonzero(run)
+        crops = [image[y0:y1, x0:x1] for x0, y0, x1, y1 in plan.tiles[chosen]]
         sized = plan.tile_input_hw is not None
         if not crops:
             parts = [full]
         elif hasattr(self.base, "detect_batch"):  # one call per crop and input size (a batch holds one size)
             found: list[Detections | None] = [None] * len(crops)
-            keys = [(c.shape, tuple(plan.tile_input_hw[k]) if sized else None) for k, c in enumerate(crops)]
+            keys = [(c.shape, tuple(plan.tile_input_hw[t]) if sized else None) for t, c in zip(chosen, crops,
+                                                                                               strict=True)]
             for key in dict.fromkeys(keys):
                 idx = [k for k, kk in enumerate(keys) if kk == key]
                 batch = [crops[k] for k in idx]
@@ -121,15 +134,17 @@ class TiledDetector:
             parts = [full, *found]
         else:
             parts = [full, *(self.base.detect(c, time_s) for c in crops)]
-        kept = [full]
-        sources = [np.zeros(len(full), dtype=np.int64)]
-        for k, (det, tile) in enumerate(zip(parts[1:], self.plan.tiles, strict=True), start=1):
-            if not len(det):
-                continue
+        for t, det in zip(chosen, parts[1:], strict=True):
+            tile = plan.tiles[t]
             boxes = det.boxes + np.array([tile[0], tile[1], tile[0], tile[1]], dtype=np.float64)
             whole = ~cut_by_tile(boxes, tile, shape, self.plan.cut_margin_px)
-            kept.append(Detections(boxes[whole], det.scores[whole], det.classes[whole]))
-            sources.append(np.full(int(whole.sum()), k, dtype=np.int64))
+            self._last[t] = Detections(boxes[whole], det.scores[whole], det.classes[whole])
+        kept = [full]
+        sources = [np.zeros(len(full), dtype=np.int64)]
+        for t in np.flatnonzero(run | reuse):
+            if len(self._last[t]):
+                kept.append(self._last[t])
+                sources.append(np.full(len(self._last[t]), t + 1, dtype=np.int64))
         merged = Detections.concatenate(kept)
         pick = merge_boxes(merged.boxes, merged.scores, np.concatenate(sources), iou=self.iou,
                            containment=self.containment)
