@@ -36,6 +36,7 @@ from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import pixels_to_world
 from trafficgeo.geo.surface import ConstantSurface
 from trafficgeo.geo.uncertainty import CameraCovariance
+from trafficgeo.synth.noisy_paths import ar1_noise, point_tracks
 from trafficgeo.traffic.speed import ScaleKnowledge
 from trafficgeo.traffic.tracks import ImageTracks
 
@@ -138,16 +139,6 @@ class PixelNoise:
     correlation_s: float = 0.5
 
 
-def _ar1(rng: np.random.Generator, n: int, sigma: float, correlation_s: float, fps: float) -> np.ndarray:
-    phi = float(np.exp(-1.0 / (fps * correlation_s))) if correlation_s > 0 else 0.0
-    e = rng.normal(0.0, sigma * np.sqrt(1.0 - phi**2), n)
-    out = np.empty(n)
-    out[0] = rng.normal(0.0, sigma)
-    for k in range(1, n):
-        out[k] = phi * out[k - 1] + e[k]
-    return out
-
-
 def tracks_through_true_camera(speeds_kmh: np.ndarray, noise: PixelNoise, *, warp: bool = False,
                                fps: float = 30.0, headway_s: float = 2.0, far_m: float = ROAD_M[1],
                                seed: int = 0) -> tuple[ImageTracks, dict[str, float]]:
@@ -163,7 +154,7 @@ def tracks_through_true_camera(speeds_kmh: np.ndarray, noise: PixelNoise, *, war
                          parameters=("far_m",))
     rng = np.random.default_rng(seed)
     cam = true_camera()
-    cols: dict[str, list] = {"id": [], "frame": [], "time": [], "u": [], "v": []}
+    paths = []
     for k, kmh in enumerate(speeds):
         v = kmh / 3.6
         start = round(k * headway_s * fps)
@@ -176,16 +167,7 @@ def tracks_through_true_camera(speeds_kmh: np.ndarray, noise: PixelNoise, *, war
             xy = scale_warp(xy, cam)
         uv = cam.project(np.column_stack([xy, np.zeros(t.size)]))
         uv += rng.normal(0.0, noise.white_px, uv.shape)
-        uv += np.column_stack([_ar1(rng, t.size, noise.correlated_px, noise.correlation_s, fps) for _ in (0, 1)])
-        seen = cam.in_image(np.nan_to_num(uv, nan=-1e9))
-        cols["id"] += [f"v{k}"] * int(seen.sum())
-        cols["frame"].append(start + np.arange(t.size)[seen])
-        cols["time"].append(t[seen])
-        cols["u"].append(uv[seen, 0])
-        cols["v"].append(uv[seen, 1])
-    n = len(cols["id"])
-    tracks = ImageTracks(track_id=np.array(cols["id"], dtype=object),
-                         frame=np.concatenate(cols["frame"]).astype(np.int64), time=np.concatenate(cols["time"]),
-                         u=np.concatenate(cols["u"]), v=np.concatenate(cols["v"]), box=np.full((n, 4), np.nan),
-                         vclass=np.full(n, "car", dtype=object), score=np.full(n, np.nan))
-    return tracks, {f"v{k}": float(s) for k, s in enumerate(speeds)}
+        uv += np.column_stack([ar1_noise(rng, t.size, noise.correlated_px, noise.correlation_s, fps)
+                               for _ in (0, 1)])
+        paths.append((f"v{k}", start, t, uv))
+    return point_tracks(cam, paths), {f"v{k}": float(s) for k, s in enumerate(speeds)}

@@ -54,7 +54,9 @@ def metres_per_px() -> float:
     return HEIGHT_M / FOCAL_PX
 
 
-def _correlated(rng: np.random.Generator, n: int, sigma: float, correlation_s: float, fps: float) -> np.ndarray:
+def ar1_noise(rng: np.random.Generator, n: int, sigma: float, correlation_s: float, fps: float) -> np.ndarray:
+    """(n,) noise of 1-sigma ``sigma`` sampled at ``fps``: first-order autoregressive with correlation time
+    ``correlation_s`` (s; 0: white). Draws nothing from ``rng`` when ``sigma`` is 0."""
     if sigma == 0:
         return np.zeros(n)
     if correlation_s <= 0:
@@ -78,6 +80,24 @@ def road_point(s: np.ndarray, radius_m: float) -> tuple[np.ndarray, np.ndarray]:
     return pos, np.column_stack([np.cos(a), np.sin(a)])
 
 
+def point_tracks(camera: Camera, paths: list[tuple[str, int, np.ndarray, np.ndarray]]) -> ImageTracks:
+    """Image tracks of ground-contact points (no boxes, class car) from ``paths``: per vehicle its track id, its
+    first frame index, its times (N,) s and its pixels (N, 2); the points outside ``camera``'s image are left out."""
+    ids, frames, times, uv = [], [], [], []
+    for track_id, start, t, px in paths:
+        seen = camera.in_image(np.nan_to_num(px, nan=-1e9))
+        ids += [track_id] * int(seen.sum())
+        frames.append(start + np.arange(t.size)[seen])
+        times.append(t[seen])
+        uv.append(px[seen])
+    n = len(ids)
+    uv_all = np.concatenate(uv) if uv else np.zeros((0, 2))
+    return ImageTracks(track_id=np.array(ids, dtype=object),
+                       frame=np.concatenate(frames).astype(np.int64) if frames else np.zeros(0, dtype=np.int64),
+                       time=np.concatenate(times) if times else np.zeros(0), u=uv_all[:, 0], v=uv_all[:, 1],
+                       box=np.full((n, 4), np.nan), vclass=np.full(n, "car", dtype=object), score=np.full(n, np.nan))
+
+
 def noisy_road_tracks(speeds_kmh: np.ndarray, noise: PathNoise, *, radius_m: float = np.inf, fps: float = 30.0,
                       headway_s: float = 3.0, seed: int = 0) -> tuple[Camera, ImageTracks, pd.Series]:
     """One image track per speed (km/h), the vehicles entering the road ``headway_s`` apart: the camera, the
@@ -91,29 +111,18 @@ def noisy_road_tracks(speeds_kmh: np.ndarray, noise: PathNoise, *, radius_m: flo
                          "road (at least its length / 2 pi)")
     rng = np.random.default_rng(seed)
     camera = nadir_camera()
-    cols: dict[str, list] = {"track_id": [], "frame": [], "time": [], "u": [], "v": []}
+    paths = []
     for k, kmh in enumerate(speeds):
         v = kmh / 3.6
         start = round(k * headway_s * fps)
         t = np.arange(start, start + 2.0 * ROAD_HALF_LENGTH_M / v * fps) / fps
         pos, d = road_point(-ROAD_HALF_LENGTH_M + v * (t - t[0]), radius_m)
         normal = np.column_stack([-d[:, 1], d[:, 0]])
-        along = _correlated(rng, t.size, noise.along_m, noise.correlation_s, fps)
-        side = _correlated(rng, t.size, noise.sideways_m, noise.correlation_s, fps)
+        along = ar1_noise(rng, t.size, noise.along_m, noise.correlation_s, fps)
+        side = ar1_noise(rng, t.size, noise.sideways_m, noise.correlation_s, fps)
         side += noise.sway_m * np.sin(2.0 * np.pi * noise.sway_hz * t + rng.uniform(0.0, 2.0 * np.pi))
         xy = pos + along[:, None] * d + side[:, None] * normal
-        uv = camera.project(np.column_stack([xy, np.zeros(t.size)]))
-        seen = camera.in_image(np.nan_to_num(uv, nan=-1e9))
-        frames = start + np.arange(t.size)[seen]
-        cols["track_id"] += [f"v{k}"] * int(seen.sum())
-        cols["frame"].append(frames)
-        cols["time"].append(t[seen])
-        cols["u"].append(uv[seen, 0])
-        cols["v"].append(uv[seen, 1])
-    n = len(cols["track_id"])
-    tracks = ImageTracks(track_id=np.array(cols["track_id"], dtype=object),
-                         frame=np.concatenate(cols["frame"]).astype(np.int64), time=np.concatenate(cols["time"]),
-                         u=np.concatenate(cols["u"]), v=np.concatenate(cols["v"]), box=np.full((n, 4), np.nan),
-                         vclass=np.full(n, "car", dtype=object), score=np.full(n, np.nan))
+        paths.append((f"v{k}", start, t, camera.project(np.column_stack([xy, np.zeros(t.size)]))))
+    tracks = point_tracks(camera, paths)
     truth = pd.Series(speeds, index=[f"v{k}" for k in range(speeds.size)], name="speed_kmh")
     return camera, tracks, truth
