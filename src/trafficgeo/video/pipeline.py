@@ -246,7 +246,7 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
             tell(line)
     schedule = _tile_schedule(detector, cam, plan, opts, info.fps)
     if schedule is not None:
-        tell(schedule_line(schedule, opts.every / info.fps))
+        tell(schedule.summary(opts.every / info.fps))
     cost = _announce_cost(detector, plan, video, info.fps, opts, end_s, tell, schedule)
     if schedule is not None:
         tiled_detector(detector).schedule = schedule  # after the cost's trial detection
@@ -419,17 +419,6 @@ def _tile_schedule(detector: object, camera: Camera | None, plan, opts: ProcessO
         return None
     step_s = opts.every / fps if fps > 0 else 0.1
     return TileSchedule(plan, tile_periods(tile_dwell_m(plan, camera), step_s))
-
-
-def schedule_line(schedule: TileSchedule, step_s: float) -> str:
-    """The schedule in one line for the terminal."""
-    p = schedule.periods
-    per = 1.0 + float(np.sum(1.0 / p))
-    return (f"tile schedule: each tile runs every {p.min()}-{p.max()} detection frames ({step_s * p.min():.2f}-"
-            f"{step_s * p.max():.2f} s; each vehicle seen >= {schedule.options.looks} times per tile at "
-            f"{schedule.options.design_speed_kmh:g} km/h), and on the next frame after a new vehicle appears in it; "
-            f"tiles whose pixels did not change are skipped: about {per:.1f} passes per detection frame instead of "
-            f"{len(p) + 1} (tile_schedule='all' runs every tile every frame)")
 
 
 def finish_run(out_dir: str | Path) -> None:

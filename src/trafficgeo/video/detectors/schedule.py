@@ -2,18 +2,20 @@
 
 The full frame runs on every detection frame; tile ``k`` runs when one of these holds:
 
-* **due**: ``period[k]`` detection frames have passed since it last ran (all tiles of one period on the same
-  frames). The period comes from the road the tile
+* **due**: ``period[k]`` detection frames have passed since it last ran. The period comes from the road the tile
   serves (:func:`tile_periods`): a vehicle at ``design_speed_kmh`` crossing the tile's part of a lane must be
   detected there at least ``looks`` times, and no tile waits longer than ``max_gap_s`` (the tracker's prediction
-  of a vehicle seen less often drifts). Far tiles, which serve long stretches of road, run least often.
+  of a vehicle seen less often drifts). Far tiles, which serve long stretches of road, run least often. Tiles of
+  one period run on the same frames: taking turns instead (to spread the passes evenly) cost the high camera of
+  ``bench_video`` 2.8 points of per-lane counts, as a vehicle in the overlap of two tiles got its box from each
+  on alternate frames.
 * **forced**: a new track (seen once, not yet confirmed: the tracker needs it on two detection frames in a row) has
   its box in the tile; the tile runs on the next detection frame so that the vehicle's track starts.
 
 A due tile whose pixels did not change since it last ran (a grey thumbnail at 1/4 scale: fewer than
 ``still_pixels`` of its pixels moved by more than ``still_grey`` grey levels) is **still**: it is not run, and its
-last detections are given again (a parked or queued vehicle keeps its track). Tiles run on the last detection
-frame are re-run regardless of motion when forced.
+last detections are given again (a parked or queued vehicle keeps its track). A forced tile runs whether or not
+its pixels changed.
 
 Frames follow :mod:`trafficgeo.video.detections` (boxes in full-frame px; a tile ``(x0, y0, x1, y1)`` is the crop
 ``image[y0:y1, x0:x1]``). The schedule's state (last run, thumbnails) lives in the object: one per video run.
@@ -49,10 +51,6 @@ class ScheduleOptions:
     max_gap_s: float = 0.5  # the longest time a tile waits between runs
     still_grey: int = 20  # grey levels a thumbnail pixel must change by to count as moved
     still_pixels: int = 4  # a tile with fewer moved thumbnail pixels than this is still
-    # tiles of one period all run on the same frames (True: they take turns, spreading the passes evenly; on the
-    # high camera of bench_video that cost 2.8 points of per-lane counts: a vehicle in the overlap of two tiles got
-    # a box from each on alternate frames)
-    stagger: bool = False
 
     def __post_init__(self) -> None:
         ok = (self.looks >= 1 and np.isfinite(self.design_speed_kmh) and self.design_speed_kmh > 0
@@ -165,8 +163,6 @@ class TileSchedule:
         self.reused += reuse
         self.forced_runs += run & self.forced & ~due
         self.last_run[run | reuse] = self.frame
-        if self.frame == 0 and self.options.stagger:  # tiles of one period take turns: the passes spread evenly
-            self.last_run = -(np.arange(len(self.periods)) % self.periods)
         self.forced[:] = False
         return run, reuse
 
@@ -189,10 +185,21 @@ class TileSchedule:
                       & (tiles[:, 1, None] <= cy) & (cy < tiles[:, 3, None]))
             self.forced |= inside.any(axis=1)
 
-    def to_dict(self, frames: int | None = None) -> dict[str, object]:
+    def summary(self, frame_step_s: float) -> str:
+        """The schedule in one line for the terminal (``frame_step_s``: seconds between detection frames)."""
+        p = self.periods
+        per = 1.0 + float(np.sum(1.0 / p))
+        return (f"tile schedule: each tile runs every {p.min()}-{p.max()} detection frames "
+                f"({frame_step_s * p.min():.2f}-{frame_step_s * p.max():.2f} s; each vehicle seen >= "
+                f"{self.options.looks} times per tile at "
+                f"{self.options.design_speed_kmh:g} km/h), and on the next frame after a new vehicle appears in it; "
+                f"tiles whose pixels did not change are skipped: about {per:.1f} passes per detection frame instead "
+                f"of {len(p) + 1} (tile_schedule='all' runs every tile every frame)")
+
+    def to_dict(self) -> dict[str, object]:
         """The schedule and what it did, for ``process.json``: periods, runs, reuses and forced runs per tile, and
         the mean tile passes per detection frame."""
-        n = max(1, self.frame + 1 if frames is None else frames)
+        n = max(1, self.frame + 1)
         return {"periods": self.periods.tolist(), "looks": self.options.looks,
                 "design_speed_kmh": self.options.design_speed_kmh, "max_gap_s": self.options.max_gap_s,
                 "detection_frames": self.frame + 1, "tile_runs": self.runs.tolist(),
