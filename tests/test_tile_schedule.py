@@ -139,3 +139,13 @@ def test_a_vehicle_crossing_a_line_in_a_rarely_run_tile_is_still_tracked_across_
     # without the forced run, the new track never gets a second detection in a row and never starts
     lost, _ = track_a_car_across(observe=False, period=4)
     assert lost == {}
+
+
+def test_the_schedule_says_how_often_each_tile_runs() -> None:
+    plan = two_tile_plan()
+    assert TileSchedule(plan, np.array([2, 2])).summary(0.1).startswith(
+        "tile schedule: each tile runs every 2 detection frames (0.20 s; each vehicle seen >= 4 times per tile at "
+        "100 km/h)")
+    line = TileSchedule(plan, np.array([1, 4])).summary(0.1)
+    assert "every 1-4 detection frames (0.10-0.40 s;" in line
+    assert "about 2.2 passes per detection frame instead of 3" in line  # 1 + 1/1 + 1/4

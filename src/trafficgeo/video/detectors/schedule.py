@@ -189,8 +189,10 @@ class TileSchedule:
         """The schedule in one line for the terminal (``frame_step_s``: seconds between detection frames)."""
         p = self.periods
         per = 1.0 + float(np.sum(1.0 / p))
-        return (f"tile schedule: each tile runs every {p.min()}-{p.max()} detection frames "
-                f"({frame_step_s * p.min():.2f}-{frame_step_s * p.max():.2f} s; each vehicle seen >= "
+        lo, hi = int(p.min()), int(p.max())
+        every = (f"{lo} detection frame{'s' if lo > 1 else ''} ({frame_step_s * lo:.2f} s" if lo == hi else
+                 f"{lo}-{hi} detection frames ({frame_step_s * lo:.2f}-{frame_step_s * hi:.2f} s")
+        return (f"tile schedule: each tile runs every {every}; each vehicle seen >= "
                 f"{self.options.looks} times per tile at "
                 f"{self.options.design_speed_kmh:g} km/h), and on the next frame after a new vehicle appears in it; "
                 f"tiles whose pixels did not change are skipped: about {per:.1f} passes per detection frame instead "
