@@ -117,6 +117,8 @@ def _pose_text(**keys: str) -> str:
     ({"origin": "[249.2, 16.6, 250.]"}, {"crs": UTM}, "latitude must be within"),
     ({"frame": "xyz", "origin": "[49.2, 16.6, 250.]"}, {"crs": UTM}, "'enu' (east-north-up) or 'ned'"),
     ({"camera_matrix": ""}, {}, "no camera matrix"),
+    ({"rvec": "[1.2, .nan, 0.2]"}, {}, "not finite numbers"),
+    ({"origin": "[49.2, 200., 250.]"}, {"crs": UTM}, "longitude within +/-180"),
     ({}, {"crs": "EPSG:4326"}, "must be a projected CRS"),
 ])
 def test_bad_pose_files_raise_one_line(tmp_path: Path, keys: dict, kwargs: dict, needle: str) -> None:
@@ -140,6 +142,9 @@ def test_import_camera_writes_the_camera_json(tmp_path: Path) -> None:
     code, _out, stderr = invoke("import-camera", tmp_path / "pose.yml", "-o", tmp_path / "c2.json",
                                 "--origin", "49.2,16.6")
     assert code == 2 and "--origin" in stderr and "lat,lon,alt" in stderr
+    code, _out, stderr = invoke("import-camera", tmp_path / "pose.yml", "-o", tmp_path / "pose.yml")
+    assert code == 2 and "(.json)" in stderr
+    assert (tmp_path / "pose.yml").read_text().startswith("%YAML")  # the pose file is left as it was
 
 
 def test_a_hand_written_json_pose_at_a_geodetic_origin(tmp_path: Path) -> None:

@@ -103,6 +103,8 @@ def test_the_affine_fit_reports_what_does_not_fit() -> None:
     ({"control": "line.csv"}, "on one line"),
     ({"control": "two.csv"}, "at least 3"),
     ({"control": "bad.csv"}, "columns"),
+    ({"control": "corner.csv"}, "corner 'middle' is not one of"),
+    ({"control": "photo.png"}, "not a text CSV"),
     ({}, "no world file"),
 ])
 def test_bad_inputs_raise_one_line(tmp_path: Path, kwargs: dict, needle: str) -> None:
@@ -110,6 +112,7 @@ def test_bad_inputs_raise_one_line(tmp_path: Path, kwargs: dict, needle: str) ->
     (tmp_path / "line.csv").write_text("u,v,x,y\n0,0,1,1\n10,10,2,2\n20,20,3,3\n")
     (tmp_path / "two.csv").write_text("u,v,x,y\n0,0,1,1\n10,10,2,2\n")
     (tmp_path / "bad.csv").write_text("a,b\n1,2\n")
+    (tmp_path / "corner.csv").write_text("corner,x,y\ntop-left,1,1\nmiddle,3,4\nbottom-right,5,5\n")
     args = {"crs": CRS, **kwargs}
     for key in ("world_file", "control"):
         if key in args:

@@ -64,6 +64,8 @@ _ECEF = pyproj.CRS.from_epsg(4978)
 
 def _rotation(arr: np.ndarray, where: str) -> np.ndarray:
     """A 3x3 rotation from a 3x3 matrix or a Rodrigues 3-vector (rad)."""
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{where}: has values that are not finite numbers; {_HINT}")
     if arr.size == 3:
         R, _ = cv2.Rodrigues(arr.reshape(3, 1).astype(np.float64))
         return R
@@ -152,7 +154,7 @@ def _check_origin(origin: object) -> tuple[float, float, float]:
     except (TypeError, ValueError):
         raise InputError(f"origin {origin!r}: give the geodetic origin as (lat, lon, alt): degrees, degrees, "
                          "metres", parameters=("origin",)) from None
-    if not (np.isfinite([lat, lon, alt]).all() and -90 <= lat <= 90 and -180 <= lon <= 360):
+    if not (np.isfinite([lat, lon, alt]).all() and -90 <= lat <= 90 and -180 <= lon <= 180):
         raise InputError(f"origin {lat:g}, {lon:g}, {alt:g}: latitude must be within +/-90 and longitude within "
                          "+/-180 degrees (lat first)", parameters=("origin",))
     return lat, lon, alt

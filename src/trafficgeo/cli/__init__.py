@@ -202,6 +202,10 @@ def import_camera(
     from trafficgeo.camera.io import write_camera_json
     from trafficgeo.camera.pose_file import read_pose_file
 
+    if output.suffix.lower() != ".json":
+        raise InputError(f"--output {output}: write the camera as a camera JSON (.json)")
+    if output.resolve() == pose.resolve():
+        raise InputError(f"--output {output} is the pose file itself; write the camera JSON to another file")
     size = parse_image_size(image_size) if image_size is not None else None
     cam = read_pose_file(pose, crs=crs, origin=_parse_origin(origin) if origin is not None else None, frame=frame,
                          image_size=size)

@@ -91,8 +91,12 @@ def read_control_points(path: str | os.PathLike[str], image_size: tuple[int, int
     if not p.is_file():
         raise InputError(f"control {p}: file not found; give a CSV with u,v,x,y (or corner,x,y) columns",
                          parameters=("control",))
-    with p.open(newline="", encoding="utf-8-sig") as fh:
-        rows = list(csv.DictReader(fh))
+    try:
+        with p.open(newline="", encoding="utf-8-sig") as fh:
+            rows = list(csv.DictReader(fh))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise InputError(f"control {p}: not a text CSV ({type(exc).__name__}); give a CSV with u,v,x,y (or "
+                         "corner,x,y) columns", parameters=("control",)) from None
     if not rows:
         raise InputError(f"control {p}: no rows; give a CSV with u,v,x,y (or corner,x,y) columns",
                          parameters=("control",))
@@ -118,6 +122,8 @@ def read_control_points(path: str | os.PathLike[str], image_size: tuple[int, int
                     raise ValueError
                 uv.append((float(row[cols["u"]]), float(row[cols["v"]])))
             xy.append((float(row[cols["x"]]), float(row[cols["y"]])))
+        except InputError:
+            raise
         except (TypeError, ValueError):
             raise InputError(f"control {p}, line {i}: needs numbers in u, v (or a corner name) and x, y",
                              parameters=("control",)) from None

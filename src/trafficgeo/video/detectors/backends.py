@@ -27,7 +27,7 @@ from typing import Protocol
 
 import numpy as np
 
-from trafficgeo.errors import InputError
+from trafficgeo.errors import InputError, OutputError
 from trafficgeo.io.atomic import write_json_atomic
 
 BACKENDS = ("auto", "onnxruntime", "openvino")  # what a user may ask for (``backend``)
@@ -259,7 +259,7 @@ def save_choice(key: dict, choice: BackendChoice) -> None:
     try:
         cache_dir().mkdir(parents=True, exist_ok=True)
         write_json_atomic(_cache_file(key), {"key": key, "choice": {**choice.to_dict(), "cached": False}})
-    except OSError:
+    except (OSError, OutputError):  # OutputError: the disk full or read-only while writing
         pass
 
 
