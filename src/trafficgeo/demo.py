@@ -348,8 +348,9 @@ def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console)
     con.print(f"\n$ trafficgeo analyze {out / 'camera.json'} {out / 'tracks.csv'} --fps {opts.fps:g} --surface "
               f"{out / 'dem.tif'} --lanes {wdir / 'lanes.gpkg'} --lines {wdir / 'count_lines.gpkg'} "
               f"--out {out / 'traffic'}")
-    result = analyze_tracks(cam, surf, out / "tracks.csv", wdir / "lanes.gpkg", wdir / "count_lines.gpkg",
-                            fps=opts.fps)
+    # the camera JSON, as the command above: its covariance and control points place the headline speed windows
+    result = analyze_tracks(out / "camera.json", surf, out / "tracks.csv", wdir / "lanes.gpkg",
+                            wdir / "count_lines.gpkg", fps=opts.fps)
     RunFolder(out / "traffic").write_traffic(result, cam)
     print_analysis(result, con)
     # against the truth
