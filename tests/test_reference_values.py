@@ -12,6 +12,7 @@ import pytest
 from reference_values import (
     FIT,
     LAST_BITS,
+    TRAFFIC,
     Tol,
     assert_covariance_close,
     assert_csv_close,
@@ -71,3 +72,14 @@ def test_csv_cells_agree_to_the_tolerance_or_the_last_printed_digit(tmp_path: Pa
         with pytest.raises(AssertionError):
             assert_csv_close(new, old, "counts", LAST_BITS)
 
+
+
+def test_traffic_positions_are_held_to_micrometres_at_utm_northings(tmp_path: Path) -> None:
+    """A northing of 5e6 m: the last bits pass, a millimetre does not (a relative 1e-6 would let 5 m through)."""
+    old, new = tmp_path / "old.csv", tmp_path / "new.csv"
+    old.write_text("time,y\n1.5,5182593.123456789\n")
+    new.write_text("time,y\n1.5,5182593.123456790\n")
+    assert_csv_close(new, old, "trajectories", TRAFFIC)
+    new.write_text("time,y\n1.5,5182593.124456789\n")
+    with pytest.raises(AssertionError):
+        assert_csv_close(new, old, "trajectories", TRAFFIC)
