@@ -96,6 +96,20 @@ def test_scale_drift_warning_names_where_and_how_much() -> None:
     assert scale_drift_warning(exact_cam, exact_world.points, exact_world.vehicles) is None
 
 
+@pytest.mark.parametrize("factor", [1.2, 1.3])
+def test_a_large_drift_is_reported_too(factor: float) -> None:
+    """Point speeds beyond 70 m read 20 or 30 % fast (every vehicle there): a band there reports about that much
+    (the steadiness test once threw out every vehicle such a drift touches, and the warning went quiet)."""
+    camera, _t, world, _veh, _true = _run("exact", far_m=100.0)
+    pts = world.points.copy()
+    far = np.hypot(pts["x"] - camera.position[0], pts["y"] - camera.position[1]) > 70.0
+    pts.loc[far, "speed_kmh"] *= factor
+    text = scale_drift_warning(camera, pts, world.vehicles)
+    assert text is not None
+    pcts = [float(p) for p in re.findall(r"([+-]\d+\.\d) % at", text)]
+    assert max(pcts) == pytest.approx(100.0 * (factor - 1.0), abs=2.0), text
+
+
 def test_analyze_reports_the_drift_among_its_warnings() -> None:
     """analyze puts the finding in its warnings (summary.json and the terminal show those)."""
     speeds = np.random.default_rng(2).uniform(60.0, 110.0, 60)

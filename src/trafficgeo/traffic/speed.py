@@ -241,8 +241,9 @@ def scale_drift_warning(camera: Camera, points: pd.DataFrame, vehicles: pd.DataF
     """A warning when vehicles as a whole read faster or slower at some distance from the camera than their own
     headline speed (measured where the scale is best known): the camera's ground scale is off there.
 
-    Each point's speed over its vehicle's ``speed_kmh`` (vehicles of steady speed only: their point speeds within
-    +-15 % of it for 80 % of the time; the first and last ``drift_end_s`` of each track left out) is grouped into
+    Each point's speed over its vehicle's ``speed_kmh`` (vehicles of steady speed only: that ratio, divided by its
+    distance band's median over all vehicles, within +-15 % of 1 for 80 % of the time; the first and last
+    ``drift_end_s`` of each track left out) is grouped into
     ``drift_bands`` bands of distance from the camera; per band, the median over vehicles of each vehicle's median
     ratio. A band is reported when it has ``drift_min_vehicles`` vehicles and its median differs from 1 by at least
     ``drift_min_pct`` % and four standard errors (from the spread over vehicles)."""
@@ -263,7 +264,13 @@ def scale_drift_warning(camera: Camera, points: pd.DataFrame, vehicles: pd.DataF
     pts = pts[inner & np.isfinite(pts["ratio"]) & (pts["track_id"].map(head).to_numpy() > 10.0)]
     if not len(pts):
         return None
-    steady = pts.groupby("track_id")["ratio"].agg(lambda r: np.mean(np.abs(r - 1.0) <= 0.15) >= 0.8)
+    # steady: judged on what is left once each distance band's shared ratio is divided out, so that a large drift
+    # (which every vehicle there shares) does not make all vehicles look unsteady and silence the warning
+    pre = np.quantile(pts["distance_m"], np.linspace(0.0, 1.0, opts.drift_bands + 1))
+    pre_band = np.clip(np.searchsorted(pre, pts["distance_m"], side="right") - 1, 0, opts.drift_bands - 1)
+    shared = pts.groupby(pre_band)["ratio"].transform("median")
+    own = (pts["ratio"] / shared).groupby(pts["track_id"])
+    steady = own.agg(lambda r: np.mean(np.abs(r - 1.0) <= 0.15) >= 0.8)
     pts = pts[pts["track_id"].map(steady).to_numpy(dtype=bool)]
     if pts["track_id"].nunique() < opts.drift_min_vehicles:
         return None
