@@ -39,15 +39,10 @@ def _digest(folder: Path) -> dict[str, str]:
 def _own_cache_folder(tmp_path_factory: pytest.TempPathFactory):
     """The backend probe's cache (trafficgeo.video.detectors.backends) in a folder of the session, never the
     user's."""
-    import os
+    from trafficgeo.io.environment import environment
 
-    before = os.environ.get("TRAFFICGEO_CACHE_DIR")
-    os.environ["TRAFFICGEO_CACHE_DIR"] = str(tmp_path_factory.mktemp("trafficgeo-cache"))
-    yield
-    if before is None:
-        os.environ.pop("TRAFFICGEO_CACHE_DIR", None)
-    else:
-        os.environ["TRAFFICGEO_CACHE_DIR"] = before
+    with environment({"TRAFFICGEO_CACHE_DIR": str(tmp_path_factory.mktemp("trafficgeo-cache"))}):
+        yield
 
 
 @pytest.fixture(scope="session")

@@ -137,31 +137,6 @@ def _last_digit(number: str) -> float:
     return 10.0 ** (exponent - _decimals(number))
 
 
-def assert_frame_close(new: pd.DataFrame, old: pd.DataFrame, name: str, tol: Tol = LAST_BITS,
-                       columns: Mapping[str, Tol] | None = None) -> None:
-    """The same columns in the same order, the same rows, non-float cells equal; float cells within ``tol`` or
-    the tolerance of their column in ``columns`` (NaN only where the reference has NaN)."""
-    assert list(new.columns) == list(old.columns), f"{name}: columns {list(new.columns)} != {list(old.columns)}"
-    assert len(new) == len(old), f"{name}: {len(new)} rows != {len(old)}"
-    columns = columns or {}
-    for col in old.columns:
-        a, b = new[col], old[col]
-        if pd.api.types.is_float_dtype(b) or pd.api.types.is_float_dtype(a):
-            t = columns.get(col, tol)
-            x, y = a.to_numpy(dtype=float), b.to_numpy(dtype=float)
-            same_nan = np.isnan(x) == np.isnan(y)
-            ok = same_nan & (np.isnan(y) | (np.abs(x - y) <= np.maximum(t.abs, t.rel * np.abs(y))))
-            if not ok.all():
-                i = int(np.argmin(ok))
-                raise AssertionError(f"{name}: column {col!r} row {i}: {x[i]!r} != {y[i]!r} (tolerance {t}); "
-                                     f"{int((~ok).sum())} of {len(ok)} rows differ")
-        else:
-            bad = ~((a == b) | (a.isna() & b.isna()))
-            if bad.any():
-                i = int(np.argmax(bad.to_numpy()))
-                raise AssertionError(f"{name}: column {col!r} row {i}: {a.iloc[i]!r} != {b.iloc[i]!r}")
-
-
 def assert_csv_close(new_path: object, old_path: object, name: str, tol: Tol = LAST_BITS) -> None:
     """Two CSV files hold the same table: the same header and rows, text and integer cells equal, and each real within
     ``tol`` or one unit in the last digit the reference printed, whichever is larger (a value rounded to 4 decimals

@@ -217,14 +217,6 @@ def cpu_signature() -> str:
     return f"{model} [{' '.join(simd)}]"
 
 
-def file_sha256(path: str | Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
 def probe_key(model_sha256: str, candidates: Sequence[str], threads: int, input_hw: tuple[int, int]) -> dict:
     """What a cached choice holds for: the model, the libraries' versions, the CPU, the threads, the candidates."""
     import onnxruntime as ort

@@ -23,7 +23,7 @@ from trafficgeo.video.detectors.tile_bands import plan_bands
 from trafficgeo.video.detectors.tiling import TiledDetector, TilePlan, line_reach, plan_tiles
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Iterator, Sequence
 
     from trafficgeo.camera.model import Camera
     from trafficgeo.geo.mapping import Surface
@@ -101,24 +101,21 @@ def detector_plan(detector: object) -> TilePlan | None:
     return getattr(detector, "plan", None)
 
 
+def _layers(detector: object) -> Iterator[object]:
+    """The detector, then the ``base`` of each wrapper inside it (size classes, tiles), outermost first."""
+    seen = 0
+    while detector is not None and seen < 8:
+        yield detector
+        detector, seen = getattr(detector, "base", None), seen + 1
+
+
 def tiled_detector(detector: object) -> TiledDetector | None:
     """The :class:`~trafficgeo.video.detectors.tiled.TiledDetector` inside a detector (the size-class wrapper), or
     None."""
-    for _ in range(8):
-        if isinstance(detector, TiledDetector):
-            return detector
-        if not hasattr(detector, "base"):
-            return None
-        detector = detector.base
-    return None
+    return next((d for d in _layers(detector) if isinstance(d, TiledDetector)), None)
 
 
 def detector_backend(detector: object) -> BackendChoice | None:
     """The runtime choice (:class:`~trafficgeo.video.detectors.backends.BackendChoice`) of an ONNX detector, also
     inside the tiled and size-class wrappers; None for other detectors or one built without ``backend``."""
-    for _ in range(8):
-        choice = getattr(detector, "backend_choice", None)
-        if choice is not None or not hasattr(detector, "base"):
-            return choice
-        detector = detector.base
-    return None
+    return next((c for d in _layers(detector) if (c := getattr(d, "backend_choice", None)) is not None), None)

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from trafficgeo.errors import InputError
+from trafficgeo.video.checkpoint import sha256_file
 from trafficgeo.video.detections import Detections, check_image, in_roi
 from trafficgeo.video.detectors.backends import (
     OPENVINO,
@@ -25,7 +26,6 @@ from trafficgeo.video.detectors.backends import (
     OrtBackend,
     check_backend,
     choose_backend,
-    file_sha256,
     openvino_version,
 )
 from trafficgeo.video.detectors.names import DETECTOR_PARAMETERS, ONNX_HINT
@@ -267,7 +267,8 @@ class OnnxDetector:
         blob, _g = self.layout.pre.blob([frame] * (self._batch or 1), self.input_hw)
         feeds = self._feeds(blob, (self.input_hw[1], self.input_hw[0]))
         try:
-            self.backend_choice, self._runner = choose_backend(candidates, feeds, model_sha256=file_sha256(self.path),
+            self.backend_choice, self._runner = choose_backend(candidates, feeds,
+                                                               model_sha256=sha256_file(self.path),
                                                                threads=self.threads, input_hw=self.input_hw)
         except InputError:
             raise
