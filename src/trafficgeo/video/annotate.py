@@ -92,6 +92,9 @@ def annotate_video(video: str | Path, output: str | Path, tracks: pd.DataFrame, 
     boxes = frame_boxes(tracks, points)
     by_frame = boxes.groupby("frame").indices
     coords = boxes[list(_BOX)].to_numpy(np.float64)
+    labels = boxes["label"].to_numpy()
+    colour_of = {t: _colour(t) for t in boxes["track_id"].unique()}  # once per track, not per box and frame
+    colours = [colour_of[t] for t in boxes["track_id"]]
     polylines = []
     if camera is not None and surface is not None and lines:
         for ln in lines:
@@ -114,9 +117,9 @@ def annotate_video(video: str | Path, output: str | Path, tracks: pd.DataFrame, 
                             (0, 255, 255), 2, cv2.LINE_AA)
             for i in by_frame.get(frame.index, []):
                 x1, y1, x2, y2 = (int(c) for c in np.rint(coords[i]))
-                col = _colour(boxes["track_id"].iat[i])
+                col = colours[i]
                 cv2.rectangle(img, (x1, y1), (x2, y2), col, 2)
-                cv2.putText(img, boxes["label"].iat[i], (x1, max(12, y1 - 4)), cv2.FONT_HERSHEY_SIMPLEX, 0.5, col,
+                cv2.putText(img, labels[i], (x1, max(12, y1 - 4)), cv2.FONT_HERSHEY_SIMPLEX, 0.5, col,
                             1, cv2.LINE_AA)
             for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="bgr24")):
                 container.mux(packet)
