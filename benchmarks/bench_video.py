@@ -344,7 +344,7 @@ def main() -> None:
     ap.add_argument("--checkpoint", type=float, default=30.0,
                     help="s of video per checkpoint segment (each starts a fresh background model)")
     ap.add_argument("--parts", default="real,world", help="comma-separated: real (labelled frames), world")
-    ap.add_argument("--backend", default="auto", help="the learned detector's runtime: auto, onnxruntime, openvino")
+    ap.add_argument("--backend", default="auto", help="the learned detector's runtime: auto, onnxruntime, onnxruntime-int8, openvino")
     ap.add_argument("--detectors", default=None,
                     help="comma-separated runs: background, nanodet-full (no tiles), nanodet (square tiles), "
                     "nanodet-bands (zoom bands); '@N' detects every N-th frame (e.g. nanodet@3), '@auto' as "

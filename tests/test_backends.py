@@ -13,10 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from labelled_frames import INTEL_LABELS, load_labels
 from trafficgeo.errors import InputError
 from trafficgeo.video.cost import estimate_cost, plan_passes
+from trafficgeo.video.detections import box_iou
 from trafficgeo.video.detectors.backends import BackendChoice, cache_dir, choose_backend, probe
 from trafficgeo.video.detectors.builtin import builtin_model_path
+from trafficgeo.video.detectors.learned import detector_backend
 from trafficgeo.video.detectors.tiling import grid_plan
 
 FEEDS = {"input": np.zeros((1, 3, 8, 8), dtype=np.float32)}
@@ -57,6 +60,15 @@ def test_the_probe_picks_the_fastest_that_agrees_and_refuses_one_that_does_not()
     # an agreeing but slower candidate is not chosen
     choice, _ = probe(_candidates({}, {"onnxruntime": (2.0, 0.0), "slow": (12.0, 0.0)}), FEEDS, (8, 8))
     assert choice.backend == "onnxruntime" and not choice.refused
+
+
+def test_an_int8_version_is_held_to_a_wider_bound_that_still_catches_a_broken_one() -> None:
+    # the reference's first output reaches 1: the INT8 bound there is 0.05 + 0.25 x 1, the float one 0.02 + 0.02 x 1
+    specs = {"onnxruntime": (8.0, 0.0), "onnxruntime-int8": (2.0, 0.2), "openvino-int8": (1.0, 5.0),
+             "openvino": (1.0, 0.2)}
+    choice, backends = probe(_candidates({}, specs), FEEDS, (8, 8))
+    assert choice.backend == "onnxruntime-int8" and set(backends) == {"onnxruntime", "onnxruntime-int8"}
+    assert "tolerance 0.3)" in choice.refused["openvino-int8"] and "tolerance 0.04)" in choice.refused["openvino"]
 
 
 def test_a_candidate_that_fails_to_build_is_refused_with_its_reason() -> None:
@@ -121,7 +133,7 @@ def test_asking_for_openvino_without_it_is_a_one_line_error_naming_backend(no_op
             make()
         assert "\n" not in str(caught.value) and "pip install trafficgeo[openvino]" in str(caught.value)
         assert caught.value.parameters == ("backend",) and str(caught.value).startswith("backend openvino")
-    with pytest.raises(InputError, match="backend 'tpu': use one of auto, onnxruntime, openvino"):
+    with pytest.raises(InputError, match="backend 'tpu': use one of auto, onnxruntime, onnxruntime-int8, openvino"):
         ProcessOptions(backend="tpu")
     ProcessOptions(detector="background", backend="openvino")  # background subtraction runs no network
     out = tmp_path / "out"
@@ -144,6 +156,28 @@ def test_auto_without_openvino_falls_back_to_onnxruntime(no_openvino) -> None:
     a, b = auto.detect(image), plain.detect(image)
     np.testing.assert_allclose(a.boxes, b.boxes, atol=1e-4)
     assert OnnxDetector(path, format="nanodet", backend="auto", threads=1).backend_choice.cached
+
+
+def test_the_builtin_model_offers_its_int8_version_to_the_probe(no_openvino) -> None:
+    from trafficgeo.video.detectors.learned import make_learned_detector
+    from trafficgeo.video.detectors.onnx import OnnxDetector
+
+    choice = detector_backend(make_learned_detector(backend="auto", threads=1))
+    assert set(choice.times_ms) == {"onnxruntime", "onnxruntime-int8"} and not choice.refused
+    int8 = make_learned_detector(backend="onnxruntime-int8", threads=1)
+    assert detector_backend(int8).backend == "onnxruntime-int8" and set(detector_backend(int8).times_ms) == {
+        "onnxruntime-int8"}
+    # the INT8 version finds the same vehicles on a real frame (two cars of the Intel clip, full frame)
+    frame = next(iter(load_labels(INTEL_LABELS).values())).image
+    f32 = make_learned_detector(backend="onnxruntime", threads=1).detect(frame, 0.0)
+    q = int8.detect(frame, 0.0)
+    assert len(f32.boxes) == len(q.boxes) > 0
+    assert np.all(np.max(box_iou(f32.boxes[:, None], q.boxes[None]), axis=1) > 0.8)
+    with pytest.raises(InputError, match="has no INT8 version") as caught:
+        OnnxDetector(builtin_model_path("nanodet"), format="nanodet", backend="onnxruntime-int8")
+    assert caught.value.parameters == ("backend",)
+    with pytest.raises(InputError, match="INT8 model not found"):
+        OnnxDetector(builtin_model_path("nanodet"), format="nanodet", int8_model="no-such.onnx")
 
 
 def test_the_cost_line_has_the_right_arithmetic() -> None:
@@ -208,7 +242,8 @@ def test_process_tells_and_records_the_backend_and_the_estimate(no_openvino, tmp
     detect_and_track(video, cam, FLAT, tmp_path / "a", opts, lanes=lanes_along_y(), notice=told.append,
                      detector_info=seen.update)
     backend, estimate = seen["backend"], seen["estimate"]
-    assert backend["backend"] == "onnxruntime" and backend["ms_per_pass"] > 0
+    # onnxruntime on the float model or on its INT8 version, whichever was faster here
+    assert backend["backend"] in ("onnxruntime", "onnxruntime-int8") and backend["ms_per_pass"] > 0
     passes = len(seen["tiling"]["tiles"]) + 1
     assert estimate["passes"] == passes and estimate["every"] == 2 and estimate["detection_frames"] == 5
     assert estimate["other_ms"] >= 0 and estimate["decode_ms"] > 0
@@ -226,7 +261,7 @@ def test_process_tells_and_records_the_backend_and_the_estimate(no_openvino, tmp
                    detector=seen)
     doc = json.loads((tmp_path / "a" / "process.json").read_text())
     assert doc["options"]["backend"] == "auto"
-    assert doc["detector"]["backend"]["backend"] == "onnxruntime" and doc["detector"]["estimate"]["passes"] == passes
+    assert doc["detector"]["backend"]["backend"] == backend["backend"] and doc["detector"]["estimate"]["passes"] == passes
 
 
 @pytest.mark.slow

@@ -52,6 +52,9 @@ def test_shipped_file_matches_registry():
     assert NANODET_G_416.sha256 in notice
     source = (path.parent / "SOURCE.txt").read_text()  # provenance beside the file, as tests/data has it
     assert NANODET_G_416.sha256 in source and "Apache-2.0 AND MIT" in source
+    int8 = builtin_model_path("nanodet", verify=True, int8=True)  # its INT8 version, with its provenance too
+    assert int8.name == "nanodet-g-416-int8.onnx" and int8.stat().st_size == NANODET_G_416.int8.size_bytes
+    assert NANODET_G_416.int8.sha256 in notice and NANODET_G_416.int8.sha256 in source
 
 
 def test_registry_entry():

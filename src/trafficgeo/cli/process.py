@@ -40,8 +40,9 @@ def process(
                                         "world) or 'bands' (rectangles at their own input size: about 2.5x less "
                                         "detector work)")] = "squares",
     backend: Annotated[str, typer.Option(help="what runs a learned detector's network: 'auto' (the fastest installed "
-                                         "runtime that agrees with onnxruntime, by a short probe cached per machine "
-                                         "and model), 'onnxruntime' or 'openvino' (pip install "
+                                         "runtime that agrees with onnxruntime, the built-in model's INT8 version "
+                                         "included, by a short probe cached per machine and model), 'onnxruntime', "
+                                         "'onnxruntime-int8' or 'openvino' (pip install "
                                          "trafficgeo[openvino])")] = "auto",
     tile_schedule: Annotated[str, typer.Option(help="when the tiles run: 'auto' (each tile as often as a vehicle "
                                                "at 100 km/h needs to be seen 4 times in it, at least every 0.5 s, "

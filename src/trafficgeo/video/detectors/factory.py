@@ -66,7 +66,8 @@ def make_detector(spec: str = "background", *, camera: Camera | None = None, sur
     else ``roi``, else a band around each of the counting ``lines``) when ``tiles`` and a calibrated ``camera`` and
     ``surface`` are given; its plan tells what it reaches at the ``lines``). ``warmup_s``: the
     background detector's warm-up (s of video). ``backend``: the runtime of a learned detector
-    (:mod:`trafficgeo.video.detectors.backends`: "auto", "onnxruntime", "openvino"; None: onnxruntime, untimed)."""
+    (:mod:`trafficgeo.video.detectors.backends`: "auto", "onnxruntime", "onnxruntime-int8", "openvino"; None:
+    onnxruntime, untimed)."""
     kind = detector_kind(spec)
     fmt = _check_format(kind, spec, detector_format)
     if kind == "nanodet":

@@ -88,7 +88,8 @@ def make_learned_detector(*, camera: Camera | None = None, surface: Surface | No
             object.__setattr__(plan, "lines", line_reach(plan, camera, surface, lines))
     tiled = plan is not None and len(plan.tiles) > 0
     base: Detector = OnnxDetector(path, format=model.layout, conf=conf, iou=iou, roi=None if tiled else roi,
-                                  threads=threads, backend=backend)
+                                  threads=threads, backend=backend,
+                                  int8_model=builtin_model_path(BUILTIN, int8=True) if model.int8 else None)
     if plan is not None:
         base = TiledDetector(base, plan, iou=iou, roi=roi if tiled else None)  # its plan, even with no tile
     if camera is not None and surface is not None:

@@ -5,6 +5,7 @@ RT-DETR/D-FINE/DEIM, ultralytics RT-DETR, RF-DETR, NanoDet). trafficgeo never do
 
 from __future__ import annotations
 
+import hashlib
 import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
@@ -17,8 +18,10 @@ from trafficgeo.video.checkpoint import sha256_file
 from trafficgeo.video.detections import Detections, check_image, in_roi
 from trafficgeo.video.detectors.backends import (
     OPENVINO,
+    OPENVINO_INT8,
     ORT_CPU,
     ORT_CUDA,
+    ORT_INT8,
     ORT_OPENVINO,
     Backend,
     BackendChoice,
@@ -142,15 +145,27 @@ class OnnxDetector:
     ``backend``: what runs the network (:mod:`trafficgeo.video.detectors.backends`): ``None`` onnxruntime with
     ``providers``, untimed; ``"onnxruntime"`` or ``"openvino"`` that runtime, timed on a probe input (for the cost
     estimate); ``"auto"`` the fastest of the installed runtimes that agrees with onnxruntime CPU, by a probe cached
-    per machine and model. :attr:`backend_choice` says which and how fast (None with ``backend=None``).
+    per machine and model, ``"onnxruntime-int8"`` the INT8 version on onnxruntime. :attr:`backend_choice` says
+    which and how fast (None with ``backend=None``). ``int8_model``: an INT8 version of the same network (same
+    inputs and outputs; e.g. the built-in NanoDet's, Conv nodes quantized), which ``"auto"`` also times, on
+    onnxruntime and OpenVINO, and takes where it is faster (checked against this model's outputs with a wider
+    tolerance: its accuracy is the builder's to show, as ``tools/nanodet/quantize_int8.py`` does on real frames).
     """
 
     def __init__(self, model_path: str | Path, *, format: str | None = None, input_size: int | None = None,
                  conf: float | None = None, iou: float = 0.5, inside: float | None = 0.8,
                  class_map: Mapping[int, str] | None = None, roi: np.ndarray | None = None, threads: int | None = None,
-                 providers: str | Sequence[str] | None = None, backend: str | None = None) -> None:
+                 providers: str | Sequence[str] | None = None, backend: str | None = None,
+                 int8_model: str | Path | None = None) -> None:
         p = Path(model_path)
         asked = None if backend is None else check_backend(backend)
+        self.int8_path = None if int8_model is None else Path(int8_model)
+        if self.int8_path is not None and not self.int8_path.is_file():
+            raise InputError(f"{self.int8_path}: INT8 model not found; give the INT8 version's .onnx file as "
+                             "int8_model, or none", parameters=("int8_model",))
+        if asked == ORT_INT8 and self.int8_path is None:
+            raise InputError(f"backend {ORT_INT8}: {p.name} has no INT8 version (give one as int8_model; the "
+                             "built-in nanodet has one); use backend auto or onnxruntime", parameters=("backend",))
         if not p.is_file():
             raise InputError(f"{p}: ONNX model not found; put the .onnx file there or pass its path with "
                              f"`detector` ({ONNX_HINT})", parameters=DETECTOR_PARAMETERS)
@@ -246,8 +261,12 @@ class OnnxDetector:
                 return OrtBackend(session, self._out_names, EP_NAMES[provider])
             return make
 
-        def openvino() -> Backend:
-            return OpenVinoBackend(self.path, self._out_names, self.threads)
+        def openvino(path: Path) -> Callable[[], Backend]:
+            return lambda: OpenVinoBackend(path, self._out_names, self.threads)
+
+        def ort_int8() -> Backend:
+            session = ort.InferenceSession(str(self.int8_path), sess_options=self._opts, providers=[CPU])
+            return OrtBackend(session, self._out_names, ORT_INT8)
 
         reference = OrtBackend(self._session, self._out_names)
         candidates: dict[str, Callable[[], Backend]] = {}
@@ -259,22 +278,33 @@ class OnnxDetector:
                 if provider in avail:
                     candidates[EP_NAMES[provider]] = ort_with(provider)
             if openvino_version() is not None:
-                candidates[OPENVINO] = openvino
+                candidates[OPENVINO] = openvino(self.path)
         if asked == "openvino":
-            candidates[OPENVINO] = openvino
+            candidates[OPENVINO] = openvino(self.path)
+        if self.int8_path is not None and (asked == ORT_INT8 or (asked == "auto" and providers is None)):
+            candidates[ORT_INT8] = ort_int8
+            if asked == "auto" and openvino_version() is not None:
+                candidates[OPENVINO_INT8] = openvino(self.int8_path)
         rng = np.random.default_rng(0)
         frame = rng.integers(0, 256, (self.input_hw[0], self.input_hw[1], 3), dtype=np.uint8)
         blob, _g = self.layout.pre.blob([frame] * (self._batch or 1), self.input_hw)
         feeds = self._feeds(blob, (self.input_hw[1], self.input_hw[0]))
         try:
             self.backend_choice, self._runner = choose_backend(candidates, feeds,
-                                                               model_sha256=sha256_file(self.path),
+                                                               model_sha256=self._models_sha256(),
                                                                threads=self.threads, input_hw=self.input_hw)
         except InputError:
             raise
         except Exception as exc:  # the asked runtime failed to build or run
             raise InputError(f"{self.path}: backend {asked} failed on this model ({_one_line(exc)}); use backend "
                              "auto or onnxruntime", parameters=("backend",)) from None
+
+    def _models_sha256(self) -> str:
+        """The sha256 of the model file, or of the model's and its INT8 version's digests together."""
+        digest = sha256_file(self.path)
+        if self.int8_path is None:
+            return digest
+        return hashlib.sha256(f"{digest} {sha256_file(self.int8_path)}".encode()).hexdigest()
 
     def _describe(self, input_size: int | None) -> ModelIO:
         """The model's inputs, outputs (concrete shapes, from one run on a blank input if they are dynamic) and
