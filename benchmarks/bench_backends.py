@@ -1,7 +1,8 @@
 """Benchmark: the runtimes of the built-in learned detector (NanoDet-g, 416 x 416) on this machine, in one run.
 
-For each backend (onnxruntime CPU; the OpenVINO runtime at its default precision and forced to f32, when
-``openvino`` imports - install it into a separate venv: ``pip install -e . openvino``):
+For each backend (onnxruntime CPU, on the float model and on its INT8 version; the OpenVINO runtime at its default
+precision, forced to f32, and on the INT8 version, when ``openvino`` imports - install it into a separate venv:
+``pip install -e . openvino``):
 
 * time per pass (ms, median of interleaved rounds on a real NGSIM frame, ``--threads`` threads, default 2) and the
   ratio to onnxruntime's;
@@ -61,12 +62,15 @@ def main() -> None:
     def detector() -> OnnxDetector:
         return OnnxDetector(path, format="nanodet", threads=args.threads)
 
-    dets = {"onnxruntime": detector()}
+    int8 = builtin_model_path("nanodet", int8=True)
+    dets = {"onnxruntime": detector(), "onnxruntime, INT8 version": OnnxDetector(int8, format="nanodet",
+                                                                               threads=args.threads)}
     if openvino_version() is not None:
-        for name, config in (("openvino (default precision)", {}),
-                             ("openvino (f32)", {"INFERENCE_PRECISION_HINT": "f32"})):
+        for name, model, config in (("openvino (default precision)", path, {}),
+                                    ("openvino (f32)", path, {"INFERENCE_PRECISION_HINT": "f32"}),
+                                    ("openvino, INT8 version", int8, {})):
             d = detector()
-            d._runner = OpenVinoBackend(path, d._out_names, args.threads, config)
+            d._runner = OpenVinoBackend(model, d._out_names, args.threads, config)
             dets[name] = d
             print(f"{name}: inference precision {d._runner.compiled.get_property('INFERENCE_PRECISION_HINT')}")
     labels = {**load_labels(NGSIM_LABELS), **{f"intel/{k}": v for k, v in load_labels(INTEL_LABELS).items()}}
@@ -120,10 +124,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as cache:
         os.environ["TRAFFICGEO_CACHE_DIR"] = cache
         t0 = time.perf_counter()
-        auto = OnnxDetector(path, format="nanodet", threads=args.threads, backend="auto")
+        auto = OnnxDetector(path, format="nanodet", threads=args.threads, backend="auto", int8_model=int8)
         first = time.perf_counter() - t0
         t0 = time.perf_counter()
-        OnnxDetector(path, format="nanodet", threads=args.threads, backend="auto")
+        OnnxDetector(path, format="nanodet", threads=args.threads, backend="auto", int8_model=int8)
         again = time.perf_counter() - t0
     print(f"\nprobe (backend auto): {auto.backend_choice.summary()}; detector built in {first:.2f} s with the probe, "
           f"{again:.2f} s from the cache")

@@ -344,7 +344,11 @@ def main() -> None:
     ap.add_argument("--checkpoint", type=float, default=30.0,
                     help="s of video per checkpoint segment (each starts a fresh background model)")
     ap.add_argument("--parts", default="real,world", help="comma-separated: real (labelled frames), world")
-    ap.add_argument("--backend", default="auto", help="the learned detector's runtime: auto, onnxruntime, onnxruntime-int8, openvino")
+    ap.add_argument("--backend", default="auto",
+                    help="the learned detector's runtime: auto, onnxruntime, onnxruntime-int8, openvino")
+    ap.add_argument("--seed", type=int, default=None,
+                    help="build the worlds with this seed instead (default folders get a -seedN suffix): more "
+                    "crossings for counts that differ by one or two")
     ap.add_argument("--detectors", default=None,
                     help="comma-separated runs: background, nanodet-full (no tiles), nanodet (square tiles), "
                     "nanodet-bands (zoom bands); '@N' detects every N-th frame (e.g. nanodet@3), '@auto' as "
@@ -360,6 +364,8 @@ def main() -> None:
         return
     for name in args.cameras.split(","):
         world, folder, specs = CAMERAS[name]
+        if args.seed is not None:
+            world, folder = replace(world, seed=args.seed), f"{folder}-seed{args.seed}"
         wdir = {"demo": args.world, "high": args.high_world}[name] or ROOT / "out" / folder
         if name == "demo" and args.camera_height is not None:
             world = replace(world, camera_height=args.camera_height)

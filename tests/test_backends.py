@@ -261,7 +261,8 @@ def test_process_tells_and_records_the_backend_and_the_estimate(no_openvino, tmp
                    detector=seen)
     doc = json.loads((tmp_path / "a" / "process.json").read_text())
     assert doc["options"]["backend"] == "auto"
-    assert doc["detector"]["backend"]["backend"] == backend["backend"] and doc["detector"]["estimate"]["passes"] == passes
+    assert doc["detector"]["backend"]["backend"] == backend["backend"]
+    assert doc["detector"]["estimate"]["passes"] == passes
 
 
 @pytest.mark.slow
