@@ -248,6 +248,8 @@ def part_world(camera_name: str, wdir: Path, world: WorldOptions, specs: list[st
           "speed at the lines (bias) |\n|---|---|---|---|---|---|---|---|")
     runs = {}
     prefix = "bench-video-run" if camera_name == "demo" else f"bench-video-{camera_name}-run"
+    if args.seed is not None:
+        prefix += f"-seed{args.seed}"
     for spec in specs:
         options = run_options(spec, end, args.checkpoint, args.backend)
         out = ROOT / "out" / f"{prefix}-{spec.replace('@', '-')}"
