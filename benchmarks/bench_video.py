@@ -168,10 +168,11 @@ def part_real_frames() -> None:
 
 RUN_KINDS = {"background": ("background", False, "squares"), "nanodet-full": ("nanodet", False, "squares"),
              "nanodet": ("nanodet", True, "squares"), "nanodet-bands": ("nanodet", True, "bands"),
-             "nanodet-all": ("nanodet", True, "squares")}
+             "nanodet-all": ("nanodet", True, "squares"), "nanodet-sparse": ("nanodet", True, "squares")}
 RUN_LABELS = {"background": "background subtraction", "nanodet-full": "learned (NanoDet), full frame",
               "nanodet": "learned (NanoDet) + camera-aware tiles", "nanodet-bands": "learned (NanoDet) + zoom bands",
-              "nanodet-all": "learned (NanoDet) + camera-aware tiles, all tiles"}
+              "nanodet-all": "learned (NanoDet) + camera-aware tiles, all tiles",
+              "nanodet-sparse": "learned (NanoDet) + camera-aware tiles, sparse tile schedule"}
 CAMERAS = {"demo": (WORLD, "bench-video-world", "background,nanodet-full,nanodet@3,nanodet-bands@3"),
            "high": (HIGH_WORLD, "bench-video-high-world", "nanodet,nanodet-all@auto,nanodet@auto")}
 
@@ -201,21 +202,23 @@ def run_options(spec: str, end: float, checkpoint_s: float, backend: str = "auto
     """The options of one benchmark run: ``name[@N]`` (``N`` a frame step, or ``auto`` for ``process``'s own)."""
     name, _, every = spec.partition("@")
     detector, tiles, tiling = RUN_KINDS[name]
-    schedule = "all" if name.endswith("-all") or not every else "auto"  # no '@': the every-frame, all-tiles run
+    # no '@': the every-frame, all-tiles run; '-all': every tile; '-sparse': the sparse schedule; else process's own
+    schedule = "all" if name.endswith("-all") or not every else "sparse" if name.endswith("-sparse") else "auto"
     return ProcessOptions(detector=detector, end_s=end, checkpoint_s=checkpoint_s, tiles=tiles, tiling=tiling,
                           every=None if every == "auto" else int(every or 1), backend=backend,
                           tile_schedule=schedule)
 
 
-def run_label(spec: str, every: int) -> str:
+def run_label(spec: str, every: int, used: str | None = None) -> str:
+    """``used``: what ``tile_schedule="auto"`` chose ("all" or "sparse"), for a run that left it to process."""
     name, _, asked = spec.partition("@")
     suffix = {1: "st", 2: "nd", 3: "rd"}.get(every, "th")
     when = ("every frame" if every == 1 else f"every {every}{suffix} frame") if asked else "every frame"
     if name == "nanodet" and not asked:
         when += ", all tiles"
     elif name == "nanodet" and asked:
-        when += ", tile schedule"
-    default = asked == "auto" and not name.endswith("-all")
+        when += {"all": ", tiles auto: all", "sparse": ", tiles auto: sparse schedule"}.get(used or "", ", tiles auto")
+    default = asked == "auto" and name == "nanodet"
     return f"{RUN_LABELS[name]}, {when}" + (" (process default)" if default else "")
 
 
@@ -260,7 +263,7 @@ def part_world(camera_name: str, wdir: Path, world: WorldOptions, specs: list[st
                                                                        & (truth["frame"] % step == 0)])
         score = count_scores(result.crossings, truth_counts, end_s=end)
         errs = score.speed_errors[np.isfinite(score.speed_errors)]  # tracks seen under 1 s carry no speed
-        label = run_label(spec, step)
+        label = run_label(spec, step, "sparse" if run.schedule is not None else "all")
         print(f"| {label} | {n / t_pipe:.1f} | {n / t_pipe / info.fps:.2f} | {t_decode / t_pipe:.2f} | "
               f"{precision:.1%} | {recall:.1%} ({n_true}) | {score.accuracy:.1%} | {np.mean(np.abs(errs)):.2f} km/h "
               f"({np.mean(errs):+.2f}, {errs.size} of {score.speed_errors.size}) |", flush=True)
@@ -353,8 +356,9 @@ def main() -> None:
                     "crossings for counts that differ by one or two")
     ap.add_argument("--detectors", default=None,
                     help="comma-separated runs: background, nanodet-full (no tiles), nanodet (square tiles), "
-                    "nanodet-bands (zoom bands); '@N' detects every N-th frame (e.g. nanodet@3), '@auto' as "
-                    "process does; none: every frame. Default per camera: demo "
+                    "nanodet-bands (zoom bands), nanodet-all / nanodet-sparse (square tiles, every tile / the "
+                    "sparse tile schedule; plain nanodet@.. leaves it to process); '@N' detects every N-th frame "
+                    "(e.g. nanodet@3), '@auto' as process does; none: every frame. Default per camera: demo "
                     f"{CAMERAS['demo'][2]}; high {CAMERAS['high'][2]} (the last run gets the detailed tables)")
     ap.add_argument("--camera-height", type=float, default=None,
                     help="build the demo world with the camera this high (m; default 8) - use with another --world")

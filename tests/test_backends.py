@@ -228,7 +228,9 @@ def test_passes_at_other_input_sizes_count_by_input_pixels() -> None:
 
 
 @pytest.mark.slow
-def test_process_tells_and_records_the_backend_and_the_estimate(no_openvino, tmp_path: Path) -> None:
+@pytest.mark.parametrize("tile_schedule", ["auto", "sparse"])
+def test_process_tells_and_records_the_backend_and_the_estimate(no_openvino, tmp_path: Path,
+                                                               tile_schedule: str) -> None:
     from test_video_learned import FLAT, lanes_along_y
     from trafficgeo.camera.model import Camera
     from trafficgeo.video.pipeline import ProcessOptions, detect_and_track, write_run_info
@@ -236,7 +238,7 @@ def test_process_tells_and_records_the_backend_and_the_estimate(no_openvino, tmp
 
     video = write_two_car_video(tmp_path / "v.mp4", 10, 1.0, rows=(60, 120), seed=2)
     cam = Camera.from_orientation((320, 180), 300.0, [13.0, 0.0, 8.0], 355.0, 4.0)
-    opts = ProcessOptions(detector="nanodet", every=2)
+    opts = ProcessOptions(detector="nanodet", every=2, tile_schedule=tile_schedule)
     seen: dict = {}
     told: list[str] = []
     detect_and_track(video, cam, FLAT, tmp_path / "a", opts, lanes=lanes_along_y(), notice=told.append,
@@ -250,10 +252,21 @@ def test_process_tells_and_records_the_backend_and_the_estimate(no_openvino, tmp
     per_frame = (estimate["pass_units"] * backend["ms_per_pass"] + estimate["other_ms"] + estimate["decode_ms"]
                  + estimate["track_ms"])
     assert math.isclose(estimate["seconds"], 5 * per_frame / 1e3, rel_tol=1e-3)
-    if passes > 1:  # the tile schedule: fewer passes expected, said, and what it did recorded
+    assert passes > 1
+    chose = seen["tile_schedule"]
+    # "auto": every tile where the estimate with every tile keeps real time, else the sparse schedule
+    fast = chose["all_tiles_realtime_factor"] >= 1.0
+    assert chose["asked"] == tile_schedule
+    assert chose["used"] == ("all" if tile_schedule == "auto" and fast else "sparse"), chose
+    if chose["used"] == "sparse":  # fewer passes expected, said, and what it did recorded
         assert 1.0 < estimate["scheduled_passes"] <= passes and estimate["pass_units"] <= passes
         assert any(line.startswith("tile schedule: each tile runs every") for line in told)
         assert seen["schedule"]["detection_frames"] == 5
+    else:
+        assert estimate["scheduled_passes"] is None and "schedule" not in seen
+        assert math.isclose(estimate["realtime_factor"], chose["all_tiles_realtime_factor"], rel_tol=1e-3)
+        assert any(line.startswith("tile schedule: every tile on every detection frame, as that keeps real time")
+                   for line in told)
     assert any(line.startswith("backend: onnxruntime") for line in told)
     assert any(line.startswith(f"detector: {passes} passes per detection frame") and "every 2nd frame" in line
                for line in told)

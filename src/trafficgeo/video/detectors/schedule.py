@@ -38,7 +38,8 @@ if TYPE_CHECKING:
 
 __all__ = ["SCHEDULES", "ScheduleOptions", "TileSchedule", "tile_dwell_m", "tile_periods"]
 
-SCHEDULES = ("auto", "all")  # "auto": TileSchedule; "all": every tile on every detection frame
+SCHEDULES = ("auto", "sparse", "all")  # "sparse": TileSchedule; "all": every tile on every detection frame;
+# "auto": "all" where the run's cost estimate keeps real time, else "sparse" (video.pipeline)
 THUMB_SCALE = 4  # the motion test's thumbnails: 1 / THUMB_SCALE of the frame's width and height
 
 
