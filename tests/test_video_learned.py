@@ -55,8 +55,8 @@ def test_the_builtin_detector_is_tiled_over_the_counted_road_and_classes_by_size
     plan = detector_plan(det)
     assert plan is not None and len(plan.tiles) >= 1 and plan.input_size == 416
     # the default: square tiles at the model's 416 px input, over the far road (their tops above the middle); the
-    # full frame at its own shape (1920 x 1080 -> 416 x 256: the model's input size is free)
-    assert plan.tile_input_hw is None and plan.full_input_hw == (256, 416)
+    # full frame square too (at 416 x 256 it ran no faster end to end and counted no better: benchmarks/README.md)
+    assert plan.tile_input_hw is None and plan.full_input_hw is None
     assert np.all(plan.tiles[:, 1] < cam.height / 2)
     # zoom bands: the shipped model takes any input size, so each tile has its own, zooming beyond the full frame
     bands = detector_plan(make_detector("nanodet", camera=cam, surface=FLAT, road=lanes_along_y(), tiling="bands"))

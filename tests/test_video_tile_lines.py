@@ -117,30 +117,11 @@ def test_the_learned_detector_plans_around_the_lines_and_reports_their_reach() -
     assert [w.split(":")[0] for w in plan.line_warnings()] == ["counting line horizon"]
 
 
-def test_the_learned_detector_runs_the_full_frame_at_the_frame_shape() -> None:
-    """Square tiles, but the full frame at 416 x 256 (a 1280 x 720 frame's shape rounded up to 32 px) instead of
-    416 x 416: the same scale, so the same reach, for 0.62x the input pixels; the full frame's pass goes through
-    ``detect_batch`` at that size (the model's input size is free)."""
-    from trafficgeo.video.detectors.learned import detector_plan, make_learned_detector, tiled_detector
+def test_frame_input_hw_keeps_the_frame_shape_at_the_longer_side() -> None:
     from trafficgeo.video.detectors.tile_bands import frame_input_hw
 
     assert frame_input_hw((720, 1280), 416) == (256, 416) and frame_input_hw((1080, 1920), 416) == (256, 416)
     assert frame_input_hw((480, 640), 416) == (320, 416) and frame_input_hw((1280, 720), 416) == (416, 256)
-    cam = junction_camera()
-    lines = [across("near", 70.0), across("far", 130.0)]
-    det = make_learned_detector(camera=cam, surface=FLAT, lines=lines, threads=1)
-    plan = detector_plan(det)
-    square = plan_tiles(cam, FLAT, lines, input_size=INPUT)
-    assert plan.full_input_hw == (256, 416) and plan.full_input_pixels == 256 * 416
-    assert plan.full_scale == pytest.approx(square.full_scale) and np.array_equal(plan.tiles, square.tiles)
-    seen = []
-    onnx = tiled_detector(det).base
-    real = onnx.detect_batch
-    onnx.detect_batch = lambda images, input_hw=None: seen.append((images[0].shape[:2], input_hw)) or real(
-        images, input_hw=input_hw)
-    det.detect(np.full((H, W, 3), 90, np.uint8), 0.0)
-    assert seen[0] == ((H, W), (256, 416))  # the full frame first, then the tiles at their 416 x 416
-    assert all(hw is None or hw == (INPUT, INPUT) for _, hw in seen[1:]) and len(seen) > 1
 
 
 def test_process_plans_around_the_lines_when_given_only_lines(tmp_path) -> None:

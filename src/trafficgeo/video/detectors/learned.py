@@ -10,7 +10,6 @@ fits, and keeps the box either way (whether a box is a vehicle is the detector's
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -20,7 +19,7 @@ from trafficgeo.video.detections import Detections, Detector
 from trafficgeo.video.detectors.builtin import builtin_model, builtin_model_path
 from trafficgeo.video.detectors.onnx import OnnxDetector
 from trafficgeo.video.detectors.sizes import SizeRules, blob_ground_size, classify_sizes
-from trafficgeo.video.detectors.tile_bands import frame_input_hw, plan_bands
+from trafficgeo.video.detectors.tile_bands import plan_bands
 from trafficgeo.video.detectors.tiling import TiledDetector, TilePlan, line_reach, plan_tiles
 
 if TYPE_CHECKING:
@@ -91,8 +90,6 @@ def make_learned_detector(*, camera: Camera | None = None, surface: Surface | No
     base: Detector = OnnxDetector(path, format=model.layout, conf=conf, iou=iou, roi=None if tiled else roi,
                                   threads=threads, backend=backend,
                                   int8_model=builtin_model_path(BUILTIN, int8=True) if model.int8 else None)
-    if plan is not None and plan.full_input_hw is None and base.dynamic_hw:
-        plan = replace(plan, full_input_hw=frame_input_hw(plan.frame_shape, model.input_size_px))
     if plan is not None:
         base = TiledDetector(base, plan, iou=iou, roi=roi if tiled else None)  # its plan, even with no tile
     if camera is not None and surface is not None:
