@@ -297,6 +297,22 @@ def test_every_layout_has_a_test_model() -> None:
     assert set(CASES.values()) == set(LAYOUTS)
 
 
+def test_pre_processing_of_a_batch_is_the_whole_array_formula() -> None:
+    """The channel-by-channel input equals (letterboxed image [RGB] - mean) / std transposed to [B, 3, h, w], for a
+    batch of random images at a square and a frame-shaped input."""
+    rng = np.random.default_rng(5)
+    for name, layout in LAYOUTS.items():
+        pre = layout.pre
+        for shape, hw in (((60, 90, 3), (64, 64)), ((45, 80, 3), (32, 64))):
+            images = [rng.integers(0, 256, shape, dtype=np.uint8) for _ in range(3)]
+            blob, _g = pre.blob(images, hw)
+            x = np.stack([pre.canvas(im, hw)[0] for im in images]).astype(np.float64)
+            x = x[..., ::-1] if pre.rgb else x
+            want = ((x - np.asarray(pre.mean)) / np.asarray(pre.std)).transpose(0, 3, 1, 2)
+            assert blob.dtype == np.float32 and blob.flags.c_contiguous and blob.shape == (3, 3, *hw)
+            np.testing.assert_allclose(blob, want, rtol=1e-6, atol=1e-6, err_msg=name)
+
+
 def test_pre_processing_colour_order_and_normalisation() -> None:
     """One BGR pixel (B 10, G 100, R 200) as each layout feeds it."""
     img = np.zeros((4, 6, 3), dtype=np.uint8)
