@@ -256,9 +256,10 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
                        **({"tile_schedule": used} if used else {})})
     model = Path(opts.detector) if not learns and Path(opts.detector).is_file() else None
     tiles = plan.tiles.tolist() if plan is not None else None  # the lanes enter the detections through the tiles
+    # not what tile_schedule="auto" chose: a resumed run may choose otherwise (the machine's load changed) and keeps
+    # the segments already detected, which are the same video's detections either way
     key = run_key(video, camera=camera, surface=surface, roi=roi,
-                  options={**asdict(opts), "prime_s": PRIME_S, "tile_boxes": tiles,
-                           "tile_schedule_used": used.get("used") if used else None}, detector_file=model)
+                  options={**asdict(opts), "prime_s": PRIME_S, "tile_boxes": tiles}, detector_file=model)
     out = Path(out_dir)
     ck = out / CHECKPOINT_DIR
     fps = info.fps / opts.every
