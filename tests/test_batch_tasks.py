@@ -160,9 +160,11 @@ def test_two_files_give_the_tracks_and_counts_of_one(small_world: Path, tmp_path
     vehicles = read_table(two.dataset, "vehicles")
     across = vehicles[(vehicles["first_utc"] < cut) & (vehicles["last_utc"] > cut)]
     assert len(across) == 3  # seen in both files, one vehicle each
-    truth = len(pd.read_csv(small_world / "truth_counts.csv"))  # 5 crossings, one at 0.3 s
+    # against the world's truth (5 crossings, one at 0.3 s), one miss allowed: the count depends on the runtime the
+    # backend probe picks (measured: 4 on onnxruntime's float model, 5 on its INT8 version), so no exact figure
+    truth = len(pd.read_csv(small_world / "truth_counts.csv"))
     counted = int(read_table(two.dataset, "counts")["count"].sum())
-    assert truth - 1 <= counted <= truth, (counted, truth)  # 4 measured here (5 with a 416 x 256 full frame)
+    assert truth - 1 <= counted <= truth, (counted, truth)
 
 
 def _mtimes(folder: Path) -> dict[str, int]:

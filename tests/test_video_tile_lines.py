@@ -117,13 +117,6 @@ def test_the_learned_detector_plans_around_the_lines_and_reports_their_reach() -
     assert [w.split(":")[0] for w in plan.line_warnings()] == ["counting line horizon"]
 
 
-def test_frame_input_hw_keeps_the_frame_shape_at_the_longer_side() -> None:
-    from trafficgeo.video.detectors.tile_bands import frame_input_hw
-
-    assert frame_input_hw((720, 1280), 416) == (256, 416) and frame_input_hw((1080, 1920), 416) == (256, 416)
-    assert frame_input_hw((480, 640), 416) == (320, 416) and frame_input_hw((1280, 720), 416) == (416, 256)
-
-
 def test_process_plans_around_the_lines_when_given_only_lines(tmp_path) -> None:
     """The pipeline hands the counting lines to the detector: the plan in process.json is made from them and says
     what it reaches at each line; the notice says where the plan came from."""

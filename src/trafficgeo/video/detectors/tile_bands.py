@@ -43,7 +43,7 @@ from trafficgeo.video.detectors.tiling import (
     vehicle_boxes,
 )
 
-__all__ = ["PASS_COST_PX", "frame_input_hw", "input_hw_for", "plan_bands"]
+__all__ = ["PASS_COST_PX", "input_hw_for", "plan_bands"]
 
 PASS_COST_PX = 8192  # a model run's fixed cost in input pixels (NanoDet-g, onnxruntime, 2 threads: ~1/20 of 416^2)
 ZOOM_RATIOS = (1.25, 1.5, 2.0, 3.0)
@@ -52,14 +52,6 @@ ZOOM_RATIOS = (1.25, 1.5, 2.0, 3.0)
 def input_hw_for(hw_px: tuple[float, float], zoom: float, stride_px: int = 32) -> tuple[int, int]:
     """Model input (h, w) px for a frame region of ``hw_px`` (h, w) px at ``zoom``: rounded up to ``stride_px``."""
     return tuple(max(stride_px, math.ceil(v * zoom / stride_px - 1e-9) * stride_px) for v in hw_px)
-
-
-def frame_input_hw(frame_shape: tuple[int, int], input_size: int, stride_px: int = 32) -> tuple[int, int]:
-    """Model input (h, w) px for a whole frame of ``frame_shape`` (h, w) with its longer side at ``input_size`` px:
-    the frame's shape rounded up to ``stride_px`` (1920x1080 at 416: 416x256, 0.6x the pixels of 416x416, at the
-    same scale)."""
-    h, w = (int(v) for v in frame_shape)
-    return input_hw_for((h, w), input_size / max(h, w), stride_px)
 
 
 def _bbox(boxes: np.ndarray, frame_shape: tuple[int, int]) -> np.ndarray:
@@ -153,7 +145,8 @@ def plan_bands(camera: Camera, surface: Surface, road: Road, frame_shape: tuple[
                      max_upscale=max_upscale, min_tiled_size_px=min_tiled_size_px, vehicle_m=vehicle_m,
                      max_distance_m=max_distance_m, step_m=step_m, roi_step_px=roi_step_px)
     h, w = view.frame_shape
-    full_hw = frame_input_hw((h, w), input_size, stride_px)
+    full_zoom = input_size / max(h, w)
+    full_hw = input_hw_for((h, w), full_zoom, stride_px)
     full_zoom = min(full_hw[0] / h, full_hw[1] / w)
     size = view.size_px
     with np.errstate(invalid="ignore"):
