@@ -32,10 +32,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from trafficgeo.calibration.params import ParameterModel, camera_to_full, full_to_camera
+from trafficgeo.calibration.params import ParameterModel
 from trafficgeo.calibration.pipeline import calibrate
 from trafficgeo.calibration.refine import fit_camera
 from trafficgeo.camera.model import Camera
+from trafficgeo.camera.parameters import camera_to_full, full_to_camera
 from trafficgeo.synth.gcp_scene import GCPScene, make_gcp_scene
 
 METHODS = ("trafficgeo", "solvePnP(true K)", "calibrateCamera", "limit")

@@ -60,9 +60,11 @@ import pandas as pd
 
 from trafficgeo.camera.io import read_camera_json
 from trafficgeo.camera.model import Camera
-from trafficgeo.geo.load import load_surface
 from trafficgeo.geo.mapping import pixels_to_world
 from trafficgeo.geo.surface import ConstantSurface, PlaneSurface
+from trafficgeo.site.lanes import read_lanes
+from trafficgeo.site.lines import read_count_lines
+from trafficgeo.site.surface import load_surface
 from trafficgeo.synth import calibration_error
 from trafficgeo.synth.detections import DetectionNoise, noisy_tracks
 from trafficgeo.synth.noisy_paths import PathNoise, metres_per_px, noisy_road_tracks
@@ -70,8 +72,7 @@ from trafficgeo.synth.scoring import count_scores
 from trafficgeo.synth.world import WorldOptions, build_world, truth_lane_name
 from trafficgeo.traffic.analyze import analyze
 from trafficgeo.traffic.boxes import cuboid_boxes, dimensions_for, estimate_length, estimate_length_refit
-from trafficgeo.traffic.lanes import read_lanes
-from trafficgeo.traffic.lines import find_crossings, read_count_lines
+from trafficgeo.traffic.counts import find_crossings
 from trafficgeo.traffic.speed import scale_drift_warning
 from trafficgeo.traffic.tracks import ImageTracks, tracks_from_table
 from trafficgeo.traffic.trajectories import TrajectoryOptions, world_trajectories

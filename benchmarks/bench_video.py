@@ -55,13 +55,13 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.camera.io import read_camera_json
-from trafficgeo.geo.load import load_surface
+from trafficgeo.site.lanes import read_lanes
+from trafficgeo.site.lines import read_count_lines
+from trafficgeo.site.surface import load_surface
 from trafficgeo.synth.detections import ideal_detections
 from trafficgeo.synth.scoring import count_scores, crossing_outcomes, detection_scores
 from trafficgeo.synth.world import WorldOptions, build_world
 from trafficgeo.traffic.analyze import analyze
-from trafficgeo.traffic.lanes import read_lanes
-from trafficgeo.traffic.lines import read_count_lines
 from trafficgeo.traffic.tracks import tracks_from_table
 from trafficgeo.video.detections import box_iou
 from trafficgeo.video.pipeline import TRACK_COLUMNS, ProcessOptions, settled_options

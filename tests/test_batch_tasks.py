@@ -325,7 +325,7 @@ def test_summarize_and_reading_back(anchor: dict, tmp_path: Path) -> None:
     assert sorted(layer["count"]) == sorted(per)
     assert layer.crs.to_epsg() == 2949 and (layer.geometry.geom_type == "LineString").all()
     cams = gpd.read_file(gpkg, layer="cameras")
-    from trafficgeo.traffic.loading import load_camera
+    from trafficgeo.site.site import load_camera
 
     position = load_camera(anchor["ctx"].cameras["cam1"].camera).position
     assert cams["camera_id"].tolist() == ["cam1"] and cams["days"].tolist() == [1]

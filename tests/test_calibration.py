@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ from hypothesis import strategies as st
 
 from trafficgeo.calibration import CalibrationOptions, GCPTable, build_report, calibrate, read_gcps, run_calibration
 from trafficgeo.calibration.initial import decompose_projection, dlt_projection, planarity
-from trafficgeo.camera import Camera, read_camera_document
+from trafficgeo.camera import Camera, read_camera_json
 from trafficgeo.crs import parse_crs
 from trafficgeo.errors import InputError
 from trafficgeo.synth import make_gcp_scene
@@ -158,7 +159,7 @@ def test_saved_camera_reproduces_every_reported_residual(tmp_path):
     sc = make_gcp_scene(2, n_control=12, n_check=3, n_outliers=1)
     run = run_calibration(sc.gcps, sc.camera.image_size, camera_path=tmp_path / "c.json",
                           report_path=tmp_path / "r.json")
-    cam, doc = read_camera_document(tmp_path / "c.json")
+    cam, doc = read_camera_json(tmp_path / "c.json"), json.loads((tmp_path / "c.json").read_text(encoding="utf-8"))
     uv = cam.project(sc.gcps.world)
     for k, rec in enumerate(doc["gcps"]):
         assert rec["u_proj"] == pytest.approx(uv[k, 0], abs=1e-6)

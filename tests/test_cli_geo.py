@@ -24,7 +24,7 @@ import shapely
 from affine import Affine
 
 from cli_support import invoke
-from trafficgeo.camera.io import read_camera_document, write_camera_json
+from trafficgeo.camera.io import read_camera_json, write_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.raster import read_dem, write_geotiff
 from trafficgeo.geo.surface import DEMSurface
@@ -694,7 +694,7 @@ def test_accuracy_geotiff(accuracy_run, cal_cam: Path, scene) -> None:
     assert (gsd <= pix * (1 + 1e-5)).all()  # worst direction of one pixel vs the radial 1 px noise
 
     # visible = in front, inside the frame (on this smooth road nothing is occluded)
-    cam, _doc = read_camera_document(cal_cam)
+    cam = read_camera_json(cal_cam)
     rows, cols = np.indices(vis.shape)
     xc = transform.c + (cols.ravel() + 0.5) * transform.a
     yc = transform.f + (rows.ravel() + 0.5) * transform.e
@@ -732,7 +732,7 @@ def test_accuracy_pixel_sigma_scales_pixel_noise_only(cal_cam: Path, road_dem: P
 def test_accuracy_site_gpkg(accuracy_run, cal_cam: Path, road_dem: Path, tmp_path: Path) -> None:
     _tif, gpkg, _stdout = accuracy_run
     assert sorted(pyogrio.list_layers(gpkg)[:, 0].tolist()) == ["camera", "footprint", "gcps"]
-    cam, doc = read_camera_document(cal_cam)
+    cam, doc = read_camera_json(cal_cam), json.loads(cal_cam.read_text(encoding="utf-8"))
     camera = gpd.read_file(gpkg, layer="camera")
     assert camera.crs.to_epsg() == 2949 and len(camera) == 1
     np.testing.assert_allclose(shapely.get_coordinates(camera.geometry, include_z=True)[0], cam.position, atol=1e-6)
@@ -800,7 +800,7 @@ def test_calibrate_gis_geojson(gcps_csv: Path, scene, tmp_path: Path) -> None:
     layers = [f["properties"]["layer"] for f in doc["features"]]
     assert set(layers) == {"camera", "gcps", "footprint"}
     assert layers.count("camera") == 1 and layers.count("gcps") == 18 and layers.count("footprint") == 1
-    cam, cam_doc = read_camera_document(cam_path)
+    cam, cam_doc = read_camera_json(cam_path), json.loads(cam_path.read_text(encoding="utf-8"))
     (camera,) = [f for f in doc["features"] if f["properties"]["layer"] == "camera"]
     lon, lat = TO_LONLAT_2949.transform(cam.position[0], cam.position[1])
     assert camera["geometry"]["coordinates"][:2] == pytest.approx([lon, lat], abs=2e-8)

@@ -57,7 +57,7 @@ def test_true_dem_reference_is_exact() -> None:
 
 def test_low_wide_camera_pixels_land_on_the_true_ground_through_a_laz(tmp_path: Path) -> None:
     """Written as LAZ (1 mm steps) and made into a 0.25 m DEM; cell medians gave 2.5 cm median and 15 cm p95."""
-    from trafficgeo.geo.load import load_surface
+    from trafficgeo.site.surface import load_surface
 
     sc, uv, truth, cloud = grazing_scene(3)
     write_point_cloud(tmp_path / "site.laz", cloud)

@@ -29,8 +29,8 @@ def world(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_the_builtin_detector_finds_the_rendered_vehicles(world: Path) -> None:
-    from trafficgeo.geo.load import load_surface
-    from trafficgeo.traffic.lanes import read_lanes
+    from trafficgeo.site.lanes import read_lanes
+    from trafficgeo.site.surface import load_surface
 
     camera = read_camera_json(world / "camera_truth.json")
     surface = load_surface(str(world / "cloud.laz"), camera)

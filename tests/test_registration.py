@@ -21,7 +21,7 @@ from cli_support import invoke
 from trafficgeo.calibration.gcps import read_gcps
 from trafficgeo.calibration.pipeline import calibrate
 from trafficgeo.calibration.validation import build_report
-from trafficgeo.camera.io import read_camera_document, read_camera_json
+from trafficgeo.camera.io import read_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.drape import drape_orthophoto
@@ -31,8 +31,8 @@ from trafficgeo.geo.surface import ConstantSurface
 from trafficgeo.registration.judge import HeldOutErrors, held_out_errors, worse_p_value
 from trafficgeo.registration.matching import MatchSettings, OrthoPyramid, _subpixel, gray, match_orthophoto
 from trafficgeo.registration.refine import WORSE_P, RefineOptions, _verdict, refine_camera
+from trafficgeo.site.surface import load_surface
 from trafficgeo.synth.registration_scene import ground_errors_m
-from trafficgeo.traffic.loading import load_surface
 
 pytestmark = pytest.mark.slow
 
@@ -43,7 +43,8 @@ class Scene:
     def __init__(self, folder: Path) -> None:
         self.folder = folder
         self.truth = read_camera_json(folder / "camera_truth.json")
-        self.rough_camera, self.doc = read_camera_document(folder / "camera.json")
+        self.rough_camera = read_camera_json(folder / "camera.json")
+        self.doc = json.loads((folder / "camera.json").read_text(encoding="utf-8"))
         self.gcps = read_gcps(folder / "gcps.csv", crs=self.truth.crs)
         self.perfect = read_gcps(folder / "perfect_gcps.csv", crs=self.truth.crs)
         self.frame = cv2.imread(str(folder / "frame.png"), cv2.IMREAD_COLOR)
@@ -184,7 +185,7 @@ def test_refine_command_writes_the_refined_camera_and_its_report(scene: Scene, t
     code, stdout, stderr = invoke(*_args(scene.folder, out, "--frame", str(scene.folder / "frame.png"), "--report",
                                          str(tmp_path / "refine.json")))
     assert code == 0, stderr
-    cam, doc = read_camera_document(out)
+    cam, doc = read_camera_json(out), json.loads(out.read_text(encoding="utf-8"))
     assert doc["refinement"]["accepted"] is True and doc["refinement"]["report"] == "refine.json"
     assert scene.rms_m(cam) < scene.rms_m(scene.rough_camera) / 3
     report = json.loads((tmp_path / "refine.json").read_text())
@@ -204,7 +205,7 @@ def test_refine_command_refuses_another_place_and_writes_the_original_camera(sce
     assert code == 1, stderr
     said = " ".join(stdout.split())
     assert "refinement refused: " in said and "orthophoto may show another place" in said
-    cam, doc = read_camera_document(out)
+    cam, doc = read_camera_json(out), json.loads(out.read_text(encoding="utf-8"))
     np.testing.assert_array_equal(cam.K, scene.rough_camera.K)
     np.testing.assert_array_equal(cam.position, scene.rough_camera.position)
     assert doc["refinement"]["accepted"] is False and "orthophoto" in doc["refinement"]["reason"]

@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import base64
 import json
+import math
 import re
 import shutil
+from dataclasses import replace
 from html import unescape
 from html.parser import HTMLParser
 from pathlib import Path
@@ -19,6 +21,7 @@ from affine import Affine
 
 from cli_support import invoke
 from trafficgeo.calibration.run import run_calibration
+from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.raster import write_geotiff
 from trafficgeo.registration.refine_record import read_refine_record
@@ -243,9 +246,9 @@ def test_a_report_without_refinement_has_no_section(accepted: dict) -> None:
 def test_a_camera_json_from_another_refinement_is_pointed_out(accepted: dict) -> None:
     run = accepted["run"]
     b = ReportContext(inputs=find_inputs(run), dpi=DPI)
-    b.doc = json.loads((run / "camera.json").read_text())
-    b.doc["refinement"]["matches_kept"] += 5
-    b.doc["refinement"]["after_rmse_m"] = None
+    camera = CalibratedCamera.read(run / "camera.json")
+    other = replace(camera.refinement, matches_kept=camera.refinement.matches_kept + 5, after_rmse_m=math.nan)
+    b.calibrated = replace(camera, refinement=other)
     section = refinement_section(b, read_refine_record(run / "refine.json"))
     assert section is not None
     (warning,) = [x.text for x in section.parts[0] if getattr(x, "css", "") == "warn"]

@@ -168,8 +168,8 @@ def test_an_unwritable_out_is_found_before_any_work(command: str, scene: dict[st
 
     # the modules that bind these names at import are patched first (and so restored to the real functions):
     # otherwise the first import, made while patched, would keep the stand-in for the rest of the session
-    for target in ("trafficgeo.traffic.loading.read_tracks", "trafficgeo.video.run.analyze",
-                   "trafficgeo.traffic.analyze.analyze", "trafficgeo.traffic.tracks.read_tracks",
+    for target in ("trafficgeo.video.run.analyze", "trafficgeo.traffic.analyze.analyze",
+                   "trafficgeo.traffic.tracks.read_tracks",
                    "trafficgeo.video.pipeline.detect_and_track", "trafficgeo.traffic.validation.read_observed_run"):
         monkeypatch.setattr(target, no_work)
     common = ["--camera", scene["camera"], "--surface", Z0]
@@ -229,7 +229,7 @@ def test_numeric_options_out_of_range_are_one_line_errors(extra: list, expect: s
 
 
 def test_range_checks_in_the_library(scene: dict[str, Path]) -> None:  # noqa: F811
-    from trafficgeo.traffic.lines import check_interval, interval_edges
+    from trafficgeo.traffic.counts import check_interval, interval_edges
     from trafficgeo.traffic.tracks import read_tracks
 
     with pytest.raises(InputError, match="at least 1"):

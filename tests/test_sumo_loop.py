@@ -115,10 +115,9 @@ def test_sumo_validate_feeds_the_report_of_a_run_folder(world: dict[str, Path], 
     assert "target >= 85% met" in " ".join(stdout.split())
     table = pd.read_csv(run / "compare_counts.csv")
     assert len(table) == 16 and set(table["interval_start"]) == {0.0, 300.0}  # the scenario's, not the run's 60 s
-    summary = json.loads((run / "compare_summary.json").read_text())
-    assert summary["counts"]["rows"] == 16
     inputs = find_inputs(run)
     assert inputs.traffic and inputs.traffic[0].compare  # the HTML report shows "Observed vs simulated"
+    assert inputs.traffic[0].compare_summary.counts.rows == 16  # compare_summary.json read typed by the run folder
 
 
 def test_a_line_off_the_network_is_one_line_error_with_a_table(world: dict[str, Path], tmp_path: Path) -> None:
@@ -216,8 +215,9 @@ def _empty_run(tmp: Path, world: dict[str, Path]) -> Path:
     """A run whose lines no vehicle crossed (only its first 1 s of truth)."""
     d = tmp / "empty_run"
     shutil.copytree(world["run"], d)
-    summary = json.loads((d / "summary.json").read_text())
     from trafficgeo.io.run_manifest import publish_outputs
+
+    summary = tg.RunFolder(d).summary()
 
     cr = pd.read_csv(d / "crossings.csv")
     cr.iloc[:0].to_csv(d / "crossings.csv", index=False)
@@ -225,7 +225,7 @@ def _empty_run(tmp: Path, world: dict[str, Path]) -> Path:
     c.iloc[:0].to_csv(d / "counts.csv", index=False)
     publish_outputs(d, [d / n for n in ("summary.json", "counts.csv", "crossings.csv", "trajectories.gpkg")],
                     command="analyze")
-    assert summary["period_s"] == [0.0, DURATION_S]
+    assert summary.period_s == (0.0, DURATION_S)
     return d
 
 

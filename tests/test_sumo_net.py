@@ -216,7 +216,7 @@ def test_lanes_in_degrees_ask_for_a_projected_crs(tmp_path) -> None:
 
 
 def _lanes(polygons: list[shapely.Polygon], bearings: list[float]):
-    from trafficgeo.traffic.lanes import lanes_from_polygons
+    from trafficgeo.site.lanes import lanes_from_polygons
 
     return lanes_from_polygons(polygons, [f"L{k + 1}" for k in range(len(polygons))], bearings)
 

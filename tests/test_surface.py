@@ -248,8 +248,8 @@ def test_dem_first_hit_matches_dense_sampling_on_rough_terrain(seed):
 @pytest.mark.slow
 def test_point_cloud_surface_maps_check_pixels_to_the_true_ground(tmp_path):
     """Lidar of a crowned, crested road (ground + trees + poles) -> LAZ -> ground DEM -> pixels on the ground."""
-    from trafficgeo.geo.load import load_surface
     from trafficgeo.geo.pointcloud import write_point_cloud
+    from trafficgeo.site.surface import load_surface
     from trafficgeo.synth.terrain import road_point_cloud
 
     road = RoadSurface(origin=[E0, N0, Z0], azimuth_deg=30.0, grade=0.03, crossfall=0.02, crest_radius=600.0)

@@ -13,8 +13,8 @@ import pytest
 import shapely
 
 from trafficgeo.errors import InputError
-from trafficgeo.traffic.lanes import lanes_from_boundaries
-from trafficgeo.traffic.lines import CountLine
+from trafficgeo.site.lanes import lanes_from_boundaries
+from trafficgeo.site.lines import CountLine
 from trafficgeo.traffic.occlusion import HIDDEN_MATCH_S, hidden_crossings, hidden_ends
 from trafficgeo.traffic.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions

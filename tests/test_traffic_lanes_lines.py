@@ -10,8 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from trafficgeo.errors import InputError
-from trafficgeo.traffic.lanes import Lanes, lane_visits, lanes_from_boundaries, lanes_from_polygons, main_lane
-from trafficgeo.traffic.lines import CountLine, aggregate_counts, find_crossings, interval_edges
+from trafficgeo.site.lanes import Lanes, lanes_from_boundaries, lanes_from_polygons
+from trafficgeo.site.lines import CountLine
+from trafficgeo.traffic.counts import aggregate_counts, find_crossings, interval_edges
+from trafficgeo.traffic.lane_changes import lane_visits, main_lane
 
 E0, N0 = 500000.0, 5000000.0  # large projected coordinates: nothing may lose precision
 
@@ -77,7 +79,7 @@ def test_travel_direction_corrects_a_lane_across_the_centre_line() -> None:
 def test_lane_bearing_column_read_and_checked(tmp_path) -> None:
     import geopandas as gpd
 
-    from trafficgeo.traffic.lanes import read_lanes
+    from trafficgeo.site.lanes import read_lanes
 
     lanes = _two_way_lanes()
     gdf = gpd.GeoDataFrame({"lane": list(lanes.names), "bearing": ["180", "180", "", "0"]},
@@ -153,7 +155,7 @@ def test_line_limited_to_lanes_and_polyline_lines() -> None:
 
 
 def test_two_tracks_of_one_vehicle_are_counted_once() -> None:
-    from trafficgeo.traffic.lines import same_vehicle
+    from trafficgeo.traffic.counts import same_vehicle
 
     table = pd.DataFrame({
         "time": [10.00, 10.05, 10.06, 10.07, 11.0, 20.00, 20.01],
@@ -233,7 +235,7 @@ def _one_crossing() -> pd.DataFrame:
 
 def test_counts_list_every_line_lane_direction_and_interval_with_zeros() -> None:
     """A line nobody crossed, a lane and a direction without vehicles are rows of zeros, not missing rows."""
-    from trafficgeo.traffic.lanes import Lanes
+    from trafficgeo.site.lanes import Lanes
 
     lanes = Lanes(("1", "2"), (shapely.box(0, 0, 3.5, 100), shapely.box(3.5, 0, 7, 100)))
     lines = [CountLine("L1", shapely.LineString([(0, 50), (7, 50)])),
@@ -263,8 +265,8 @@ def test_counts_list_every_line_lane_direction_and_interval_with_zeros() -> None
 def test_lanes_with_a_bearing_list_only_the_direction_they_carry() -> None:
     """A lane's zero rows are in the direction its traffic crosses the line, not the wrong way round; a lane
     without a bearing, or one running along the line, keeps both."""
-    from trafficgeo.traffic.lanes import Lanes
-    from trafficgeo.traffic.lines import lane_directions
+    from trafficgeo.site.lanes import Lanes
+    from trafficgeo.traffic.counts import lane_directions
 
     east = CountLine("E", shapely.LineString([(0, 50), (7, 50)]))  # drawn towards the east: its left is north
     assert lane_directions(east, 0.0) == (-1,)  # northbound: from its right (south) to its left
@@ -284,7 +286,7 @@ def test_lanes_with_a_bearing_list_only_the_direction_they_carry() -> None:
 
 
 def test_counted_groups_keeps_the_groups_with_vehicles() -> None:
-    from trafficgeo.traffic.lines import counted_groups
+    from trafficgeo.traffic.counts import counted_groups
 
     lines = [CountLine("L1", shapely.LineString([(0, 50), (7, 50)])),
              CountLine("L3", shapely.LineString([(0, 90), (7, 90)]))]
@@ -296,7 +298,7 @@ def test_counted_groups_keeps_the_groups_with_vehicles() -> None:
 
 def test_flow_is_left_out_where_less_than_half_an_interval_was_observed() -> None:
     """3 vehicles in the last 6.8 s of a run would read 1588 veh/h: no flow there, and observed_s says why."""
-    from trafficgeo.traffic.lines import MIN_FLOW_SHARE, flow_rule
+    from trafficgeo.traffic.counts import MIN_FLOW_SHARE, flow_rule
 
     cr = pd.DataFrame({"line": "L", "track_id": ["a", "b", "c", "d"], "class": "car", "lane": "", "direction": 1,
                        "time": [10.0, 61.0, 63.0, 65.0], "speed_kmh": 50.0, "x": 0.0, "y": 0.0})

@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.surface import ConstantSurface
+from trafficgeo.site.lines import CountLine
 from trafficgeo.traffic.analyze import MAX_HIDDEN_M, hidden_behind_m, line_warnings
-from trafficgeo.traffic.lines import CountLine
 from trafficgeo.traffic.trajectories import TrajectoryOptions
 
 E0, N0, Z0 = 500000.0, 5000000.0, 100.0

@@ -11,8 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from trafficgeo.geo.surface import ConstantSurface
+from trafficgeo.site.lines import CountLine
 from trafficgeo.synth.noisy_paths import PathNoise, metres_per_px, noisy_road_tracks, road_point
-from trafficgeo.traffic.lines import CountLine, aggregate_counts, find_crossings
+from trafficgeo.traffic.counts import aggregate_counts, find_crossings
 from trafficgeo.traffic.smoothing import SmoothedTrack, along_track, smooth_track
 from trafficgeo.traffic.trajectories import TrajectoryOptions, world_trajectories
 

@@ -7,14 +7,14 @@ real calibrations are, with the covariance a calibration from the scene's contro
 
 from __future__ import annotations
 
-import json
 import re
 
 import numpy as np
 import pytest
 
-from trafficgeo.calibration.params import FULL_NAMES
+from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.camera.io import write_camera_json
+from trafficgeo.camera.parameters import FULL_NAMES
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import pixels_to_world
 from trafficgeo.geo.surface import ConstantSurface
@@ -139,8 +139,7 @@ def test_knowledge_read_from_the_camera_json(tmp_path) -> None:
     rows = [{"id": f"G{k}", "role": "control", "x": float(x), "y": float(y), "z": 0.0, "u": 0.0, "v": 0.0,
              "inlier": True} for k, (x, y, _z) in enumerate(ce.control_points())]
     path = _document(camera, tmp_path, gcps=rows)
-    doc = json.loads(path.read_text())
-    knowledge = ScaleKnowledge.from_document(doc, camera)
+    knowledge = ScaleKnowledge.from_camera(CalibratedCamera.read(path))
     assert knowledge is not None and knowledge.describe() == "covariance+gcps"
     assert knowledge.control_xy.shape == (len(rows), 2)
     speeds = np.random.default_rng(1).uniform(60.0, 110.0, 10)
@@ -151,10 +150,12 @@ def test_knowledge_read_from_the_camera_json(tmp_path) -> None:
     assert by_hand.options["speed_scale_knowledge"] == "none"
     assert np.all(np.isfinite(by_hand.vehicles["speed_kmh"]))
     assert not np.allclose(from_json.vehicles["speed_std_kmh"], by_hand.vehicles["speed_std_kmh"])
-    assert ScaleKnowledge.from_document(None, camera) is None
+    assert ScaleKnowledge.from_camera(CalibratedCamera(camera)) is None
     damaged = _document(camera, tmp_path, gcps=[{"id": "G1", "x": "north", "y": 1.0}, *rows[:3]])
-    with pytest.raises(InputError, match="gcps"):
-        ScaleKnowledge.from_document(json.loads(damaged.read_text()), camera)
+    with pytest.raises(InputError, match="gcps list is damaged"):
+        CalibratedCamera.read(damaged)
+    with pytest.raises(InputError, match="gcps list is damaged"):
+        analyze_tracks(damaged, 0.0, tracks)
 
 
 def test_speed_options_are_checked() -> None:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from trafficgeo.camera.io import read_camera_document
+from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.synth.registration_scene import ground_errors_m
 from trafficgeo.ui.server import create_app
 from trafficgeo.ui.startup import open_session
@@ -96,13 +96,14 @@ def test_refine_is_accepted_and_beats_the_rough_camera_at_the_truth(refined, rs)
     assert r.status_code == 200, r.text
     assert r.json() == {"path": "camera_refined.json", "report": "refine.json", "frame": "refine_frame.jpg",
                         "revision": ans["revision"]}
-    camera, doc = read_camera_document(work / "camera_refined.json")
+    refined = CalibratedCamera.read(work / "camera_refined.json")
+    camera, verdict = refined.camera, refined.refinement
     rough = client.session.calibration_run()[1].calibration.camera
     e_rough = _rms(ground_errors_m(rough, sc.camera, sc.truth_points))
     e_refined = _rms(ground_errors_m(camera, sc.camera, sc.truth_points))
     assert e_refined * 2 <= e_rough, (e_refined, e_rough)
-    assert doc["refinement"]["accepted"] is True and doc["refinement"]["report"] == "refine.json"
-    assert doc["refinement"]["matches_kept"] == ans["n_kept"]
+    assert verdict is not None and verdict.accepted is True and verdict.report == "refine.json"
+    assert verdict.matches_kept == ans["n_kept"]
     report = json.loads((work / "refine.json").read_text())
     assert report["format"] == "trafficgeo-refine/1" and report["accepted"] is True
     assert report["frame"] == "refine_frame.jpg" and (work / "refine_frame.jpg").stat().st_size > 1000

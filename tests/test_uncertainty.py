@@ -3,23 +3,21 @@ accuracy grid and the visible-ground footprint, and units in feet."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from trafficgeo.calibration.gcps import GCPTable
 from trafficgeo.calibration.pipeline import CalibrationOptions
-from trafficgeo.calibration.run import covariance_record, run_calibration
-from trafficgeo.camera.io import read_camera_document, write_camera_json
+from trafficgeo.calibration.run import camera_covariance, run_calibration
+from trafficgeo.camera.calibrated import CalibratedCamera, CameraCovariance
+from trafficgeo.camera.io import write_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import pixels_to_world
 from trafficgeo.geo.surface import ConstantSurface
-from trafficgeo.geo.uncertainty import (
-    CameraCovariance,
-    accuracy_grid,
-    footprint_polygon,
-    ground_uncertainty,
-)
+from trafficgeo.geo.uncertainty import accuracy_grid, footprint_polygon, ground_uncertainty
 from trafficgeo.synth.gcp_scene import make_gcp_scene
 
 E0, N0, Z0 = 245000.0, 5182600.0, 90.0
@@ -74,8 +72,7 @@ def test_propagated_calibration_error_matches_monte_carlo():
         gcps = GCPTable.from_arrays(list(sc.gcps.ids), world, pix, roles=sc.gcps.roles, sigma_px=sc.gcps.sigma_px,
                                     crs=sc.gcps.crs)
         cal = _calibrate(gcps, sc.camera.image_size).calibration
-        rec = covariance_record(cal)
-        cov = CameraCovariance(np.array(rec["origin"]), np.array(rec["values"]), np.array(rec["matrix"]))
+        cov = camera_covariance(cal)
         predicted.append(ground_uncertainty(cal.camera, uv, surf, cov, pixel_sigma=0.0).radial_m)
         errors.append(pixels_to_world(cal.camera, uv, surf).xyz[:, :2] - truth[:, :2])
     mc = np.sqrt((np.array(errors) ** 2).sum(axis=2).mean(axis=0))
@@ -89,27 +86,30 @@ def calibrated(tmp_path_factory):
     sc = make_gcp_scene(7, n_control=14)
     path = tmp_path_factory.mktemp("cal") / "camera.json"
     run_calibration(sc.gcps, sc.camera.image_size, camera_path=path)
-    cam, doc = read_camera_document(path)
-    return sc, cam, doc, path
+    calibrated = CalibratedCamera.read(path)
+    return sc, calibrated.camera, json.loads(path.read_text(encoding="utf-8")), path
 
 
 def test_covariance_block_round_trips_and_guards_the_camera(calibrated, tmp_path):
-    _, cam, doc, _ = calibrated
-    cov = CameraCovariance.from_document(doc, cam)
-    assert cov is not None and cov.matrix.shape == (15, 15)
+    _, cam, doc, path = calibrated
+    cov = CameraCovariance.from_dict(doc["covariance"], cam, str(path))
+    assert cov.matrix.shape == (15, 15)
+    np.testing.assert_array_equal(cov.matrix, np.array(doc["covariance"]["matrix"]))  # kept as written
     L = cov.factor()
-    np.testing.assert_allclose(L @ L.T, cov.matrix, atol=1e-12 * np.abs(cov.matrix).max())
+    symmetric = 0.5 * (cov.matrix + cov.matrix.T)
+    np.testing.assert_allclose(L @ L.T, symmetric, atol=1e-12 * np.abs(cov.matrix).max())
     np.testing.assert_allclose(cov.camera(cov.values, cam).position, cam.position, atol=1e-6)
     other = Camera.from_orientation(cam.image_size, 1000.0, cam.position + 5.0, 10.0, 20.0, 0.0, crs=cam.crs)
     with pytest.raises(InputError, match="does not belong to this camera"):
-        CameraCovariance.from_document(doc, other)
+        CameraCovariance.from_dict(doc["covariance"], other)
     write_camera_json(tmp_path / "plain.json", cam)
-    assert CameraCovariance.from_document(read_camera_document(tmp_path / "plain.json")[1], cam) is None
+    assert CalibratedCamera.read(tmp_path / "plain.json").covariance is None
+    np.testing.assert_array_equal(CalibratedCamera.read(path).covariance.values, cov.values)
 
 
 def test_accuracy_grid_and_footprint(calibrated):
-    sc, cam, doc, _ = calibrated
-    cov = CameraCovariance.from_document(doc, cam)
+    sc, cam, _, path = calibrated
+    cov = CalibratedCamera.read(path).covariance
     surf = ConstantSurface(float(np.median(sc.true_world[:, 2])))
     grid = accuracy_grid(cam, surf, cov, pixel_sigma=1.0, max_distance_m=120.0, max_cells=40_000)
     assert grid.bands.shape[0] == len(grid.band_names) == 6

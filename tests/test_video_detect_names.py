@@ -178,7 +178,7 @@ def test_blobs_no_single_vehicle_explains_are_of_unknown_class(monkeypatch: pyte
 def test_counts_per_class_add_up_with_unknown_vehicles() -> None:
     import pandas as pd
 
-    from trafficgeo.traffic.lines import aggregate_counts
+    from trafficgeo.traffic.counts import aggregate_counts
 
     cr = pd.DataFrame({"line": "L1", "track_id": ["a", "b", "c", "d"], "class": ["car", "", "truck", None],
                        "lane": "1", "direction": 1, "time": [1.0, 2.0, 3.0, 4.0], "speed_kmh": 50.0,

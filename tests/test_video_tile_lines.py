@@ -9,7 +9,7 @@ import pytest
 import shapely
 
 from trafficgeo.geo.surface import ConstantSurface
-from trafficgeo.traffic.lines import CountLine
+from trafficgeo.site.lines import CountLine
 from trafficgeo.video.detectors.tile_bands import plan_bands
 from trafficgeo.video.detectors.tiling import (
     LINE_BAND_ACROSS_M,
@@ -96,7 +96,7 @@ def test_a_line_below_reach_warns_naming_it_and_its_size() -> None:
 
 def test_line_reach_with_a_lanes_plan_warns_where_the_lanes_do_not_reach() -> None:
     """The line warnings do not depend on where the plan came from: lanes that stop at 90 m get no tile at 130 m."""
-    from trafficgeo.traffic.lanes import Lanes
+    from trafficgeo.site.lanes import Lanes
 
     cam = junction_camera()
     lanes = Lanes(("A",), (shapely.box(0.0, 5.0, ROAD_W, 90.0),))

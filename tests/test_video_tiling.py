@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.surface import ConstantSurface
+from trafficgeo.site.lanes import Lanes
 from trafficgeo.traffic.boxes import cuboid_boxes
-from trafficgeo.traffic.lanes import Lanes
 from trafficgeo.video.detections import Detections, box_iou
 from trafficgeo.video.detectors.tiling import (
     REFERENCE_CAR_M,

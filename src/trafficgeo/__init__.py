@@ -27,6 +27,7 @@ __version__ = "0.1.0"
 _API: dict[str, str] = {
     # camera and calibration
     "Camera": "trafficgeo.camera.model",
+    "CalibratedCamera": "trafficgeo.camera.calibrated",
     "calibrate": "trafficgeo.calibration.pipeline",
     "Calibration": "trafficgeo.calibration.pipeline",
     "CalibrationOptions": "trafficgeo.calibration.pipeline",
@@ -37,14 +38,15 @@ _API: dict[str, str] = {
     "georeference": "trafficgeo.geo.mapping",
     "GroundPoints": "trafficgeo.geo.mapping",
     "ConstantSurface": "trafficgeo.geo.surface",
-    # inputs, from paths or objects
-    "load_camera": "trafficgeo.traffic.loading",
-    "load_surface": "trafficgeo.traffic.loading",
-    "load_lanes": "trafficgeo.traffic.loading",
-    "load_lines": "trafficgeo.traffic.loading",
-    "load_tracks": "trafficgeo.traffic.loading",
-    "Lanes": "trafficgeo.traffic.lanes",
-    "CountLine": "trafficgeo.traffic.lines",
+    # the site and the tracks, from paths or objects
+    "Site": "trafficgeo.site.site",
+    "load_camera": "trafficgeo.site.site",
+    "load_surface": "trafficgeo.site.surface",
+    "load_lanes": "trafficgeo.site.site",
+    "load_lines": "trafficgeo.site.site",
+    "Lanes": "trafficgeo.site.lanes",
+    "CountLine": "trafficgeo.site.lines",
+    "load_tracks": "trafficgeo.traffic.tracks",
     "ImageTracks": "trafficgeo.traffic.tracks",
     # traffic
     "analyze_tracks": "trafficgeo.traffic.analyze",
@@ -92,6 +94,7 @@ __all__ = [
     "SCHEMAS",
     "BatchPlan",
     "BatchReport",
+    "CalibratedCamera",
     "Calibration",
     "CalibrationError",
     "CalibrationOptions",
@@ -113,6 +116,7 @@ __all__ = [
     "RefineOptions",
     "RunFolder",
     "RunOptions",
+    "Site",
     "SumoLoopResult",
     "SumoNet",
     "SumoScenario",
@@ -167,6 +171,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.calibration.gcps import GCPTable, read_gcps
     from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, calibrate
     from trafficgeo.calibration.report import CalibrationReport
+    from trafficgeo.camera.calibrated import CalibratedCamera
     from trafficgeo.camera.model import Camera
     from trafficgeo.geo.drape import drape_orthophoto
     from trafficgeo.geo.mapping import GroundPoints, georeference
@@ -175,12 +180,13 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.simulation.loop import SumoLoopResult, SumoValidation, close_sumo_loop, validate_sumo_scenario
     from trafficgeo.simulation.network import SumoNet, build_sumo_net
     from trafficgeo.simulation.scenario import SumoScenario, build_sumo_scenario
+    from trafficgeo.site.lanes import Lanes
+    from trafficgeo.site.lines import CountLine
+    from trafficgeo.site.site import Site, load_camera, load_lanes, load_lines
+    from trafficgeo.site.surface import load_surface
     from trafficgeo.traffic.analyze import TrafficResult, analyze_tracks
-    from trafficgeo.traffic.lanes import Lanes
-    from trafficgeo.traffic.lines import CountLine
-    from trafficgeo.traffic.loading import load_camera, load_lanes, load_lines, load_surface, load_tracks
     from trafficgeo.traffic.run_folder import SCHEMAS, RunFolder
-    from trafficgeo.traffic.tracks import ImageTracks
+    from trafficgeo.traffic.tracks import ImageTracks, load_tracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
     from trafficgeo.traffic.validation import Comparison, compare_with_sumo, export_fcd
     from trafficgeo.video.background_frame import background_frame

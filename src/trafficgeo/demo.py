@@ -29,7 +29,8 @@ from rich.console import Console
 from rich.table import Table
 
 from trafficgeo.calibration import read_gcps, run_calibration
-from trafficgeo.camera.io import read_camera_document, read_camera_json
+from trafficgeo.camera.calibrated import CalibratedCamera
+from trafficgeo.camera.io import read_camera_json
 from trafficgeo.report.terminal import print_calibration_report
 from trafficgeo.synth.world import WorldOptions, build_world
 
@@ -95,15 +96,16 @@ def run_demo(out: Path, *, seed: int = 7, console: Console | None = None, world:
     gcps = read_gcps(wdir / "gcps.csv", crs=opts.crs)
     run = run_calibration(gcps, size, camera_path=out / "camera.json", report_path=out / "report.json")
     print_calibration_report(run.report, con)
-    cam, doc = read_camera_document(out / "camera.json")
+    calibrated = CalibratedCamera.read(out / "camera.json")
+    cam = calibrated.camera
 
     # 3. Ground DEM from the lidar, and the vehicles' true ground points mapped back to the ground.
     from trafficgeo.geo.georef import georeference_table
-    from trafficgeo.geo.load import load_surface
     from trafficgeo.geo.raster import write_geotiff
-    from trafficgeo.geo.site import site_layers
-    from trafficgeo.geo.uncertainty import CameraCovariance, accuracy_grid, footprint_polygon, ground_uncertainty
+    from trafficgeo.geo.uncertainty import accuracy_grid, footprint_polygon, ground_uncertainty
     from trafficgeo.io.gis import write_gis
+    from trafficgeo.site.layers import site_layers
+    from trafficgeo.site.surface import load_surface
 
     dem = cloud_to_dem(cloud, 0.25)
     write_geotiff(out / "dem.tif", dem.data, dem.transform, dem.crs, nodata=float("nan"),
@@ -122,7 +124,7 @@ def run_demo(out: Path, *, seed: int = 7, console: Console | None = None, world:
     shake_rms = float(np.sqrt(np.mean((pixels[["u", "v"]].to_numpy() - steady[["u", "v"]].to_numpy()) ** 2)))
     errors = {}
     for label, spec in (("DEM", str(out / "dem.tif")), ("GCP plane", "plane")):
-        surf = load_surface(spec, cam, doc)
+        surf = load_surface(spec, calibrated)
         world = georeference_table(cam, pixels, surf)
         name = "vehicles_world_dem.gpkg" if label == "DEM" else "vehicles_world_plane.csv"
         write_point_table(out / name, world, cam.crs and surf.crs)
@@ -131,13 +133,13 @@ def run_demo(out: Path, *, seed: int = 7, console: Console | None = None, world:
         errors[label] = np.hypot(*(world[["x", "y"]].to_numpy() - truth_xyz[:, :2]).T)
         steady_world = georeference_table(cam, steady, surf)
         errors[label + " steady"] = np.hypot(*(steady_world[["x", "y"]].to_numpy() - truth_xyz[:, :2]).T)
-    surf = load_surface(str(out / "dem.tif"), cam, doc)
-    cov = CameraCovariance.from_document(doc, cam)
+    surf = load_surface(str(out / "dem.tif"), calibrated)
+    cov = calibrated.covariance
     grid = accuracy_grid(cam, surf, cov, pixel_sigma=1.0, max_distance_m=150.0)
     write_geotiff(out / "accuracy.tif", grid.bands, grid.transform, grid.crs, nodata=float("nan"),
                   descriptions=grid.band_names)
     foot = footprint_polygon(grid)
-    write_gis(out / "site.gpkg", site_layers(cam, doc, foot), cam.crs)
+    write_gis(out / "site.gpkg", site_layers(calibrated, foot), cam.crs)
     con.print(f"$ trafficgeo accuracy {out / 'camera.json'} --surface {out / 'dem.tif'} -o {out / 'accuracy.tif'} "
               f"--gis {out / 'site.gpkg'} --max-distance 150")
     predicted_steady = ground_uncertainty(cam, steady[["u", "v"]].to_numpy(), surf, cov, 0.0).radial_m

@@ -140,7 +140,7 @@ def _check_options(where: str, text: str, detector: str) -> dict[str, Any]:
 def read_cameras(path: str | os.PathLike[str]) -> dict[str, CameraEntry]:
     """The cameras of ``cameras.csv`` by id, in file order; an InputError naming the file, line and column of the
     first bad value and how to fix it."""
-    from trafficgeo.traffic.loading import load_camera
+    from trafficgeo.site.site import load_camera
     from trafficgeo.video.detectors.names import DETECTOR_NAMES
 
     csv_path = Path(path)
@@ -197,7 +197,7 @@ def _dataset_crs(cameras: Mapping[str, CameraEntry], crs: str | None, csv_path: 
 
     from trafficgeo.camera.model import crs_to_text
     from trafficgeo.crs import parse_crs
-    from trafficgeo.traffic.loading import load_camera
+    from trafficgeo.site.site import load_camera
 
     cams = {cid: load_camera(e.camera) for cid, e in cameras.items()}
     if crs is not None:

@@ -268,18 +268,18 @@ def process_options(entry: CameraEntry, **window: float) -> ProcessOptions:
 def _surface(spec: str, camera: str, identity: tuple[str | None, str | None]) -> Any:
     """The surface of a camera, built once per worker process for the same files (``identity``: their hashes): a
     point cloud is gridded once, not by every task of the camera (read only: tasks never change a surface)."""
-    from trafficgeo.traffic.loading import load_surface
+    from trafficgeo.site.surface import load_surface
 
     return load_surface(spec, camera)
 
 
-def _load(entry: CameraEntry, *, lines: bool):
-    from trafficgeo.traffic.loading import load_camera_document, load_layout
+def _site(entry: CameraEntry, *, lines: bool):
+    """The camera's site (its surface from the worker's cache) and the calibrated camera's scale knowledge."""
+    from trafficgeo.camera.calibrated import CalibratedCamera
+    from trafficgeo.site.site import Site
 
-    cam, _ = load_camera_document(entry.camera)
     surface = _surface(str(entry.surface), str(entry.camera), (_input_id(entry.surface), _input_id(entry.camera)))
-    lane_set, count_lines = load_layout(cam, surface, entry.lanes, entry.lines if lines else None)
-    return cam, surface, lane_set, count_lines
+    return Site.load(CalibratedCamera.read(entry.camera), surface, entry.lanes, entry.lines if lines else None)
 
 
 # ------------------------------------------------------------------------------------------------ detect
@@ -291,7 +291,8 @@ def _run_detect(task: Task, ctx: BatchContext, entry: CameraEntry, work: Path):
         raise InputError(f"task {task.task_id}: video {task.video} not found; check the path or plan again")
     video = Path(task.video)
     opts = process_options(entry, start_s=task.video_start_s, end_s=task.video_end_s)
-    cam, surface, lane_set, count_lines = _load(entry, lines=entry.lanes is None)  # no lanes: lines plan the tiles
+    site = _site(entry, lines=entry.lanes is None)  # no lanes: lines plan the tiles
+    cam, surface, lane_set, count_lines = site.camera.camera, site.surface, site.lanes, site.count_lines
     info = video_info(video)
     opts = settled_options(opts, info.fps)
     detect_and_track(video, cam, surface, work, opts, lanes=lane_set, lines=count_lines)
@@ -462,18 +463,18 @@ def analysis_origin(first: datetime, midnight: datetime, interval_s: float) -> d
 
 def _run_track(task: Task, ctx: BatchContext, entry: CameraEntry):
     from trafficgeo.traffic.analyze import analyze
-    from trafficgeo.traffic.lines import check_interval
+    from trafficgeo.traffic.counts import check_interval
     from trafficgeo.traffic.tracks import tracks_from_table
 
     process_options(entry)  # checks the options
     interval_s = float(entry.options.get("interval_s", BATCH_OPTIONS["interval_s"]))
     check_interval(interval_s)
     midnight, next_midnight = day_bounds(task.day, entry.timezone)
-    cam, surface, lane_set, count_lines = _load(entry, lines=True)
-    from trafficgeo.traffic.loading import load_camera_document
+    site = _site(entry, lines=True)
+    cam, surface, lane_set, count_lines = site.camera.camera, site.surface, site.lanes, site.count_lines
     from trafficgeo.traffic.speed import ScaleKnowledge
 
-    knowledge = ScaleKnowledge.from_document(load_camera_document(entry.camera)[1], cam, str(entry.camera))
+    knowledge = ScaleKnowledge.from_camera(site.camera)
     frames, dets = _day_frames(task, ctx, midnight, next_midnight)
     results = []
     for k, rows in enumerate(_segments(frames) if frames is not None else []):

@@ -25,7 +25,7 @@ from scipy import stats
 
 from trafficgeo.calibration.gcps import GCPTable, validate_gcps
 from trafficgeo.calibration.initial import initial_cameras
-from trafficgeo.calibration.params import DIST_NAMES, ParameterModel, full_to_camera, project_full
+from trafficgeo.calibration.params import ParameterModel, project_full
 from trafficgeo.calibration.refine import (
     LOSSES,
     Fit,
@@ -34,8 +34,10 @@ from trafficgeo.calibration.refine import (
     leave_one_out,
     studentized_loo,
 )
+from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.camera.distortion import max_monotonic_radius
 from trafficgeo.camera.model import Camera
+from trafficgeo.camera.parameters import DIST_NAMES, full_to_camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.errors import CalibrationError, InputError
 
@@ -141,6 +143,14 @@ class Calibration:
     @property
     def model(self) -> ParameterModel:
         return self.fit.model
+
+    def calibrated_camera(self) -> CalibratedCamera:
+        """The camera with what this calibration knows (GCPs and their residuals, statistics, covariance), as
+        ``trafficgeo calibrate`` writes it to the camera JSON: a :class:`~trafficgeo.site.Site` built from it has
+        the ``"plane"`` surface and calibration-aware speeds without a file."""
+        from trafficgeo.calibration.run import calibrated_camera
+
+        return calibrated_camera(self)
 
 
 # ------------------------------------------------------------------------------------------------ helpers

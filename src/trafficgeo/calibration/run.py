@@ -4,17 +4,23 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from trafficgeo.calibration.gcps import GCPTable
-from trafficgeo.calibration.params import FULL_NAMES, ParameterModel
+from trafficgeo.calibration.params import ParameterModel
 from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, calibrate
 from trafficgeo.calibration.refine import fit_camera
 from trafficgeo.calibration.report import CalibrationReport
-from trafficgeo.calibration.validation import build_report, gcp_records, stats_record
-from trafficgeo.camera.io import write_camera_json
+from trafficgeo.calibration.validation import build_report
+from trafficgeo.camera.calibrated import (
+    CalibratedCamera,
+    CameraCovariance,
+    CameraGCP,
+    FitModel,
+    FitStats,
+    PoseUncertainty,
+)
 from trafficgeo.io.atomic import write_json_atomic
 
 
@@ -26,7 +32,7 @@ class CalibrationRun:
     report: CalibrationReport
 
 
-def covariance_record(cal: Calibration) -> dict[str, Any]:
+def camera_covariance(cal: Calibration) -> CameraCovariance:
     """Covariance of the full OpenCV parameter vector about the local origin (for :mod:`trafficgeo.geo.uncertainty`).
 
     Fixed parameters have zero rows and columns, so a covariance of the selected model says nothing about the
@@ -51,30 +57,23 @@ def covariance_record(cal: Calibration) -> dict[str, Any]:
                 Me = ext.matrix()
                 cov = Me @ fit.covariance() @ Me.T
                 basis = "selected model plus k1, k2 (not estimated, but not known either): " + ", ".join(ext.names)
-    return {
-        "parameters": list(FULL_NAMES),
-        "convention": "OpenCV rvec/tvec map (X_world - origin) to the camera frame; fx..cx in pixels; "
-                      "origin, tvec in CRS units",
-        "basis": basis,
-        "origin": cal.origin.tolist(),
-        "values": cal.fit.full.tolist(),
-        "matrix": cov.tolist(),
-    }
+    return CameraCovariance(origin=np.array(cal.origin, dtype=np.float64), values=np.array(cal.fit.full),
+                            matrix=np.asarray(cov, dtype=np.float64), basis=basis)
 
 
-def camera_extras(report: CalibrationReport, cal: Calibration | None = None) -> dict[str, Any]:
-    """The calibration keys stored in the camera JSON beside the camera itself."""
-    unc = report.uncertainty
-    extras = {
-        "gcps": gcp_records(report),
-        "stats": stats_record(report),
-        "model": {"free_parameters": list(report.model.free_parameters), "reasons": list(report.model.reasons)},
-        "uncertainty": {"position_std_m": list(unc.position_std_m),
-                        "orientation_std_deg": unc.orientation_std_deg.to_dict(), "focal_std_px": unc.focal_std_px},
-    }
-    if cal is not None:
-        extras["covariance"] = covariance_record(cal)
-    return extras
+def calibrated_camera(cal: Calibration, report: CalibrationReport | None = None) -> CalibratedCamera:
+    """The calibrated camera as the camera JSON stores it: the camera, the GCPs with their residuals, the fit
+    statistics, model and uncertainty of ``report`` (built from ``cal`` when not given) and the covariance."""
+    report = report or build_report(cal)
+    unc, s, o = report.uncertainty, report.stats, report.uncertainty.orientation_std_deg
+    gcps = tuple(CameraGCP(id=r.id, role=r.role, x=r.x, y=r.y, z=r.z, u=r.u, v=r.v, u_proj=r.u_proj, v_proj=r.v_proj,
+                           error_px=r.error_px, inlier=r.inlier, loo_error_px=r.loo_error_px) for r in report.gcps)
+    return CalibratedCamera(
+        cal.camera, gcps=gcps,
+        stats=FitStats(s.n_control, s.n_inliers, s.mean_px, s.rmse_px, s.loo_rmse_px),
+        model=FitModel(tuple(report.model.free_parameters), tuple(report.model.reasons)),
+        uncertainty=PoseUncertainty(tuple(unc.position_std_m), (o.heading, o.tilt, o.roll), unc.focal_std_px),
+        covariance=camera_covariance(cal))
 
 
 def run_calibration(gcps: GCPTable, image_size: tuple[int, int], options: CalibrationOptions | None = None, *,
@@ -85,5 +84,5 @@ def run_calibration(gcps: GCPTable, image_size: tuple[int, int], options: Calibr
     if report_path is not None:
         write_json_atomic(report_path, report.to_dict())
     if camera_path is not None:
-        write_camera_json(camera_path, cal.camera, camera_extras(report, cal))
+        calibrated_camera(cal, report).write(camera_path)
     return CalibrationRun(cal, report)

@@ -11,12 +11,10 @@ from __future__ import annotations
 
 from itertools import combinations
 from types import MappingProxyType
-from typing import Any
 
 import numpy as np
 from scipy import stats
 
-from trafficgeo.calibration.params import full_to_camera
 from trafficgeo.calibration.pipeline import Calibration, focal_bounds
 from trafficgeo.calibration.report import (
     REPORT_FORMAT,
@@ -37,9 +35,10 @@ from trafficgeo.calibration.report import (
     Uncertainty,
 )
 from trafficgeo.camera.model import Camera
+from trafficgeo.camera.parameters import full_to_camera
 from trafficgeo.crs import metres_per_unit
 
-__all__ = ["REPORT_FORMAT", "build_report", "explain_outlier", "gcp_records", "ground_points", "stats_record"]
+__all__ = ["REPORT_FORMAT", "build_report", "explain_outlier", "ground_points"]
 
 
 def ground_points(camera: Camera, pixels: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -378,17 +377,3 @@ def _model_summary(cal: Calibration) -> ModelSummary:
                                                  for s in starts),
         planarity_ratio=notes.get("planarity_ratio"), consensus=notes.get("consensus"),
     )
-
-
-def gcp_records(report: CalibrationReport) -> list[dict[str, Any]]:
-    """The per-GCP list stored in the camera JSON (a subset of the report's rows)."""
-    return [{"id": r.id, "role": r.role, "x": r.x, "y": r.y, "z": r.z, "u": r.u, "v": r.v, "u_proj": r.u_proj,
-             "v_proj": r.v_proj, "error_px": r.error_px, "inlier": r.inlier, "loo_error_px": r.loo_error_px}
-            for r in report.gcps]
-
-
-def stats_record(report: CalibrationReport) -> dict[str, Any]:
-    """The ``stats`` block stored in the camera JSON."""
-    s = report.stats
-    return {"n_control": s.n_control, "n_inliers": s.n_inliers, "mean_px": s.mean_px, "rmse_px": s.rmse_px,
-            "loo_rmse_px": s.loo_rmse_px}

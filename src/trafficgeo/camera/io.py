@@ -11,14 +11,14 @@ Keys (units in brackets)::
     crs           "EPSG:...", WKT or null: the text the camera was given (see Camera.crs_text)
     orientation   {heading_deg, tilt_deg, roll_deg}   (informative; R is authoritative)
     rvec, tvec    OpenCV Rodrigues rvec [rad] and tvec [CRS units] mapping absolute world to camera
-    ...           any further keys (calibration's gcps, stats, model) are kept as they are
+    ...           the calibration's gcps, stats, model, uncertainty, covariance, refinement and any further keys:
+                  read and written by :class:`~trafficgeo.camera.calibrated.CalibratedCamera`
 
 Only ``image_size``, ``K``, ``R`` and ``position`` are required when reading; ``dist`` defaults to zeros.
 """
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -70,16 +70,9 @@ def _matrix(doc: dict[str, Any], key: str, shape: tuple[int, ...], where: str) -
     return arr
 
 
-def read_camera_document(path: str | Path) -> tuple[Camera, dict[str, Any]]:
-    """Read a camera JSON; returns the camera and the whole document (for extras such as ``gcps``)."""
-    p = Path(path)
-    where = str(p)
-    if not p.is_file():
-        raise InputError(f"{where}: camera file not found; give the JSON written by 'trafficgeo calibrate'")
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{where}: not valid JSON ({exc}); give the JSON written by 'trafficgeo calibrate'") from None
+def camera_from_dict(doc: Any, where: str = "camera JSON") -> Camera:
+    """The camera of a camera JSON document (its other keys are left to
+    :class:`~trafficgeo.camera.calibrated.CalibratedCamera`); ``where`` names it in messages."""
     if not isinstance(doc, dict):
         raise InputError(f"{where}: expected a JSON object with the camera keys")
     fmt = doc.get("format", FORMAT)
@@ -96,12 +89,14 @@ def read_camera_document(path: str | Path) -> tuple[Camera, dict[str, Any]]:
     if crs is not None and not isinstance(crs, str):
         raise InputError(f"{where}: 'crs' must be a string such as \"EPSG:2949\" or null")
     try:
-        cam = Camera(image_size=(int(size[0]), int(size[1])), K=K, dist=dist, R=R, position=position, crs=crs)
+        return Camera(image_size=(int(size[0]), int(size[1])), K=K, dist=dist, R=R, position=position, crs=crs)
     except ValueError as exc:  # InputError (an unknown CRS) is a ValueError too
         raise InputError(f"{where}: 'crs': {exc}" if isinstance(exc, InputError) else f"{where}: {exc}") from None
-    return cam, doc
 
 
 def read_camera_json(path: str | Path) -> Camera:
-    """Read a camera JSON written by :func:`write_camera_json`."""
-    return read_camera_document(path)[0]
+    """The camera of a camera JSON written by :func:`write_camera_json` (with what its calibration knows:
+    :meth:`~trafficgeo.camera.calibrated.CalibratedCamera.read`)."""
+    from trafficgeo.camera.calibrated import CalibratedCamera
+
+    return CalibratedCamera.read(path).camera

@@ -130,14 +130,14 @@ def calibrate(
 
 
 def _write_site_gis(path: Path, camera_json: Path) -> None:
-    from trafficgeo.camera.io import read_camera_document
-    from trafficgeo.geo.load import plane_from_gcps
-    from trafficgeo.geo.site import site_layers, visible_footprint
+    from trafficgeo.camera.calibrated import CalibratedCamera
     from trafficgeo.io.gis import write_gis
+    from trafficgeo.site.layers import site_layers, visible_footprint
+    from trafficgeo.site.surface import plane_from_gcps
 
-    cam, doc = read_camera_document(camera_json)
-    plane = plane_from_gcps(doc, None, str(camera_json))
-    write_gis(path, site_layers(cam, doc, visible_footprint(cam, plane)), cam.crs)
+    calibrated = CalibratedCamera.read(camera_json)
+    plane = plane_from_gcps(calibrated)
+    write_gis(path, site_layers(calibrated, visible_footprint(calibrated.camera, plane)), calibrated.camera.crs)
 
 
 @app.command()

@@ -19,17 +19,15 @@ ResolutionOpt = Annotated[float, typer.Option(help="DEM cell size (m) when the s
 
 
 def _camera(path: Path):
-    from trafficgeo.camera.io import read_camera_document
+    from trafficgeo.camera.calibrated import CalibratedCamera
 
-    return read_camera_document(path)
+    return CalibratedCamera.read(path)
 
 
-def _surface(spec: str, camera, doc, surface_crs: str | None, resolution: float, where: str):
-    from trafficgeo.geo.load import load_surface
-    from trafficgeo.traffic.loading import check_resolution
+def _surface(spec: str, camera, surface_crs: str | None, resolution: float):
+    from trafficgeo.site.surface import load_surface
 
-    check_resolution(resolution)
-    return load_surface(spec, camera, doc, surface_crs=surface_crs, resolution_m=resolution, where=where)
+    return load_surface(spec, camera, surface_crs=surface_crs, resolution_m=resolution)
 
 
 def _check_gis_path(path: Path | None, option: str) -> None:
@@ -66,10 +64,11 @@ def georef(
     if not np.isfinite(height):
         raise InputError(f"--height {height} must be a finite height above the road in metres, e.g. 1.4")
     check_table_output(output)
-    cam, doc = _camera(camera)
+    calibrated = _camera(camera)
+    cam = calibrated.camera
     table = read_point_table(pixels, ("u", "v"), "pixels", "give a CSV with columns u,v (pixels, origin at the "
                              "centre of the top-left pixel)")
-    surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
+    surf = _surface(surface, calibrated, surface_crs, resolution)
     crs = camera_crs(cam)
     m = metres_per_unit(crs) if crs is not None else 1.0
     out = georeference_table(cam, table, surf, height=height / m, min_incidence_deg=min_incidence)
@@ -94,10 +93,11 @@ def project(
     from trafficgeo.io.tables import read_point_table, write_point_table
 
     check_table_output(output)
-    cam, doc = _camera(camera)
+    calibrated = _camera(camera)
+    cam = calibrated.camera
     table = read_point_table(world, ("x", "y", "z"), "world points",
                              "give a CSV with columns x,y,z in the camera's CRS and units")
-    surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera)) if surface else None
+    surf = _surface(surface, calibrated, surface_crs, resolution) if surface else None
     out = lonlat_columns(project_table(cam, table, surf), camera_crs(cam))
     write_point_table(output, out, camera_crs(cam))
     console.print(f"{len(out)} points: {_status_summary(out['status'].to_numpy())}")
@@ -119,7 +119,7 @@ def dem(
     from trafficgeo.crs import crs_label
     from trafficgeo.geo.pointcloud import cloud_to_dem, read_point_cloud
     from trafficgeo.geo.raster import write_geotiff
-    from trafficgeo.traffic.loading import check_resolution
+    from trafficgeo.site.surface import check_resolution
 
     check_resolution(resolution)
     if output.suffix.lower() not in (".tif", ".tiff"):
@@ -204,9 +204,9 @@ def accuracy(
     in metres.
     """
     from trafficgeo.geo.raster import write_geotiff
-    from trafficgeo.geo.site import site_layers
-    from trafficgeo.geo.uncertainty import CameraCovariance, accuracy_grid, footprint_polygon
+    from trafficgeo.geo.uncertainty import accuracy_grid, footprint_polygon
     from trafficgeo.io.gis import write_gis
+    from trafficgeo.site.layers import site_layers
 
     if not pixel_sigma >= 0:
         raise InputError(f"--pixel-sigma {pixel_sigma} must be >= 0 px")
@@ -217,16 +217,17 @@ def accuracy(
     if output.suffix.lower() not in (".tif", ".tiff"):
         raise InputError(f"{output}: the accuracy map is a GeoTIFF; name it .tif")
     _check_gis_path(gis, "--gis")
-    cam, doc = _camera(camera)
+    calibrated = _camera(camera)
+    cam = calibrated.camera
     if cam.crs is None:
         raise InputError(f"{camera}: the camera has no CRS, so the map cannot be georeferenced; calibrate with --crs")
-    cov = CameraCovariance.from_document(doc, cam, str(camera))
+    cov = calibrated.covariance
     if cov is None:
         console.print("[yellow]no calibration covariance in the camera JSON: mapping pixel noise only[/]")
-    surf = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
+    surf = _surface(surface, calibrated, surface_crs, resolution)
     grid = accuracy_grid(cam, surf, cov, pixel_sigma=pixel_sigma, resolution_m=cell, max_distance_m=max_distance)
     foot = footprint_polygon(grid)
-    layers = site_layers(cam, doc, foot) if gis is not None else None
+    layers = site_layers(calibrated, foot) if gis is not None else None
     write_geotiff(output, grid.bands, grid.transform, grid.crs, nodata=float("nan"), descriptions=grid.band_names)
     if layers is not None:
         write_gis(gis, layers, grid.crs)

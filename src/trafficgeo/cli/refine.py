@@ -37,8 +37,7 @@ def refine(
     correspondences, a robust re-fit, repeated until the camera stops moving. The user's own GCPs judge it: the
     refined camera is written only when it lowers their check-point / leave-one-out ground error; otherwise the
     original camera is written unchanged, the reason printed, and the exit code is 1."""
-    from trafficgeo.camera.io import read_camera_document
-    from trafficgeo.cli.geo import _surface
+    from trafficgeo.cli.geo import _camera, _surface
     from trafficgeo.registration.refine import RefineOptions
     from trafficgeo.registration.run import read_frame_image, refine_camera_files
 
@@ -46,8 +45,8 @@ def refine(
         raise InputError("give the video (--video) or a still without traffic (--frame), one of them",
                          parameters=("video", "frame"))
     options = RefineOptions(search_px=search)
-    cam, doc = read_camera_document(camera)
-    ground = _surface(surface, cam, doc, surface_crs, resolution, str(camera))
+    calibrated = _camera(camera)
+    ground = _surface(surface, calibrated, surface_crs, resolution)
     if video is not None:
         from trafficgeo.video.background_frame import background_frame
 
@@ -55,7 +54,7 @@ def refine(
             still = background_frame(video, start_s=start, duration_s=duration, n_frames=frames)
     else:
         still = read_frame_image(frame)
-    result = refine_camera_files(camera, still, ortho, ground, output, gcps=gcps, report_path=report,
+    result = refine_camera_files(calibrated, still, ortho, ground, output, gcps=gcps, report_path=report,
                                  options=options, progress=console.print)
     b, a = result.before, result.after
     console.print(f"user's points, held-out ground error RMS: before {b.rmse_m:.3f} m"

@@ -57,9 +57,9 @@ def analyze(
 
     from trafficgeo.cli.report import check_html_path
     from trafficgeo.report.traffic import print_analysis
+    from trafficgeo.site.surface import check_resolution, load_surface
     from trafficgeo.traffic.analyze import analyze_tracks
-    from trafficgeo.traffic.lines import check_interval
-    from trafficgeo.traffic.loading import check_resolution, load_surface
+    from trafficgeo.traffic.counts import check_interval
     from trafficgeo.traffic.run_folder import RunFolder
     from trafficgeo.traffic.speed import ScaleKnowledge
     from trafficgeo.traffic.tracks import read_tracks
@@ -71,10 +71,11 @@ def analyze(
     check_resolution(resolution)
     opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
                              max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
-    cam, doc = _camera(camera)  # a bad camera file is named before the tracks are read
-    knowledge = ScaleKnowledge.from_document(doc, cam, str(camera))
+    calibrated = _camera(camera)  # a bad camera file is named before the tracks are read
+    cam = calibrated.camera
+    knowledge = ScaleKnowledge.from_camera(calibrated)
     image_tracks = read_tracks(tracks, fps=fps)
-    surf = load_surface(surface, camera, surface_crs=surface_crs, resolution_m=resolution)
+    surf = load_surface(surface, calibrated, surface_crs=surface_crs, resolution_m=resolution)
     console.print(f"surface: {surf.describe()}")
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task("tracks", total=len(image_tracks.track_ids))

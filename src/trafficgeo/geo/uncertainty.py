@@ -15,53 +15,11 @@ from typing import Any
 import numpy as np
 import pyproj
 
-from trafficgeo.calibration.params import FULL_NAMES, camera_to_full, full_to_camera
+from trafficgeo.camera.calibrated import CameraCovariance
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface, camera_crs, pixels_to_world, world_to_pixels
-
-
-@dataclass(frozen=True, eq=False)
-class CameraCovariance:
-    """Covariance of the OpenCV parameter vector ``[rvec, tvec, fx, fy, cx, cy, k1, k2, p1, p2, k3]`` of a camera
-    about a local ``origin`` (world CRS units), as written by ``trafficgeo calibrate``."""
-
-    origin: np.ndarray
-    values: np.ndarray
-    matrix: np.ndarray
-
-    @classmethod
-    def from_document(cls, doc: dict[str, Any], camera: Camera, where: str = "camera JSON") -> CameraCovariance | None:
-        """From a camera JSON document; None if it has no ``covariance`` block (e.g. a camera made by hand)."""
-        block = doc.get("covariance")
-        if block is None:
-            return None
-        try:
-            names = tuple(block["parameters"])
-            origin = np.asarray(block["origin"], dtype=np.float64).reshape(3)
-            values = np.asarray(block["values"], dtype=np.float64).reshape(15)
-            matrix = np.asarray(block["matrix"], dtype=np.float64).reshape(15, 15)
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{where}: malformed 'covariance' block ({exc}); re-run 'trafficgeo calibrate'") from None
-        if names != FULL_NAMES:
-            raise InputError(f"{where}: covariance parameters {names} are not {FULL_NAMES}; re-run calibrate")
-        if not (np.all(np.isfinite(matrix)) and np.all(np.isfinite(values))):
-            raise InputError(f"{where}: the covariance has non-finite entries; re-run 'trafficgeo calibrate'")
-        # The stored values must describe this camera (a hand-edited JSON would silently mix two cameras).
-        if not np.allclose(camera_to_full(camera, origin)[:10], values[:10], rtol=1e-6, atol=1e-6):
-            raise InputError(f"{where}: the covariance block does not belong to this camera (its parameters differ); "
-                             "remove the block or re-run 'trafficgeo calibrate'")
-        return cls(origin=origin, values=values, matrix=0.5 * (matrix + matrix.T))
-
-    def factor(self) -> np.ndarray:
-        """Columns ``L`` (15, r) with ``L @ L.T == matrix`` over its non-negligible eigen-directions."""
-        w, V = np.linalg.eigh(self.matrix)
-        keep = w > max(float(w.max()), 0.0) * 1e-14
-        return V[:, keep] * np.sqrt(w[keep])
-
-    def camera(self, values: np.ndarray, like: Camera) -> Camera:
-        return full_to_camera(values, self.origin, like.image_size, like.crs)
 
 
 @dataclass(frozen=True)

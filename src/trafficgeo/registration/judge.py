@@ -23,10 +23,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from trafficgeo.calibration.gcps import GCPTable
-from trafficgeo.calibration.params import ParameterModel, camera_to_full, full_to_camera
+from trafficgeo.calibration.params import ParameterModel
 from trafficgeo.calibration.pipeline import effective_sigma
 from trafficgeo.calibration.refine import fit_camera
 from trafficgeo.camera.model import Camera
+from trafficgeo.camera.parameters import camera_to_full, full_to_camera
 from trafficgeo.crs import metres_per_unit
 
 

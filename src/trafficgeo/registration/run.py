@@ -14,7 +14,9 @@ Outputs (each written atomically, nothing on bad input):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -23,45 +25,35 @@ import numpy as np
 
 from trafficgeo.calibration.gcp_table import ROLE_CHECK, ROLE_CONTROL, GCPTable
 from trafficgeo.calibration.gcps import read_gcps
-from trafficgeo.calibration.run import camera_extras
-from trafficgeo.calibration.validation import build_report
-from trafficgeo.camera.io import camera_to_dict, read_camera_document, write_camera_json
-from trafficgeo.camera.model import Camera
+from trafficgeo.calibration.run import calibrated_camera
+from trafficgeo.camera.calibrated import CalibratedCamera, RefinementSummary, load_calibrated_camera
+from trafficgeo.camera.io import camera_to_dict
 from trafficgeo.errors import InputError, OutputError
-from trafficgeo.geo.load import load_surface
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.geo.raster import GeoRaster, read_raster
 from trafficgeo.io.atomic import atomic_path, write_json_atomic
 from trafficgeo.registration.judge import model_from_names
 from trafficgeo.registration.refine import AUTO_PREFIX, OrthoRefinement, RefineOptions, match_sigma_px, refine_camera
+from trafficgeo.site.surface import load_surface
 
 REFINE_FORMAT = "trafficgeo-refine/1"
 MATCH_COLUMNS = ("x", "y", "z", "u", "v", "u_predicted", "v_predicted", "ncc", "roundness", "sigma_px", "kept",
                  "u_refined", "v_refined")
 
 
-def gcps_from_camera_document(doc: dict[str, Any], camera: Camera, where: str) -> tuple[GCPTable, np.ndarray]:
+def user_gcps(camera: CalibratedCamera) -> tuple[GCPTable, np.ndarray]:
     """The user's GCPs stored in a camera JSON by ``trafficgeo calibrate`` (its ``gcps`` list), without automatic
     correspondences of an earlier refinement; and which control points that calibration kept (its ``inlier``)."""
-    rows = [r for r in doc.get("gcps") or []
-            if isinstance(r, dict) and not str(r.get("id", "")).startswith(AUTO_PREFIX)]
+    rows = [g for g in camera.gcps or () if not g.id.startswith(AUTO_PREFIX)]
     if not rows:
-        raise InputError(f"{where}: the camera JSON lists no GCPs to judge the refinement by; give the GCP file it "
-                         "was calibrated from (`gcps`)", parameters=("gcps",))
-    try:
-        world = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
-        pixels = np.array([[float(r["u"]), float(r["v"])] for r in rows])
-        roles = tuple(ROLE_CHECK if r.get("role") == ROLE_CHECK else ROLE_CONTROL for r in rows)
-        ids = tuple(str(r["id"]) for r in rows)
-        inlier = np.array([bool(r.get("inlier", True)) for r in rows])
-        sigma = np.array([float(r.get("sigma_px", 1.0)) for r in rows])
-        table = GCPTable(ids=ids, world=world, pixels=pixels, roles=roles, sigma_px=sigma, crs=camera.crs,
-                         source=where, lines=(0,) * len(rows))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{where}: its gcps list is damaged ({exc}); give the GCP file it was calibrated from "
-                         "(`gcps`)",
-                         parameters=("gcps",)) from None
-    return table, inlier
+        raise InputError(f"{camera.where}: the camera JSON lists no GCPs to judge the refinement by; give the GCP "
+                         "file it was calibrated from (`gcps`)", parameters=("gcps",))
+    table = GCPTable(ids=tuple(g.id for g in rows), world=np.array([(g.x, g.y, g.z) for g in rows]),
+                     pixels=np.array([(g.u, g.v) for g in rows]),
+                     roles=tuple(ROLE_CHECK if g.role == ROLE_CHECK else ROLE_CONTROL for g in rows),
+                     sigma_px=np.array([g.sigma_px if np.isfinite(g.sigma_px) else 1.0 for g in rows]),
+                     crs=camera.camera.crs, source=camera.where, lines=(0,) * len(rows))
+    return table, np.array([g.inlier is not False for g in rows])
 
 
 def read_frame_image(path: str | Path) -> np.ndarray:
@@ -109,10 +101,10 @@ def refinement_record(result: OrthoRefinement, options: RefineOptions) -> dict[s
 
 def write_refinement(result: OrthoRefinement, out_camera: str | Path, frame: np.ndarray, *,
                      report_path: str | Path | None = None, options: RefineOptions | None = None,
-                     original_extras: dict[str, Any] | None = None) -> None:
+                     original: CalibratedCamera | None = None) -> None:
     """Write a refinement's files (see the module docstring): with ``report_path`` the report and the frame it was
     matched on beside it, then the camera JSON ``out_camera`` last: the refined camera when accepted, else the
-    original with ``original_extras`` (the keys of its own camera JSON)."""
+    ``original`` (the camera JSON it was read from, with what its calibration knew)."""
     options = options or RefineOptions()
     if report_path is not None:
         report = Path(report_path)
@@ -123,33 +115,32 @@ def write_refinement(result: OrthoRefinement, out_camera: str | Path, frame: np.
         record = refinement_record(result, options)
         record["frame"] = frame_file.name
         write_json_atomic(report, record)
-    block = {"accepted": result.accepted, "reason": result.reason, "matches_kept": result.n_kept,
-             "before_rmse_m": _num(result.before.rmse_m),
-             "after_rmse_m": None if result.after is None else _num(result.after.rmse_m),
-             "report": None if report_path is None else Path(report_path).name}
+    block = RefinementSummary(accepted=result.accepted, reason=result.reason, matches_kept=result.n_kept,
+                              before_rmse_m=result.before.rmse_m,
+                              after_rmse_m=math.nan if result.after is None else result.after.rmse_m,
+                              report=None if report_path is None else Path(report_path).name)
     if result.accepted and result.calibration is not None:
-        extras = camera_extras(build_report(result.calibration), result.calibration)
+        refined = calibrated_camera(result.calibration)
         # The user's points only (their residuals under the refined camera); the automatic ones are in the report.
-        extras["gcps"] = [r for r in extras["gcps"] if not str(r["id"]).startswith(AUTO_PREFIX)]
+        kept = replace(refined, gcps=tuple(g for g in refined.gcps or () if not g.id.startswith(AUTO_PREFIX)))
     else:
-        extras = dict(original_extras or {})
-    extras["refinement"] = block
-    write_camera_json(out_camera, result.camera, extras)
+        kept = replace(original, camera=result.camera) if original is not None else CalibratedCamera(result.camera)
+    replace(kept, refinement=block).write(out_camera)
 
 
-def refine_camera_files(camera_path: str | Path, frame: np.ndarray, ortho: str | Path | GeoRaster,
+def refine_camera_files(camera_path: CalibratedCamera | str | Path, frame: np.ndarray, ortho: str | Path | GeoRaster,
                         surface: str | Surface, out_camera: str | Path, *, gcps: str | Path | GCPTable | None = None,
                         report_path: str | Path | None = None, options: RefineOptions | None = None,
                         progress: Callable[[str], None] | None = None) -> OrthoRefinement:
-    """Refine the camera JSON at ``camera_path`` against ``frame`` (H, W, 3 BGR) with the orthophoto and surface
-    (objects, or paths / a surface spec as ``trafficgeo georef`` takes), write ``out_camera`` and, if given, the
-    report; see the module docstring. The user's GCPs come from ``gcps`` (a file in the camera's CRS or a table)
-    or else from the camera JSON."""
+    """Refine the camera JSON at ``camera_path`` (or a CalibratedCamera read from it) against ``frame`` (H, W, 3
+    BGR) with the orthophoto and surface (objects, or paths / a surface spec as ``trafficgeo georef`` takes), write
+    ``out_camera`` and, if given, the report; see the module docstring. The user's GCPs come from ``gcps`` (a file
+    in the camera's CRS or a table) or else from the camera JSON."""
     options = options or RefineOptions()
-    camera, doc = read_camera_document(camera_path)
-    where = str(camera_path)
+    calibrated = load_calibrated_camera(camera_path)
+    camera = calibrated.camera
     if gcps is None:
-        table, use = gcps_from_camera_document(doc, camera, where)
+        table, use = user_gcps(calibrated)
     else:
         table = gcps if isinstance(gcps, GCPTable) else read_gcps(gcps, crs=camera.crs)
         use = np.ones(table.n, dtype=bool)
@@ -160,10 +151,9 @@ def refine_camera_files(camera_path: str | Path, frame: np.ndarray, ortho: str |
         if raster.crs is not None and camera.crs is not None and not raster.crs.equals(camera.crs):
             raise InputError(f"{ortho}: the orthophoto's CRS is not the camera's ({camera.crs_text}); reproject it "
                              "(gdalwarp -t_srs) or calibrate in its CRS", parameters=("ortho",))
-    ground = surface if not isinstance(surface, str) else load_surface(surface, camera, doc, where=where)
-    model = model_from_names((doc.get("model") or {}).get("free_parameters"))
+    ground = surface if not isinstance(surface, str) else load_surface(surface, calibrated)
+    model = model_from_names(calibrated.model.free_parameters if calibrated.model is not None else None)
     result = refine_camera(camera, table, frame, raster, ground, model=model, use=use, options=options,
                            progress=progress)
-    original = {k: v for k, v in doc.items() if k not in camera_to_dict(camera) and k != "format"}
-    write_refinement(result, out_camera, frame, report_path=report_path, options=options, original_extras=original)
+    write_refinement(result, out_camera, frame, report_path=report_path, options=options, original=calibrated)
     return result

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.calibration.report import CalibrationReport, read_calibration_report
+from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.errors import InputError
 from trafficgeo.report import figures as F
 from trafficgeo.report.inputs import ReportInputs
@@ -49,8 +50,8 @@ class ReportContext:
     axes: F.MapAxes = field(default_factory=F.MapAxes)
     left_out: list[tuple[str, str]] = field(default_factory=list)
     used: list[tuple[str, str]] = field(default_factory=list)  # (what, file) for the header
-    camera: Any = None
-    doc: dict[str, Any] | None = None
+    camera: Any = None  # the Camera of ``calibrated``
+    calibrated: CalibratedCamera | None = None
     report: CalibrationReport | None = None
     gcps: pd.DataFrame | None = None
     grid: AccuracyGrid | None = None
@@ -132,9 +133,8 @@ def _load(b: ReportContext) -> None:
 
     inp = b.inputs
     if inp.camera is not None:
-        from trafficgeo.camera.io import read_camera_document
-
-        b.camera, b.doc = read_camera_document(inp.camera)
+        b.calibrated = CalibratedCamera.read(inp.camera)
+        b.camera = b.calibrated.camera
         b.used.append(("camera", str(inp.camera)))
     rep = inp.calibration_report
     if isinstance(rep, Path):
@@ -147,10 +147,10 @@ def _load(b: ReportContext) -> None:
         b.crs = parse_crs(crs_text)
     else:
         for run in inp.traffic:
-            if run.summary.get("crs"):
+            if run.summary.crs:
                 import pyproj
 
-                b.crs = pyproj.CRS.from_wkt(run.summary["crs"])
+                b.crs = pyproj.CRS.from_wkt(run.summary.crs)
                 break
     b.m_per_unit = metres_per_unit(b.crs)
     b.gcps = _gcp_table(b)
@@ -196,10 +196,10 @@ def _gcp_table(b: ReportContext) -> pd.DataFrame | None:
     if b.report is not None and b.report.gcps:
         g = pd.DataFrame([r.to_dict() for r in b.report.gcps])
     else:
-        rows = [r for r in (b.doc or {}).get("gcps") or [] if isinstance(r, dict)]
+        rows = (b.calibrated.gcps if b.calibrated is not None else None) or ()
         if not rows:
             return None
-        g = pd.DataFrame(rows)
+        g = pd.DataFrame([r.to_dict() for r in rows])
     for col in ("x", "y", "z", "u", "v", "u_proj", "v_proj", "error_px", "loo_error_px", "ground_error_m",
                 "loo_ground_error_m"):
         g[col] = pd.to_numeric(g[col], errors="coerce") if col in g.columns else np.nan
@@ -284,22 +284,22 @@ def _accuracy(b: ReportContext) -> None:
         b.grid = AccuracyGrid(values, r.bounds, r, band, f"{inp.accuracy} (band {names[band] or band + 1})")
         b.used.append(("accuracy map", str(inp.accuracy)))
         return
-    if b.camera is None or not (b.doc or {}).get("covariance"):
+    if b.calibrated is None or b.calibrated.covariance is None:
         why = ("no camera JSON" if b.camera is None else "the camera JSON has no covariance (write it with "
                "'trafficgeo calibrate')")
         if b.camera is not None or b.report is not None:
             b.skip("accuracy map", f"no accuracy.tif and {why}: run 'trafficgeo accuracy CAMERA --surface DEM -o "
                    "accuracy.tif' into the folder")
         return
-    from trafficgeo.geo.load import load_surface
     from trafficgeo.geo.mapping import camera_crs
     from trafficgeo.geo.raster import GeoRaster
-    from trafficgeo.geo.uncertainty import CameraCovariance, accuracy_grid
+    from trafficgeo.geo.uncertainty import accuracy_grid
+    from trafficgeo.site.surface import load_surface
 
     spec = str(inp.dem) if inp.dem is not None else "plane"
     try:
-        surf = load_surface(spec, b.camera, b.doc, where=str(inp.camera))
-        grid = accuracy_grid(b.camera, surf, CameraCovariance.from_document(b.doc, b.camera), pixel_sigma=1.0,
+        surf = load_surface(spec, b.calibrated)
+        grid = accuracy_grid(b.camera, surf, b.calibrated.covariance, pixel_sigma=1.0,
                              max_distance_m=250.0, max_cells=COMPUTED_ACCURACY_CELLS)
     except InputError as exc:
         if inp.dem is not None:

@@ -6,13 +6,15 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from trafficgeo.calibration.report import REPORT_FORMAT, CalibrationReport
 from trafficgeo.errors import InputError
 from trafficgeo.io.run_manifest import COMPARE_MANIFEST, MANIFEST, RunIncompleteError, RunManifest, verify_outputs
+from trafficgeo.traffic.run_folder import RunFolder
+from trafficgeo.traffic.run_records import CompareSummary, ProcessRecord, RunSummary
 
 CAMERA_NAMES = ("camera.json",)
 REPORT_NAMES = ("report.json", "calibration_report.json", "calibration.json")
@@ -27,14 +29,22 @@ SITE_NAMES = ("site.gpkg",)
 
 @dataclass(frozen=True)
 class TrafficRun:
-    """An ``analyze``/``process`` output folder: its ``summary.json`` and, for process runs, ``process.json``."""
+    """An ``analyze``/``process`` output folder (read through :class:`~trafficgeo.traffic.run_folder.RunFolder`):
+    its ``summary.json`` and, for process runs, ``process.json``, as typed records."""
 
     folder: Path
-    summary: dict[str, Any]
-    process: dict[str, Any] | None = None
+    summary: RunSummary
+    process: ProcessRecord | None = None
     compare: bool = False  # compare-sumo results are in the folder and match their manifest
     compare_problem: str | None = None  # why compare-sumo results in the folder are not used
     simulation: dict[str, Any] | None = None  # sumo-validate's record: the comparison is of a trafficgeo scenario
+    compare_summary: CompareSummary | None = None  # compare-sumo's compare_summary.json, when compare
+    run_folder: RunFolder | None = field(default=None, repr=False, compare=False)  # the checked folder, if read
+
+    @property
+    def run(self) -> RunFolder:
+        """The run folder, to read its tables (its manifest checked once)."""
+        return self.run_folder if self.run_folder is not None else RunFolder(self.folder)
 
 
 @dataclass(frozen=True)
@@ -121,24 +131,21 @@ def _traffic_runs(dirs: list[Path]) -> tuple[TrafficRun, ...]:
     for d in dirs:
         if (d / MANIFEST).is_file() or ((d / "summary.json").is_file() and (
                 (d / "vehicles.csv").is_file() or (d / "trajectories.csv").is_file())):
-            manifest = verify_outputs(d)  # refuses a half-written run or a mix of two runs' files
-            if not manifest.has("summary.json"):
+            run = RunFolder(d)  # its manifest refuses a half-written run or a mix of two runs' files
+            if not run.has("summary.json"):
                 continue
-            summary = read_json(d / "summary.json")
-            if not isinstance(summary, dict):
-                raise InputError(f"{d / 'summary.json'}: not a summary written by 'trafficgeo analyze'")
-            process = read_json(d / "process.json") if manifest.has("process.json") else None
-            compare, problem, simulation = False, None, None
+            summary, process = run.summary(), run.process()
+            compare, problem, simulation, compared = False, None, None, None
             if (d / "compare_counts.csv").is_file():
                 try:
                     found = verify_outputs(d, ("compare_counts.csv",), name=COMPARE_MANIFEST)
                     compare = found.has("compare_counts.csv")
                     simulation = _simulation_record(d, found)
+                    compared = run.compare_summary()
                 except RunIncompleteError:
                     problem = ("compare-sumo results incomplete or from an earlier run of this folder; run "
                                "'trafficgeo compare-sumo' again")
-            runs.append(TrafficRun(d, summary, process if isinstance(process, dict) else None, compare, problem,
-                                   simulation))
+            runs.append(TrafficRun(d, summary, process, compare, problem, simulation, compared, run))
     return tuple(runs)
 
 
@@ -180,7 +187,9 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
     traffic = _traffic_runs(dirs)
     if cam is None:  # a process run names its camera
         for run in traffic:
-            cam = _resolve((run.process or {}).get("camera"), [run.folder, root, run.folder.resolve().parent])
+            if run.process is None:
+                continue
+            cam = _resolve(run.process.camera, [run.folder, root, run.folder.resolve().parent])
             if cam is not None:
                 break
     extra = [cam.parent] if cam is not None and cam.parent.resolve() not in {d.resolve() for d in dirs} else []
@@ -217,11 +226,12 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
     time_s = 0.0
     if video_path is None:
         for run in traffic:
-            info = run.process or {}
-            video_path = _resolve(info.get("video"), [run.folder, root, run.folder.resolve().parent])
+            if run.process is None:
+                continue
+            video_path = _resolve(run.process.video, [run.folder, root, run.folder.resolve().parent])
             if video_path is not None:
-                start = (info.get("options") or {}).get("start_s")
-                time_s = float(start) if isinstance(start, int | float) and math.isfinite(start) else 0.0
+                start = run.process.options.start_s
+                time_s = start if start is not None and math.isfinite(start) else 0.0
                 break
     video_path = video_path or _find(site_dirs, VIDEO_NAMES)
     ortho_path = _given_file(ortho, "ortho", "give the orthophoto GeoTIFF") or _find(site_dirs, ORTHO_NAMES)
@@ -235,10 +245,11 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
 def _refine_report_of(camera: Path) -> tuple[Path | None, str | None]:
     """The refinement report a camera JSON's ``refinement.report`` key names beside it: (the file, None) when it
     exists, (None, the name) when it does not, (None, None) without such a key."""
-    doc = read_json(camera)
-    block = doc.get("refinement") if isinstance(doc, dict) else None
-    name = block.get("report") if isinstance(block, dict) else None
-    if not isinstance(name, str) or not name:
+    from trafficgeo.camera.calibrated import CalibratedCamera
+
+    verdict = CalibratedCamera.read(camera).refinement
+    name = verdict.report if verdict is not None else None
+    if not name:
         return None, None
     found = camera.parent / name
     return (found, None) if found.is_file() else (None, name)

@@ -57,19 +57,19 @@ def _verdict(rec: RefineRecord) -> Text:
 def _disagreement(b: ReportContext, rec: RefineRecord) -> str:
     """Why the camera JSON's ``refinement`` block does not describe this report (verdict, matches kept, RMS before
     and after), or "" when it does or the camera JSON has no such block."""
-    block = (b.doc or {}).get("refinement")
-    if not isinstance(block, dict):
+    block = b.calibrated.refinement if b.calibrated is not None else None
+    if block is None:
         return ""
     after = rec.after.rmse_m if rec.after is not None else float("nan")
     differ = []
     for key, mine in (("accepted", rec.accepted), ("matches_kept", rec.matches_kept),
                       ("before_rmse_m", rec.before.rmse_m), ("after_rmse_m", after)):
-        theirs = block.get(key)
+        theirs = getattr(block, key)
         if isinstance(mine, int):  # and bool
             same = theirs == mine and isinstance(theirs, bool) == isinstance(mine, bool)
         else:
-            same = (theirs is None and not np.isfinite(mine)) or (
-                isinstance(theirs, int | float) and not isinstance(theirs, bool) and abs(theirs - mine) <= 1e-3)
+            theirs = theirs if np.isfinite(theirs) else None  # null in the file
+            same = (theirs is None and not np.isfinite(mine)) or (theirs is not None and abs(theirs - mine) <= 1e-3)
         if not same:
             differ.append(f"{key} {theirs} against {num(mine, 4) if isinstance(mine, float) else mine}")
     if not differ:

@@ -7,11 +7,13 @@ metres.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
 from trafficgeo.calibration.report import CalibrationReport
+from trafficgeo.camera.calibrated import FitModel, PoseUncertainty
 from trafficgeo.report import figures as F
 from trafficgeo.report.blocks import Block, Heading, Part, Section, Text, figure, items, num, table
 from trafficgeo.report.context import ReportContext, frame_image
@@ -19,7 +21,8 @@ from trafficgeo.report.context import ReportContext, frame_image
 
 def calibration_sections(b: ReportContext) -> list[Section]:
     """The calibration section and the GCP section (none, and a note, without a camera or calibration report)."""
-    rep, doc, g = b.report, b.doc or {}, b.gcps
+    rep, g = b.report, b.gcps
+    cal = b.calibrated
     if rep is None and b.camera is None:
         b.skip("calibration", "no camera.json or calibration report.json found: pass --camera / --calibration-report "
                "(the outputs of 'trafficgeo calibrate')")
@@ -33,16 +36,16 @@ def calibration_sections(b: ReportContext) -> list[Section]:
     parts.append(_camera_table(b))
     if rep is not None:
         parts.append((Heading("Fit statistics"), _stats_table(rep, b)))
-    elif doc.get("stats"):
-        s = doc["stats"]
+    elif cal is not None and cal.stats is not None:
+        s = cal.stats
         parts.append((Heading("Fit statistics"), table(["quantity", "value", "unit"], [
-            ["control points / inliers", f"{s.get('n_control', '-')} / {s.get('n_inliers', '-')}", ""],
-            ["mean residual", s.get("mean_px"), "px"], ["RMSE", s.get("rmse_px"), "px"],
-            ["leave-one-out RMSE", s.get("loo_rmse_px"), "px"]])))
+            ["control points / inliers", f"{_or_dash(s.n_control)} / {_or_dash(s.n_inliers)}", ""],
+            ["mean residual", _finite(s.mean_px), "px"], ["RMSE", _finite(s.rmse_px), "px"],
+            ["leave-one-out RMSE", _finite(s.loo_rmse_px), "px"]])))
     if rep is not None:
         parts.append((Heading("Parameter uncertainty"), *_report_uncertainty_blocks(rep)))
-    elif doc.get("uncertainty"):
-        parts.append((Heading("Parameter uncertainty"), *_document_uncertainty_blocks(doc["uncertainty"])))
+    elif cal is not None and cal.uncertainty is not None:  # the camera JSON holds no per-parameter table
+        parts.append((Heading("Parameter uncertainty"), *_uncertainty_blocks([], [], False)))
     if rep is not None:
         if rep.outliers:
             parts.append((Heading("Outliers"), items([f"{o.id}: {o.reason}" for o in rep.outliers], "warn")))
@@ -99,7 +102,7 @@ def _gcp_section(b: ReportContext) -> Section:
 
 
 def _camera_table(b: ReportContext) -> Part:
-    rep, doc = b.report, b.doc or {}
+    rep, cal = b.report, b.calibrated
     if rep is not None:
         unc = rep.uncertainty
         ps: Any = unc.position_std_m
@@ -109,13 +112,13 @@ def _camera_table(b: ReportContext) -> Part:
         desc = model.description or ", ".join(model.free_parameters)
         reasons = list(model.reasons)
     else:  # the camera JSON's copy of the report's blocks
-        u_doc, m_doc = doc.get("uncertainty") or {}, doc.get("model") or {}
-        ps = u_doc.get("position_std_m") or [float("nan")] * 3
-        os_ = u_doc.get("orientation_std_deg") or {}
-        angles_std = (os_.get("heading"), os_.get("tilt"), os_.get("roll"))
-        focal_std = u_doc.get("focal_std_px")
-        desc = m_doc.get("description") or ", ".join(m_doc.get("free_parameters") or [])
-        reasons = [str(r) for r in m_doc.get("reasons") or []]
+        unc = (cal.uncertainty if cal is not None else None) or PoseUncertainty()
+        fit = (cal.model if cal is not None else None) or FitModel()
+        ps = unc.position_std_m or [float("nan")] * 3
+        angles_std = unc.orientation_std_deg or (None, None, None)
+        focal_std = unc.focal_std_px
+        desc = fit.description or ", ".join(fit.free_parameters or [])
+        reasons = list(fit.reasons or [])
     if b.camera is not None:
         pos, o, f = b.camera.position, b.camera.orientation, b.camera.focal_px
         dist, size = b.camera.dist, b.camera.image_size
@@ -179,11 +182,13 @@ def _report_uncertainty_blocks(rep: CalibrationReport) -> Part:
     return _uncertainty_blocks(params, high, unc.scaled_by_variance_factor)
 
 
-def _document_uncertainty_blocks(unc: dict[str, Any]) -> Part:
-    """The same from the camera JSON's ``uncertainty`` (which holds no per-parameter table: a note says so)."""
-    params = [(name, p.get("value"), p.get("std")) for name, p in (unc.get("parameters") or {}).items()]
-    high = [(h["a"], h["b"], h["correlation"]) for h in unc.get("high_correlations") or []]
-    return _uncertainty_blocks(params, high, bool(unc.get("scaled_by_variance_factor")))
+def _or_dash(value: Any) -> Any:
+    return "-" if value is None else value
+
+
+def _finite(value: float | None) -> float | None:
+    """A number for a table cell; None (an empty cell) where the file has none or null."""
+    return value if value is not None and math.isfinite(value) else None
 
 
 def _uncertainty_blocks(params: list[tuple[str, Any, Any]], high: list[tuple[str, str, float]], scaled: bool) -> Part:

@@ -20,14 +20,16 @@ import pandas as pd
 from trafficgeo.report import simulation_figures as SF
 from trafficgeo.report.blocks import Block, Heading, Part, Section, Text, figure, num, table
 from trafficgeo.report.context import ReportContext
-from trafficgeo.report.inputs import TrafficRun, read_json
+from trafficgeo.report.inputs import TrafficRun
 from trafficgeo.report.traffic_sections import (
     TABLE_ROWS,
     compare_counts_table,
     compare_speeds_table,
     flows_figure,
     read_table,
+    run_table,
 )
+from trafficgeo.traffic.run_records import TravelTimeSummary
 
 GEH_LIMIT = 5.0
 
@@ -72,19 +74,19 @@ def _what_was_simulated(rec: dict[str, Any]) -> Block:
     return table(["quantity", "value", "unit"], rows, caption="the SUMO scenario built from this run's counts")
 
 
-def _travel_times(tt: dict[str, Any]) -> Part:
-    rows = [[side, tt.get(f"{side}_n", "-"), (_float(tt.get(f"{side}_mean_s")), 1),
-             (_float(tt.get(f"{side}_median_s")), 1), (_float(tt.get(f"{side}_p85_s")), 1)]
-            for side in ("observed", "simulated")]
-    text = (f"Simulated minus observed mean: {num(tt.get('mean_difference_s'), 1)} s; KS distance of the two "
-            f"distributions {num(tt.get('ks_statistic'), 2)} (p {num(tt.get('ks_pvalue'), 3)}).")
-    return (Heading(f"Travel times from line {tt.get('from_line', '?')} to line {tt.get('to_line', '?')}", 4),
+def _travel_times(tt: TravelTimeSummary) -> Part:
+    rows = [["observed", tt.observed_n, (tt.observed_mean_s, 1), (tt.observed_median_s, 1), (tt.observed_p85_s, 1)],
+            ["simulated", tt.simulated_n, (tt.simulated_mean_s, 1), (tt.simulated_median_s, 1),
+             (tt.simulated_p85_s, 1)]]
+    text = (f"Simulated minus observed mean: {num(tt.mean_difference_s, 1)} s; KS distance of the two "
+            f"distributions {num(tt.ks_statistic, 2)} (p {num(tt.ks_pvalue, 3)}).")
+    return (Heading(f"Travel times from line {tt.from_line} to line {tt.to_line}", 4),
             table(["", "vehicles", "mean s", "median s", "85th pct s"], rows), Text(text))
 
 
-def _observed_crossings(folder: Path, rec: dict[str, Any], lines: set[str]) -> pd.DataFrame:
+def _observed_crossings(run: TrafficRun, rec: dict[str, Any], lines: set[str]) -> pd.DataFrame:
     """The run's crossings the comparison used: at the compared lines, within the simulated period."""
-    cr = read_table(folder / "crossings.csv")
+    cr = run_table(run, "crossings.csv")
     if cr is None or not len(cr):
         return pd.DataFrame(columns=["line", "lane", "speed_kmh"])
     t = pd.to_numeric(cr["time"], errors="coerce")
@@ -118,7 +120,7 @@ def simulation_section(b: ReportContext, run: TrafficRun, k: int, compare: pd.Da
     lines = set(compare["line"].astype(str))
     fig = None
     if sim_cross is not None and len(sim_cross):
-        fig = SF.observed_vs_simulated_speeds(_observed_crossings(run.folder, rec, lines), sim_cross)
+        fig = SF.observed_vs_simulated_speeds(_observed_crossings(run, rec, lines), sim_cross)
     if fig is not None:
         parts.append((figure(fig, "Spot speeds at the counting lines (km/h), observed (blue) and simulated (orange) "
                              "side by side, per line and lane with vehicles on both sides, on the same bins; KS: the "
@@ -128,13 +130,12 @@ def simulation_section(b: ReportContext, run: TrafficRun, k: int, compare: pd.Da
                "(simulated_crossings.csv empty or missing): run 'trafficgeo sumo-validate' again")
     if speeds is not None and len(speeds):
         parts.append((Heading("Spot speeds at the lines, observed vs simulated", 4), compare_speeds_table(speeds)))
-    doc = read_json(run.folder / "compare_summary.json") if (run.folder / "compare_summary.json").is_file() else {}
-    tt = doc.get("travel_times") if isinstance(doc, dict) else None
-    if isinstance(tt, dict) and tt and (_float(tt.get("observed_n")) > 0 or _float(tt.get("simulated_n")) > 0):
+    tt = run.compare_summary.travel_times if run.compare_summary is not None else None
+    if tt is not None and (tt.observed_n > 0 or tt.simulated_n > 0):
         parts.append(_travel_times(tt))
-    elif isinstance(tt, dict) and tt:
+    elif tt is not None:
         b.skip(f"travel times between lines ({name})", f"no vehicle, observed or simulated, crossed line "
-               f"{tt.get('from_line', '?')} and then line {tt.get('to_line', '?')}: simulate a longer period")
+               f"{tt.from_line} and then line {tt.to_line}: simulate a longer period")
     else:
         b.skip(f"travel times between lines ({name})", "the comparison has fewer than two counting lines")
     blocks: list[Block] = [Heading("Counts, observed vs simulated", 4), compare_counts_table(compare)]

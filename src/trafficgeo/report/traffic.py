@@ -6,7 +6,7 @@ from rich.console import Console
 from rich.table import Table
 
 from trafficgeo.traffic.analyze import TrafficResult, summary
-from trafficgeo.traffic.lines import MIN_FLOW_SHARE, flow_rule
+from trafficgeo.traffic.counts import MIN_FLOW_SHARE, flow_rule
 from trafficgeo.traffic.validation import Comparison
 
 
@@ -17,17 +17,17 @@ def _kmh(value: float) -> str:
 def print_analysis(analysis: TrafficResult, console: Console) -> None:
     """Totals and per-line counts of an ``analyze`` run."""
     s = summary(analysis)
-    t0, t1 = s["period_s"]
-    dropped = ", ".join(f"{k} {v}" for k, v in s["dropped_points"].items()) or "none"
-    speed = f"{s['mean_speed_kmh']:.1f} km/h" if s["mean_speed_kmh"] is not None else "-"
-    classes = ", ".join(f"{k or 'unknown'} {v}" for k, v in s["classes"].items())
-    console.print(f"{s['vehicles']} vehicles ({classes}) in {t1 - t0:.1f} s; {s['points']} track points, "
-                  f"{s['outlier_points']} rejected as outliers; not used: {dropped}")
+    t0, t1 = s.period_s
+    dropped = ", ".join(f"{k} {v}" for k, v in s.dropped_points.items()) or "none"
+    speed = f"{s.mean_speed_kmh:.1f} km/h" if s.mean_speed_kmh is not None else "-"
+    classes = ", ".join(f"{k or 'unknown'} {v}" for k, v in s.classes.items())
+    console.print(f"{s.vehicles} vehicles ({classes}) in {t1 - t0:.1f} s; {s.points} track points, "
+                  f"{s.outlier_points} rejected as outliers; not used: {dropped}")
     console.print(f"mean vehicle speed (speed_kmh: distance travelled over the well-calibrated window / its time): "
-                  f"{speed}; lane changes: {s['lane_changes']}")
+                  f"{speed}; lane changes: {s.lane_changes}")
     for text in analysis.warnings:
         console.print(f"[yellow]warning:[/yellow] {text}")
-    if s["crossings"]:
+    if s.crossings:
         table = Table(title="crossings per counting line")
         for col in ("line", "lane", "direction", "vehicles", "flow veh/h", "mean speed km/h"):
             table.add_column(col, justify="right")
@@ -35,11 +35,11 @@ def print_analysis(analysis: TrafficResult, console: Console) -> None:
         interval_s = float(analysis.options.get("interval_s", 60.0))  # type: ignore[arg-type]
         flows = bool(dur > 0 and flow_rule(dur, interval_s))
         cr = analysis.crossings
-        for row in s["crossings"]:
-            sel = cr[(cr["line"].astype(str) == row["line"]) & (cr["lane"].fillna("").astype(str) == row["lane"])
-                     & (cr["direction"] == row["direction"])] if len(cr) else cr
-            table.add_row(row["line"], row["lane"] or "-", f"{row['direction']:+d}", str(row["count"]),
-                          f"{row['count'] * 3600.0 / dur:.0f}" if flows else "-",
+        for row in s.crossings:
+            sel = cr[(cr["line"].astype(str) == row.line) & (cr["lane"].fillna("").astype(str) == row.lane)
+                     & (cr["direction"] == row.direction)] if len(cr) else cr
+            table.add_row(row.line, row.lane or "-", f"{row.direction:+d}", str(row.count),
+                          f"{row.count * 3600.0 / dur:.0f}" if flows else "-",
                           _kmh(sel["speed_kmh"].mean() if len(sel) else float("nan")))
         console.print(table)
         if not flows:
@@ -47,8 +47,8 @@ def print_analysis(analysis: TrafficResult, console: Console) -> None:
                           f"{MIN_FLOW_SHARE:.0%} of the {interval_s:g} s counting interval, too short to extrapolate "
                           "to an hour (counts.csv leaves flow_veh_h empty where an interval was observed for less "
                           f"than {MIN_FLOW_SHARE:.0%} of its length; observed_s says how long)")
-        if s["hidden_crossings"]:
-            console.print(f"{s['hidden_crossings']} of these crossings are of vehicles hidden behind a nearer one at "
+        if s.hidden_crossings:
+            console.print(f"{s.hidden_crossings} of these crossings are of vehicles hidden behind a nearer one at "
                           "the line, carried on from where they vanished ('hidden' in crossings.csv; --coast-hidden)")
 
 

@@ -18,15 +18,17 @@ from trafficgeo.errors import InputError
 from trafficgeo.report import figures as F
 from trafficgeo.report.blocks import Block, Heading, Part, Section, Table, Text, figure, items, num, table
 from trafficgeo.report.context import ReportContext
-from trafficgeo.report.inputs import TrafficRun, read_json
-from trafficgeo.traffic.lines import period_counts
+from trafficgeo.report.inputs import TrafficRun
+from trafficgeo.traffic.counts import period_counts
+from trafficgeo.traffic.run_records import ProcessRecord, RunSummary
 
 TABLE_ROWS = 200
 TEXT_COLUMNS = ("track_id", "class", "lane", "line", "source_track")
 
 
 def read_table(path: Path, text_cols: tuple[str, ...] = TEXT_COLUMNS) -> pd.DataFrame | None:
-    """A CSV table trafficgeo wrote (None when there is none), with ``text_cols`` as text ("" for empty).
+    """A CSV table trafficgeo wrote outside the run's schema (the comparison's ``compare_counts.csv``...; None when
+    there is none), with ``text_cols`` as text ("" for empty); the run's own tables: :func:`run_table`.
 
     Raises:
         InputError: the file is not a readable table.
@@ -42,6 +44,18 @@ def read_table(path: Path, text_cols: tuple[str, ...] = TEXT_COLUMNS) -> pd.Data
         if c in t.columns:
             t[c] = t[c].fillna("").astype(str)
     return t
+
+
+def run_table(run: TrafficRun, name: str) -> pd.DataFrame | None:
+    """The run's output table ``name`` (a table of :data:`trafficgeo.traffic.run_folder.SCHEMAS`) read through its
+    :class:`~trafficgeo.traffic.run_folder.RunFolder`, with the schema's dtypes; None when the run has none. No
+    column is required: a run written before a column existed still shows what it has.
+
+    Raises:
+        InputError: the file is not a readable table.
+    """
+    folder = run.run
+    return folder.table(name, required=()) if folder.has(name) else None
 
 
 def _layout(folder: Path, crs: Any) -> tuple[list[tuple[str, Any]], list[tuple[str, Any]]]:
@@ -72,10 +86,10 @@ def traffic_section(b: ReportContext, run: TrafficRun, k: int) -> Section:
     name = "." if str(rel) == "." else str(rel)
     kind = "process" if run.process is not None else "analyze"
     title = f"Traffic: {name}" if len(b.inputs.traffic) > 1 or name != "." else "Traffic"
-    points = read_table(run.folder / "trajectories.csv")
-    vehicles = read_table(run.folder / "vehicles.csv")
-    counts = read_table(run.folder / "counts.csv")
-    crossings = read_table(run.folder / "crossings.csv")
+    points = run_table(run, "trajectories.csv")
+    vehicles = run_table(run, "vehicles.csv")
+    counts = run_table(run, "counts.csv")
+    crossings = run_table(run, "crossings.csv")
     s = run.summary
     b.used.append((f"traffic run ({kind})", str(run.folder)))
     parts: list[Part] = [_run_summary(run, s)]
@@ -132,14 +146,13 @@ def traffic_section(b: ReportContext, run: TrafficRun, k: int) -> Section:
 
 def _comparison(b: ReportContext, run: TrafficRun, compare: pd.DataFrame) -> Part:
     """The ``compare-sumo`` results of a run: GEH of the counts, the flows figure, and speeds per line and lane."""
-    doc = read_json(run.folder / "compare_summary.json") if (run.folder / "compare_summary.json").is_file() else {}
-    counts = doc.get("counts", {}) if isinstance(doc, dict) else {}
+    counts = run.compare_summary.counts if run.compare_summary is not None else None
     out: list[Block] = [Heading("Observed vs simulated (compare-sumo)")]
-    if counts:
-        out.append(Text(f'{counts.get("rows", len(compare))} counts (line, lane, direction, interval): '
-                        f'{num(100.0 * float(counts.get("share_geh_below_5", float("nan"))), 1)} % with GEH < 5 '
-                        f'(the usual acceptance target is 85 %); observed {counts.get("total_observed", "")} '
-                        f'vehicles, simulated {counts.get("total_simulated", "")}.'))
+    if counts is not None:
+        out.append(Text(f'{counts.rows} counts (line, lane, direction, interval): '
+                        f'{num(100.0 * counts.share_geh_below_5, 1)} % with GEH < 5 '
+                        f'(the usual acceptance target is 85 %); observed {counts.total_observed} '
+                        f'vehicles, simulated {counts.total_simulated}.'))
     out.append(flows_figure(b, compare))
     out.append(compare_counts_table(compare))
     speeds = read_table(run.folder / "compare_speeds.csv")
@@ -180,26 +193,25 @@ def compare_speeds_table(speeds: pd.DataFrame) -> Table:
     return table([label for _, label in scols], srows)
 
 
-def _run_summary(run: TrafficRun, s: dict[str, Any]) -> Part:
-    period = s.get("period_s") or [float("nan"), float("nan")]
-    dropped = ", ".join(f"{k} {v}" for k, v in (s.get("dropped_points") or {}).items()) or "none"
-    classes = ", ".join(f"{k or 'unknown'} {v}" for k, v in (s.get("classes") or {}).items()) or "-"
-    opts = s.get("options") or {}
+def _run_summary(run: TrafficRun, s: RunSummary) -> Part:
+    period = s.period_s
+    dropped = ", ".join(f"{k} {v}" for k, v in s.dropped_points.items()) or "none"
+    classes = ", ".join(f"{k or 'unknown'} {v}" for k, v in s.classes.items()) or "-"
+    opts = s.options
     rows = [["folder", str(run.folder), ""],
             ["observed period", f"{num(period[0])} to {num(period[1])}", "s"],
-            ["vehicles", s.get("vehicles"), ""], ["classes", classes, ""],
-            ["track points / rejected as outliers", f"{s.get('points')} / {s.get('outlier_points')}", ""],
+            ["vehicles", s.vehicles, ""], ["classes", classes, ""],
+            ["track points / rejected as outliers", f"{s.points} / {s.outlier_points}", ""],
             ["points not used, by reason", dropped, ""],
             ["mean of the vehicles' speeds (speed_kmh: distance travelled over the well-calibrated window / its time)",
-             (s.get("mean_speed_kmh"), 1), "km/h"],
-            ["lane changes", s.get("lane_changes"), ""]]
+             (s.mean_speed_kmh, 1), "km/h"],
+            ["lane changes", s.lane_changes, ""]]
     for key, label, unit in (("interval_s", "counting interval", "s"),
                              ("pixel_sigma", "pixel noise of a track point", "px"),
                              ("max_metres_per_px", "points farther than this many metres per pixel not used", "m")):
         if key in opts:
             rows.append([label, opts[key], unit])
-    warns = s.get("warnings") or []
-    return table(["quantity", "value", "unit"], rows), items([str(w) for w in warns], "warn")
+    return table(["quantity", "value", "unit"], rows), items(list(s.warnings), "warn")
 
 
 def _q(a: np.ndarray, q: float) -> float:
@@ -244,11 +256,10 @@ def _vehicle_tables(v: pd.DataFrame) -> list[Table]:
     return out
 
 
-def _crossing_table(c: pd.DataFrame, s: dict[str, Any]) -> Table:
+def _crossing_table(c: pd.DataFrame, s: RunSummary) -> Table:
     """Per line, lane and direction over the whole observed period: count, flow, time- and space-mean speed and
-    mean headway (:func:`trafficgeo.traffic.lines.period_counts`), and the 85th percentile of the spot speeds."""
-    period = s.get("period_s") or [0.0, 0.0]
-    start, end = float(period[0]), float(period[1])
+    mean headway (:func:`trafficgeo.traffic.counts.period_counts`), and the 85th percentile of the spot speeds."""
+    start, end = s.period_s
     stats = period_counts(c if "class" in c.columns else c.assign(**{"class": ""}), start, end)
     p85 = {key: _q(sp[np.isfinite(sp) & (sp > 0)], 85) for key, sp in (
         (k, g["speed_kmh"].to_numpy(float)) for k, g in c.groupby(["line", "lane", "direction"], sort=True))}
@@ -278,14 +289,16 @@ def _counts_table(counts: pd.DataFrame) -> Part:
     return tuple(out)
 
 
-def _process_table(p: dict[str, Any]) -> Part:
-    opts = p.get("options") or {}
-    rows = [["video", p.get("video", "-"), ""], ["detector", opts.get("detector", "-"), ""],
-            ["start / end", f"{opts.get('start_s', '-')} / {opts.get('end_s') or 'end'}", "s"],
-            ["every n-th frame", opts.get("every", "-"), ""], ["detections", p.get("detections", "-"), ""],
-            ["track boxes", p.get("track_rows", "-"), ""], ["processing time", (p.get("seconds"), 1), "s"]]
-    detector = p.get("detector")
-    tiling = detector.get("tiling") if isinstance(detector, dict) else None
+def _process_table(p: ProcessRecord) -> Part:
+    def given(value: Any) -> Any:
+        return "-" if value is None else value
+
+    opts = p.options
+    rows = [["video", p.video, ""], ["detector", given(opts.detector), ""],
+            ["start / end", f"{given(opts.start_s)} / {opts.end_s or 'end'}", "s"],
+            ["every n-th frame", given(opts.every), ""], ["detections", given(p.detections), ""],
+            ["track boxes", given(p.track_rows), ""], ["processing time", (p.seconds, 1), "s"]]
+    tiling = p.tiling
     warns: list[str] = []
     if isinstance(tiling, dict):
         tiles = tiling.get("tiles") or []

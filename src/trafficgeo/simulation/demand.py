@@ -1,7 +1,7 @@
 """SUMO demand that reproduces observed counts: edge data, candidate routes, routeSampler, vehicle types.
 
 Times: observed time ``t`` (s, the run's clock) is SUMO time ``t + time_offset_s``. The observed crossings are
-counted per ``interval_s`` over ``[begin_s, end_s)`` (:func:`trafficgeo.traffic.lines.aggregate_counts`); each
+counted per ``interval_s`` over ``[begin_s, end_s)`` (:func:`trafficgeo.traffic.counts.aggregate_counts`); each
 line x lane x direction count goes to the SUMO edge it maps to (:mod:`trafficgeo.simulation.mapping`), the lanes of
 an edge are summed and, when several lines observe one edge, the first line along it gives its count
 (routeSampler wants one ``entered`` count per edge and interval; the others are reproduced by the simulation, or
@@ -41,7 +41,7 @@ from trafficgeo.errors import InputError
 from trafficgeo.simulation.mapping import LaneMapping
 from trafficgeo.simulation.tools import run_sumo_tool
 from trafficgeo.traffic.boxes import dimensions_for
-from trafficgeo.traffic.lines import aggregate_counts
+from trafficgeo.traffic.counts import aggregate_counts
 from trafficgeo.traffic.validation import ObservedRun
 
 __all__ = ["DemandCounts", "SampledDemand", "VehicleType", "candidate_routes", "candidates_for", "demand_xml",

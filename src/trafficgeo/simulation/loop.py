@@ -36,7 +36,7 @@ from trafficgeo.simulation.scenario import (
     run_scenario,
 )
 from trafficgeo.traffic.compare import GEH_LIMIT, count_summary
-from trafficgeo.traffic.lines import aggregate_counts
+from trafficgeo.traffic.counts import aggregate_counts
 from trafficgeo.traffic.validation import (
     Comparison,
     ObservedRun,

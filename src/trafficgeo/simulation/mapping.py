@@ -34,7 +34,8 @@ import shapely
 from trafficgeo.crs import crs_label, transform_xy
 from trafficgeo.errors import InputError
 from trafficgeo.io.sumo_net import NetLocation, _location, _same_projection
-from trafficgeo.traffic.lines import CountLine, _segment_crossings, counted_groups
+from trafficgeo.site.lines import CountLine
+from trafficgeo.traffic.counts import _segment_crossings, counted_groups
 from trafficgeo.traffic.validation import ObservedRun
 
 __all__ = ["MAX_DISTANCE_M", "LaneMapping", "MappingError", "SumoLaneCrossing", "map_observations",

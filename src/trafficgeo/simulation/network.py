@@ -41,7 +41,7 @@ from trafficgeo.crs import crs_label, is_geographic, metres_per_unit, parse_crs,
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_open, atomic_path, write_text_atomic
 from trafficgeo.simulation.tools import run_sumo_program
-from trafficgeo.traffic.lanes import Lanes, angle_between
+from trafficgeo.site.lanes import Lanes, angle_between
 
 __all__ = ["CORNER_DEG", "GAP_M", "STEP_M", "NetEdge", "SumoNet", "build_sumo_net", "copy_without_sumo_header",
            "proj_parameter", "sumo_number"]
@@ -332,7 +332,7 @@ def _read_lanes(lanes: Lanes | str | os.PathLike[str], crs: str | pyproj.CRS | N
         raise InputError(f"lanes {path}: lanes drawn in the image need a camera; give lane polygons in world "
                          "coordinates (a GIS file)", parameters=("lanes",))
     from trafficgeo.io.gis import read_gis
-    from trafficgeo.traffic.lanes import read_lanes
+    from trafficgeo.site.lanes import read_lanes
 
     gdf = read_gis(path)
     file_crs = parse_crs(gdf.crs) if gdf.crs is not None else None
@@ -362,7 +362,7 @@ def build_sumo_net(lanes: Lanes | str | os.PathLike[str], out_path: str | os.Pat
     """Build a georeferenced SUMO network (``out_path``, a ``.net.xml``) from lane polygons with directions.
 
     ``lanes``: a lanes file (GIS polygons with a ``bearing`` column, the layer ``trafficgeo`` reads) or
-    :class:`~trafficgeo.traffic.lanes.Lanes`; ``crs``: the projected CRS (metres) of the network (a file is
+    :class:`~trafficgeo.site.lanes.Lanes`; ``crs``: the projected CRS (metres) of the network (a file is
     reprojected to it; default the file's CRS; required for a Lanes object); ``speed_kmh``: the speed limit of
     every edge. See the module docstring for the rules. Nothing is written on error; the file appears whole.
 

@@ -42,7 +42,7 @@ from trafficgeo.simulation.demand import (
 )
 from trafficgeo.simulation.mapping import map_observations
 from trafficgeo.simulation.tools import run_sumo_program
-from trafficgeo.traffic.lines import check_interval
+from trafficgeo.traffic.counts import check_interval
 from trafficgeo.traffic.validation import ObservedRun, read_observed_run
 
 __all__ = [

@@ -30,12 +30,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from trafficgeo.calibration.params import camera_to_full, project_full
+from trafficgeo.calibration.params import project_full
+from trafficgeo.camera.calibrated import CameraCovariance
 from trafficgeo.camera.model import Camera
+from trafficgeo.camera.parameters import camera_to_full
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import pixels_to_world
 from trafficgeo.geo.surface import ConstantSurface
-from trafficgeo.geo.uncertainty import CameraCovariance
 from trafficgeo.synth.noisy_paths import ar1_noise, point_tracks
 from trafficgeo.traffic.speed import ScaleKnowledge
 from trafficgeo.traffic.tracks import ImageTracks

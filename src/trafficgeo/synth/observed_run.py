@@ -19,12 +19,13 @@ import shapely
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import parse_crs, transform_xy
 from trafficgeo.errors import InputError
+from trafficgeo.site.lanes import lanes_from_polygons
+from trafficgeo.site.lines import CountLine
 from trafficgeo.synth.sumo_scene import RoadSpec
 from trafficgeo.synth.sumo_world import Trajectories
 from trafficgeo.synth.world import lanes_layer
 from trafficgeo.traffic.analyze import TrafficResult, write_analysis
-from trafficgeo.traffic.lanes import lanes_from_polygons
-from trafficgeo.traffic.lines import CountLine, aggregate_counts, check_interval, find_crossings
+from trafficgeo.traffic.counts import aggregate_counts, check_interval, find_crossings
 
 __all__ = ["truth_run_folder"]
 

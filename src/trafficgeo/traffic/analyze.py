@@ -6,7 +6,7 @@ Outputs of :func:`write_analysis` (all written atomically):
   and speed (km/h) over the time seen, path length, length where estimated (speeds as in
   :mod:`trafficgeo.traffic.trajectories`);
 * ``counts.csv`` - per counting line, lane, direction and interval: counts (also per class), flow (veh/h),
-  time-mean and space-mean speed, headways and gaps (:func:`trafficgeo.traffic.lines.aggregate_counts`);
+  time-mean and space-mean speed, headways and gaps (:func:`trafficgeo.traffic.counts.aggregate_counts`);
 * ``crossings.csv`` - every vehicle at every line: time, direction, lane, speed; ``hidden`` is true for a vehicle
   that passed the line out of sight behind a nearer one, carried on from where it vanished
   (:mod:`trafficgeo.traffic.occlusion`, ``TrajectoryOptions.coast_hidden_s``);
@@ -26,12 +26,16 @@ import pandas as pd
 import pyproj
 import shapely
 
+from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.geo.mapping import Surface, camera_crs
-from trafficgeo.traffic.lanes import Lanes, lane_visits, main_lane
-from trafficgeo.traffic.lines import CountLine, aggregate_counts, find_crossings
+from trafficgeo.site.lanes import Lanes
+from trafficgeo.site.lines import CountLine
+from trafficgeo.traffic.counts import aggregate_counts, find_crossings
+from trafficgeo.traffic.lane_changes import lane_visits, main_lane
 from trafficgeo.traffic.occlusion import hidden_crossings
+from trafficgeo.traffic.run_records import LineCount, RunSummary
 from trafficgeo.traffic.speed import ScaleKnowledge, SpeedOptions, scale_drift_warning
 from trafficgeo.traffic.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions, WorldTracks, world_trajectories
@@ -163,10 +167,11 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
             options: TrajectoryOptions | None = None, progress=None, knowledge: ScaleKnowledge | None = None,
             speed_options: SpeedOptions | None = None) -> TrafficResult:
     """The whole analysis of one set of image tracks (see the module docstring). ``knowledge``: what the
-    calibration knows of its ground scale (:meth:`ScaleKnowledge.from_document` of the camera JSON; None for a
-    camera made by hand), which places each vehicle's headline speed (:mod:`trafficgeo.traffic.speed`)."""
-    from trafficgeo.traffic.lines import interval_edges
-    from trafficgeo.traffic.plausibility import check_camera_above_surface, lanes_warning
+    calibration knows of its ground scale (:meth:`ScaleKnowledge.from_camera` of the calibrated camera; None for
+    a camera made by hand), which places each vehicle's headline speed (:mod:`trafficgeo.traffic.speed`)."""
+    from trafficgeo.site.checks import check_camera_above_surface
+    from trafficgeo.traffic.counts import interval_edges
+    from trafficgeo.traffic.plausibility import lanes_warning
 
     check_camera_above_surface(camera, surface)
     opts = options or TrajectoryOptions()
@@ -206,19 +211,19 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
                     warnings=warnings)
 
 
-def analyze_tracks(camera: Camera | str | os.PathLike, surface: Surface | float | str | os.PathLike,
+def analyze_tracks(camera: CalibratedCamera | Camera | str | os.PathLike, surface: Surface | float | str | os.PathLike,
                    tracks: ImageTracks | pd.DataFrame | str | os.PathLike,
                    lanes: Lanes | str | os.PathLike | None = None,
                    lines: list[CountLine] | str | os.PathLike | None = None, *, interval_s: float = 60.0,
                    options: TrajectoryOptions | None = None, fps: float | None = None, resolution_m: float = 0.25,
                    progress=None, knowledge: ScaleKnowledge | None = None) -> TrafficResult:
     """Image tracks -> world trajectories, true speeds (km/h), lanes and counts at counting lines (``trafficgeo
-    analyze``). Each input is an object or a path (:mod:`trafficgeo.traffic.loading`): ``camera`` (camera JSON),
+    analyze``). Each input is an object or a path (:class:`trafficgeo.site.Site`): ``camera`` (camera JSON),
     ``surface`` (number, ``"plane"``, DEM or point cloud gridded at ``resolution_m`` m), ``tracks`` (table, tracks
     CSV or MOT file; ``fps`` when it has no time column), ``lanes`` and ``lines`` (GIS files or image CSVs). Counts
     per ``interval_s`` seconds; ``options`` for the trajectory smoother. What the calibration knows of its ground
-    scale (``knowledge``, which places the headline speeds) is read from the camera JSON; give it for a Camera
-    object. Nothing is written: see
+    scale (``knowledge``, which places the headline speeds) comes from a calibrated camera (its JSON or
+    :class:`~trafficgeo.camera.calibrated.CalibratedCamera`); give it for a bare Camera. Nothing is written: see
     :meth:`trafficgeo.traffic.run_folder.RunFolder.write_traffic`.
 
     >>> import pandas as pd, trafficgeo as tg
@@ -229,15 +234,15 @@ def analyze_tracks(camera: Camera | str | os.PathLike, surface: Surface | float 
     >>> len(result.vehicles) > 0, list(result.counts.columns[:3])
     (True, ['line', 'lane', 'direction'])
     """
-    from trafficgeo.traffic.loading import load_camera_document, load_layout, load_surface, load_tracks
+    from trafficgeo.site.site import Site
+    from trafficgeo.traffic.tracks import load_tracks
 
-    cam, doc = load_camera_document(camera)
-    surf = load_surface(surface, camera if doc is not None else cam, resolution_m=resolution_m)
-    lane_set, count_lines = load_layout(cam, surf, lanes, lines)
+    site = Site.load(camera, surface, lanes, lines, resolution_m=resolution_m)
     if knowledge is None:
-        knowledge = ScaleKnowledge.from_document(doc, cam, str(camera))
-    return analyze(cam, surf, load_tracks(tracks, fps=fps), lanes=lane_set, lines=count_lines, interval_s=interval_s,
-                   options=options, progress=progress, knowledge=knowledge)
+        knowledge = ScaleKnowledge.from_camera(site.camera)
+    return analyze(site.camera.camera, site.surface, load_tracks(tracks, fps=fps), lanes=site.lanes,
+                   lines=site.count_lines, interval_s=interval_s, options=options, progress=progress,
+                   knowledge=knowledge)
 
 
 # ------------------------------------------------------------------------------------------------ writing
@@ -270,28 +275,29 @@ def gis_layers(analysis: TrafficResult, crs: pyproj.CRS) -> list:
     return layers
 
 
-def summary(analysis: TrafficResult) -> dict[str, object]:
-    """Totals for the terminal and ``summary.json``."""
+def summary(analysis: TrafficResult, crs: pyproj.CRS | None = None) -> RunSummary:
+    """Totals for the terminal and ``summary.json`` (its record; ``crs``: the camera's, written as WKT)."""
     veh = analysis.vehicles
     c = analysis.counts
     # every line x lane x direction of the counts table, zeros too (a line nobody crossed is listed)
     per_line = (c.assign(line=c["line"].astype(str), lane=c["lane"].fillna("").astype(str))
                 .groupby(["line", "lane", "direction"], sort=True)["count"].sum() if len(c) else [])
-    return {
-        "period_s": list(analysis.period),
-        "vehicles": len(veh),
-        "points": len(analysis.points),
-        "dropped_points": analysis.dropped,
-        "outlier_points": int(analysis.points["outlier"].sum()) if len(analysis.points) else 0,
-        "mean_speed_kmh": float(veh["speed_kmh"].mean()) if veh["speed_kmh"].notna().any() else None,
-        "classes": {str(k): int(v) for k, v in veh["class"].value_counts().items()} if len(veh) else {},
-        "lane_changes": int(veh["lane_changes"].sum()) if len(veh) else 0,
-        "crossings": [{"line": str(k[0]), "lane": str(k[1]), "direction": int(k[2]), "count": int(v)}
-                      for k, v in (per_line.items() if len(per_line) else [])],
-        "hidden_crossings": int(analysis.crossings["hidden"].sum()) if "hidden" in analysis.crossings else 0,
-        "options": analysis.options,
-        "warnings": analysis.warnings,
-    }
+    return RunSummary(
+        period_s=(float(analysis.period[0]), float(analysis.period[1])),
+        vehicles=len(veh),
+        points=len(analysis.points),
+        dropped_points=analysis.dropped,
+        outlier_points=int(analysis.points["outlier"].sum()) if len(analysis.points) else 0,
+        mean_speed_kmh=float(veh["speed_kmh"].mean()) if veh["speed_kmh"].notna().any() else None,
+        classes={str(k): int(v) for k, v in veh["class"].value_counts().items()} if len(veh) else {},
+        lane_changes=int(veh["lane_changes"].sum()) if len(veh) else 0,
+        crossings=tuple(LineCount(str(k[0]), str(k[1]), int(k[2]), int(v))
+                        for k, v in (per_line.items() if len(per_line) else [])),
+        hidden_crossings=int(analysis.crossings["hidden"].sum()) if "hidden" in analysis.crossings else 0,
+        options=analysis.options,
+        warnings=tuple(analysis.warnings),
+        crs=crs.to_wkt() if crs is not None else None,
+    )
 
 
 def write_analysis(out_dir: str | Path, analysis: TrafficResult, camera: Camera, *, publish: bool = True
@@ -300,10 +306,11 @@ def write_analysis(out_dir: str | Path, analysis: TrafficResult, camera: Camera,
 
     The folder's run manifest (:mod:`trafficgeo.io.run_manifest`) is removed first and, with ``publish``, written
     last; a caller that adds files of its own (``process``) passes ``publish=False`` and publishes them all."""
-    from trafficgeo.io.atomic import write_csv_atomic, write_json_atomic
+    from trafficgeo.io.atomic import write_csv_atomic
     from trafficgeo.io.gis import write_gis
     from trafficgeo.io.run_manifest import begin_outputs, publish_outputs
     from trafficgeo.io.tables import write_point_table
+    from trafficgeo.traffic.run_folder import RunFolder
 
     out = begin_outputs(out_dir)
     crs = camera_crs(camera)
@@ -319,9 +326,7 @@ def write_analysis(out_dir: str | Path, analysis: TrafficResult, camera: Camera,
         write_gis(out / "trajectories.gpkg", layers, crs)
         write_gis(out / "trajectories.parquet", layers[:1], crs)
         written += [out / "trajectories.gpkg", out / "trajectories.parquet"]
-    doc = {**summary(analysis), "crs": crs.to_wkt() if crs is not None else None}
-    write_json_atomic(out / "summary.json", doc)
-    written.append(out / "summary.json")
+    written.append(RunFolder(out).write_summary(summary(analysis, crs)))
     for stale in {out / n for n in OUTPUT_FILES} - set(written):  # e.g. no GeoPackage without a CRS
         stale.unlink(missing_ok=True)
     if publish:

@@ -16,7 +16,7 @@ itself stops, give or take 0.5 s, it adds two and counts stay at 87.3 % instead 
 detector both rules give the same 99.1 %.
 
 Positions and velocities are in the CRS units of the points (``metres_per_unit`` gives metres, for the spacing
-rule of :func:`~trafficgeo.traffic.lines.find_crossings`), times in seconds; boxes are image pixels
+rule of :func:`~trafficgeo.traffic.counts.find_crossings`), times in seconds; boxes are image pixels
 ``x1, y1, x2, y2`` with y growing downwards.
 """
 
@@ -25,8 +25,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from trafficgeo.traffic.lanes import Lanes
-from trafficgeo.traffic.lines import CountLine, find_crossings
+from trafficgeo.site.lanes import Lanes
+from trafficgeo.site.lines import CountLine
+from trafficgeo.traffic.counts import find_crossings
 from trafficgeo.traffic.tracks import ImageTracks
 
 HIDDEN_COVER = 0.3  # fraction of an end's box that a nearer vehicle's box must cover for the end to be hidden

@@ -10,12 +10,19 @@ and units are defined once here (:data:`SCHEMAS`):
 ``counts.csv``                every line x lane x direction x interval, zeros too: counts, flow, speeds (:data:`COUNTS`)
 ``trajectories.csv``          one row per vehicle and frame, on the ground (:data:`TRAJECTORIES`)
 ``trajectories.gpkg/.parquet``the same as GIS layers (paths, points, lanes, count lines) when the camera has a CRS
-``summary.json``              totals, the options used and the CRS (WKT)
+``summary.json``              totals, the options used and the CRS (WKT) (:class:`~.run_records.RunSummary`)
 ``detections.csv``            ``process``: every detection box (:data:`DETECTIONS`)
 ``tracks.csv``                ``process``/``stitch``: the tracker's boxes (:data:`TRACKS`)
 ``process.json``              ``process``: the video, options, what was read, the detector's tile plan
+                              (:class:`~.run_records.ProcessRecord`)
 ``run.json``                  the manifest (:mod:`trafficgeo.io.run_manifest`): written last, checked by readers
+``compare_summary.json``      ``compare-sumo``: GEH and travel times (:class:`~.run_records.CompareSummary`), with
+                              the comparison's tables under its own manifest (``compare_run.json``)
 ============================  =========================================================================
+
+The JSON files are typed records (:mod:`trafficgeo.traffic.run_records`): :class:`RunFolder` writes them
+(:meth:`RunFolder.write_summary`, :meth:`~RunFolder.write_process`, :meth:`~RunFolder.write_compare_summary`) and
+reads them back (:meth:`RunFolder.summary`, :meth:`~RunFolder.process`, :meth:`~RunFolder.compare_summary`).
 
 Units: times in seconds of video (``time``, ``first_time``... from the video's start), speeds in km/h, lengths and
 distances in metres, ``x, y, z`` in the camera's CRS and its units (``"crs"`` below), pixel boxes in full-frame px
@@ -34,14 +41,15 @@ from typing import TYPE_CHECKING, Any
 import pandas as pd
 
 from trafficgeo.errors import InputError
-from trafficgeo.io.run_manifest import RunManifest, verify_outputs
+from trafficgeo.io.run_manifest import COMPARE_MANIFEST, RunManifest, verify_outputs
+from trafficgeo.traffic.run_records import CompareSummary, ProcessRecord, RunSummary
 
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera
     from trafficgeo.traffic.analyze import TrafficResult
 
 __all__ = ["COUNTS", "CROSSINGS", "DETECTIONS", "SCHEMAS", "TRACKS", "TRAJECTORIES", "VEHICLES", "Column",
-           "RunFolder", "TableSchema"]
+           "CompareSummary", "ProcessRecord", "RunFolder", "RunSummary", "TableSchema"]
 
 
 @dataclass(frozen=True)
@@ -241,8 +249,9 @@ RUN_HINT = "give the output folder of 'trafficgeo analyze' or 'trafficgeo proces
 
 
 class RunFolder:
-    """The output folder ``path`` of a run: write a run's results into it, or read a finished run's tables (checked
-    against the run's manifest: a folder whose run did not finish, or whose files changed since, is refused)."""
+    """The output folder ``path`` of a run: write a run's results into it, or read a finished run's tables and its
+    JSON files as typed records (checked against the run's manifest: a folder whose run did not finish, or whose
+    files changed since, is refused). The one writer and reader of a run's files."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -260,6 +269,26 @@ class RunFolder:
 
         self._manifest = None
         return write_analysis(self.path, result, camera, publish=publish)
+
+    def write_summary(self, summary: RunSummary) -> Path:
+        """Write ``summary.json`` (atomically); returns its path."""
+        return self._write_json("summary.json", summary.to_dict())
+
+    def write_process(self, record: ProcessRecord) -> Path:
+        """Write ``process.json`` (atomically); returns its path."""
+        return self._write_json("process.json", record.to_dict())
+
+    def write_compare_summary(self, summary: CompareSummary) -> Path:
+        """Write ``compare_summary.json`` (atomically); returns its path. The comparison's manifest is the
+        caller's (:func:`trafficgeo.traffic.validation.write_comparison`)."""
+        return self._write_json("compare_summary.json", summary.to_dict())
+
+    def _write_json(self, name: str, doc: dict[str, Any]) -> Path:
+        from trafficgeo.io.atomic import write_json_atomic
+
+        self.path.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(self.path / name, doc)
+        return self.path / name
 
     def publish(self, files: Iterable[str | Path], *, command: str) -> None:
         """Write the manifest listing ``files`` (names in the folder): the run is finished."""
@@ -294,23 +323,34 @@ class RunFolder:
             raise InputError(f"{name}: not a table of a run folder; one of {', '.join(SCHEMAS)}")
         return SCHEMAS[name].read(self._require(name), required=required)
 
-    def _json(self, name: str) -> dict[str, Any]:
-        p = self._require(name)
+    def _json(self, p: Path) -> Any:
         try:
-            doc = json.loads(p.read_text(encoding="utf-8"))
+            return json.loads(p.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, json.JSONDecodeError):
             raise InputError(f"{p}: not readable JSON; run trafficgeo again to write it") from None
-        if not isinstance(doc, dict):
-            raise InputError(f"{p}: not a {name} written by trafficgeo; run it again")
-        return doc
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> RunSummary:
         """``summary.json``: totals, options (``interval_s``, ...), ``period_s`` and ``crs`` (WKT or None)."""
-        return self._json("summary.json")
+        p = self._require("summary.json")
+        return RunSummary.from_dict(self._json(p), str(p))
 
-    def process_info(self) -> dict[str, Any] | None:
-        """``process.json`` of a ``process`` run (None for an ``analyze`` run)."""
-        return self._json("process.json") if self.has("process.json") else None
+    def process(self) -> ProcessRecord | None:
+        """``process.json`` of a ``process`` run (None for an ``analyze`` or ``stitch`` run)."""
+        if not self.has("process.json"):
+            return None
+        p = self.path / "process.json"
+        return ProcessRecord.from_dict(self._json(p), str(p))
+
+    def compare_summary(self) -> CompareSummary | None:
+        """``compare_summary.json`` of the ``compare-sumo`` results in the folder, checked against their own
+        manifest (``compare_run.json``; InputError when they are incomplete or changed); None without a
+        comparison, or one whose manifest does not list the file."""
+        if not (self.path / COMPARE_MANIFEST).is_file():
+            return None
+        if not verify_outputs(self.path, name=COMPARE_MANIFEST).has("compare_summary.json"):
+            return None
+        p = self.path / "compare_summary.json"
+        return CompareSummary.from_dict(self._json(p), str(p))
 
     def vehicles(self) -> pd.DataFrame:
         return self.table("vehicles.csv")

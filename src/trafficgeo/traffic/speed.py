@@ -36,11 +36,12 @@ import numpy as np
 import pandas as pd
 import shapely
 
+from trafficgeo.camera.calibrated import CalibratedCamera, CameraCovariance
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface, camera_crs
-from trafficgeo.geo.uncertainty import CameraCovariance, along_scale_sigma
+from trafficgeo.geo.uncertainty import along_scale_sigma
 
 BLOCK_POINTS = 8192  # points per block of the covariance propagation
 SHORTER_WINDOWS = (0.5, 0.75, 1.0)  # window lengths tried with knowledge, as fractions of the core
@@ -84,23 +85,14 @@ class ScaleKnowledge:
     control_xy: np.ndarray | None = None
 
     @classmethod
-    def from_document(cls, doc: dict[str, Any] | None, camera: Camera,
-                      where: str = "camera JSON") -> ScaleKnowledge | None:
-        """From a camera JSON document (``covariance`` block; ``gcps`` list: inlier control points); None for
-        no document or one with neither."""
-        if doc is None:
-            return None
-        cov = CameraCovariance.from_document(doc, camera, where)
-        rows = [r for r in doc.get("gcps") or [] if isinstance(r, dict) and r.get("role", "control") == "control"
-                and r.get("inlier", True)]
-        try:
-            xy = np.array([[float(r["x"]), float(r["y"])] for r in rows], dtype=np.float64).reshape(-1, 2)
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{where}: its gcps list is damaged ({exc}); re-run 'trafficgeo calibrate'") from None
+    def from_camera(cls, camera: CalibratedCamera) -> ScaleKnowledge | None:
+        """From what a calibrated camera knows (its covariance; its inlier control GCPs); None when it knows
+        neither (a camera made by hand)."""
+        xy = camera.control_xyz()[:, :2]
         xy = xy[np.all(np.isfinite(xy), axis=1)]
-        if cov is None and len(xy) < 3:
+        if camera.covariance is None and len(xy) < 3:
             return None
-        return cls(covariance=cov, control_xy=xy if len(xy) >= 3 else None)
+        return cls(covariance=camera.covariance, control_xy=xy if len(xy) >= 3 else None)
 
     def describe(self) -> str:
         """``covariance+gcps``, ``covariance``, ``gcps`` (what the headline speed's window is chosen by)."""

@@ -14,6 +14,7 @@ Each (frame, track) pair may appear once. Rows are returned sorted by track, the
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -144,3 +145,19 @@ def tracks_from_table(table: pd.DataFrame) -> ImageTracks:
                                else np.full(n, "", dtype=object)),
                        score=(df["score"].to_numpy(dtype=np.float64) if "score" in df.columns
                               else np.full(n, np.nan)))
+
+
+def load_tracks(tracks: ImageTracks | pd.DataFrame | str | os.PathLike, *, fps: float | None = None) -> ImageTracks:
+    """Image tracks as they are, from a table (``frame, time, track_id`` and boxes ``x1, y1, x2, y2`` or points
+    ``u, v``; ``tracks.csv`` of ``process``), or read from a tracks CSV or MOT file (``fps`` when it has no time)."""
+    if isinstance(tracks, ImageTracks):
+        return tracks
+    if isinstance(tracks, pd.DataFrame):
+        table = tracks.copy()
+        if "class" in table.columns:
+            table["class"] = table["class"].fillna("").astype(str)
+        return tracks_from_table(table)
+    if isinstance(tracks, str | os.PathLike):
+        return read_tracks(Path(tracks), fps=fps)
+    raise InputError(f"tracks: {type(tracks).__name__} is not ImageTracks, a table or the path of a tracks file",
+                     parameters=("tracks",))

@@ -22,6 +22,8 @@ import pyproj
 from trafficgeo.crs import crs_label
 from trafficgeo.errors import InputError
 from trafficgeo.io.run_manifest import verify_outputs
+from trafficgeo.site.lanes import Lanes, lanes_from_polygons
+from trafficgeo.site.lines import CountLine
 from trafficgeo.traffic.compare import (
     compare_counts,
     compare_speeds_by,
@@ -29,8 +31,7 @@ from trafficgeo.traffic.compare import (
     count_summary,
     travel_times,
 )
-from trafficgeo.traffic.lanes import Lanes, lanes_from_polygons
-from trafficgeo.traffic.lines import CountLine, aggregate_counts, counted_groups, find_crossings
+from trafficgeo.traffic.counts import aggregate_counts, counted_groups, find_crossings
 
 RUN_HINT = "give the output folder of 'trafficgeo analyze' or 'process' (a run folder)"
 
@@ -63,17 +64,16 @@ def read_observed_run(folder: str | Path) -> ObservedRun:
     run = RunFolder(d)
     manifest = verify_outputs(d, require=("summary.json", "counts.csv", "crossings.csv"))
     summary = run.summary()
-    try:
-        period = (float(summary["period_s"][0]), float(summary["period_s"][1]))
-        interval = float(summary["options"]["interval_s"])
-    except (KeyError, TypeError, ValueError, IndexError):
-        raise InputError(f"{d / 'summary.json'}: not a summary written by 'trafficgeo analyze'; run it again") from None
-    crs = pyproj.CRS.from_wkt(summary["crs"]) if summary.get("crs") else None
+    if summary.interval_s is None:
+        raise InputError(f"{d / 'summary.json'}: no options.interval_s; not a summary written by 'trafficgeo "
+                         "analyze', run it again")
+    crs = pyproj.CRS.from_wkt(summary.crs) if summary.crs else None
     counts = run.table("counts.csv", required=("line", "lane", "direction", "interval_start", "interval_end",
                                                 "count"))
     crossings = run.table("crossings.csv", required=("line", "track_id", "lane", "direction", "time"))
     lines, lanes = _layout_layers(d / "trajectories.gpkg") if manifest.has("trajectories.gpkg") else ([], None)
-    return ObservedRun(d, crs, period, interval, counts, crossings, lines, lanes, frozenset(manifest.files))
+    return ObservedRun(d, crs, summary.period_s, summary.interval_s, counts, crossings, lines, lanes,
+                       frozenset(manifest.files))
 
 
 def _layout_layers(gpkg: Path) -> tuple[list[CountLine], Lanes | None]:
@@ -151,8 +151,10 @@ def compare_with_simulation(observed: ObservedRun, simulated: pd.DataFrame, *,
 
 def write_comparison(out_dir: str | Path, comparison: Comparison, crs: pyproj.CRS | None) -> list[Path]:
     """``compare_counts.csv``, ``compare_speeds.csv``, ``simulated_crossings.csv`` and ``compare_summary.json``."""
-    from trafficgeo.io.atomic import write_csv_atomic, write_json_atomic
+    from trafficgeo.io.atomic import write_csv_atomic
     from trafficgeo.io.run_manifest import COMPARE_MANIFEST, begin_outputs, publish_outputs
+    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.traffic.run_records import CompareSummary
 
     out = begin_outputs(out_dir, COMPARE_MANIFEST)
     written = []
@@ -161,8 +163,7 @@ def write_comparison(out_dir: str | Path, comparison: Comparison, crs: pyproj.CR
         write_csv_atomic(out / name, table, float_format="%.4f")
         written.append(out / name)
     doc = {"counts": comparison.count_summary, "travel_times": comparison.travel_times, "crs": crs_label(crs)}
-    write_json_atomic(out / "compare_summary.json", doc)
-    written.append(out / "compare_summary.json")
+    written.append(RunFolder(out).write_compare_summary(CompareSummary.from_dict(doc, "the comparison")))
     publish_outputs(out, written, command="compare-sumo", name=COMPARE_MANIFEST)
     return written
 
@@ -183,7 +184,7 @@ def compare_with_sumo(run: ObservedRun | str | Path, fcd: str | Path, *, net: st
     """
     import math
 
-    from trafficgeo.traffic.lines import read_count_lines
+    from trafficgeo.site.lines import read_count_lines
 
     if not math.isfinite(time_offset_s):
         raise InputError(f"time_offset_s {time_offset_s}: give the simulation's time minus the observed time as a "

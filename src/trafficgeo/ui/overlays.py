@@ -19,7 +19,7 @@ from shapely.geometry import LineString, MultiLineString, Polygon
 from shapely.geometry.base import BaseGeometry
 
 from trafficgeo.camera.model import Camera
-from trafficgeo.geo.site import visible_footprint
+from trafficgeo.site.layers import visible_footprint
 from trafficgeo.ui.inputs import Orthophoto
 
 #: Grid lines wanted across the larger side of the visible ground.

@@ -27,8 +27,7 @@ import numpy as np
 from trafficgeo.calibration import CalibrationOptions, GCPTable, read_gcps
 from trafficgeo.calibration.gcps import ROLE_CHECK, ROLE_CONTROL, ROLES
 from trafficgeo.calibration.pipeline import required_points
-from trafficgeo.calibration.run import CalibrationRun, camera_extras
-from trafficgeo.camera.io import write_camera_json
+from trafficgeo.calibration.run import CalibrationRun, calibrated_camera
 from trafficgeo.crs import crs_label
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import to_json_safe
@@ -487,7 +486,7 @@ class Session:
         if run is None:
             raise ConflictError(f"no calibrated camera to save: {payload['message']}")
         try:
-            write_camera_json(path, run.calibration.camera, camera_extras(run.report, run.calibration))
+            calibrated_camera(run.calibration, run.report).write(path)
         except OSError as exc:
             raise SessionError(f"cannot write {path} ({exc.strerror or exc}); check the folder's permissions or "
                                "give another name") from None

@@ -43,9 +43,9 @@ import pandas as pd
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
-from trafficgeo.io.atomic import remove_stale_temporaries, write_csv_atomic, write_json_atomic
-from trafficgeo.traffic.lanes import Lanes
-from trafficgeo.traffic.lines import CountLine
+from trafficgeo.io.atomic import remove_stale_temporaries, write_csv_atomic
+from trafficgeo.site.lanes import Lanes
+from trafficgeo.site.lines import CountLine
 from trafficgeo.video.checkpoint import (
     CHECKPOINT_DIR,
     Checkpoint,
@@ -456,11 +456,16 @@ def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: Pro
     """``process.json``: what was processed (``video``, ``camera``: paths as given, or relative to ``out_dir``), how
     (the detector and time range asked for in ``options``), what was read (``read``: ``start_s``/``end_s`` of the
     frames decoded (s, the end of the last frame), ``frames``, and ``complete``: false when the video ended before
-    the asked end, e.g. a truncated file), and how fast (``seconds`` of wall clock)."""
-    doc = {"video": video, "camera": camera,
-           "options": {"detector": options.detector, "detector_format": options.detector_format,
-                       "start_s": options.start_s, "end_s": options.end_s, "every": options.every,
-                       "tiles": options.tiles, "tiling": options.tiling, "backend": options.backend,
-                       "tile_schedule": options.tile_schedule},
-           "detector": detector, "read": read, "seconds": seconds, "detections": detections, "track_rows": track_rows}
-    write_json_atomic(Path(out_dir) / "process.json", doc)
+    the asked end, e.g. a truncated file), and how fast (``seconds`` of wall clock). The file is the record
+    :class:`~trafficgeo.traffic.run_records.ProcessRecord`, written by the run folder."""
+    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.traffic.run_records import ProcessRecord, ProcessSettings, VideoRead
+
+    settings = ProcessSettings(detector=options.detector, detector_format=options.detector_format,
+                               start_s=options.start_s, end_s=options.end_s, every=options.every,
+                               tiles=options.tiles, tiling=options.tiling, backend=options.backend,
+                               tile_schedule=options.tile_schedule)
+    RunFolder(out_dir).write_process(ProcessRecord(
+        video=video, camera=camera, options=settings, detector=detector,
+        read=VideoRead(read["start_s"], read["end_s"], read["frames"], read["complete"]) if read is not None else None,
+        seconds=seconds, detections=detections, track_rows=track_rows))

@@ -3,7 +3,7 @@ track -> analyze, streaming and resumable, into a run folder) and :func:`stitch`
 time chunks of one video joined and analysed).
 
 Both write a :class:`~trafficgeo.traffic.run_folder.RunFolder` and return what they computed. Inputs are objects or
-paths (:mod:`trafficgeo.traffic.loading`). Times are seconds of video from its start.
+paths (:class:`trafficgeo.site.Site`). Times are seconds of video from its start.
 """
 
 from __future__ import annotations
@@ -19,13 +19,16 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
+from trafficgeo.site.lanes import Lanes
+from trafficgeo.site.lines import CountLine
+from trafficgeo.site.site import Site
+from trafficgeo.site.surface import check_resolution
 from trafficgeo.traffic.analyze import TrafficResult, analyze
-from trafficgeo.traffic.lanes import Lanes
-from trafficgeo.traffic.lines import CountLine, check_interval
-from trafficgeo.traffic.loading import check_resolution, load_camera_document, load_layout, load_surface
+from trafficgeo.traffic.counts import check_interval
 from trafficgeo.traffic.run_folder import RunFolder
 from trafficgeo.traffic.speed import ScaleKnowledge
 from trafficgeo.traffic.trajectories import TrajectoryOptions
@@ -99,7 +102,7 @@ def _what_was_read(video: Path, opts: ProcessOptions, read: dict, caught: list) 
             f"warning: read {got} of the asked {opts.start_s:g}-{asked:.2f} s; {why}")
 
 
-def process_video(video: PathLike, camera: Camera | PathLike, surface: Surface | float | PathLike,
+def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike, surface: Surface | float | PathLike,
                   out_dir: PathLike, lanes: Lanes | PathLike | None = None,
                   lines: Sequence[CountLine] | PathLike | None = None, *, options: ProcessOptions | None = None,
                   interval_s: float = 60.0, trajectory: TrajectoryOptions | None = None,
@@ -112,7 +115,7 @@ def process_video(video: PathLike, camera: Camera | PathLike, surface: Surface |
     the run folder ``out_dir`` (:mod:`trafficgeo.traffic.run_folder`). Resumes from the folder's checkpoint when run
     again with the same inputs (``restart`` to start over).
 
-    ``camera``, ``surface``, ``lanes``, ``lines``: objects or paths (:mod:`trafficgeo.traffic.loading`; the surface
+    ``camera``, ``surface``, ``lanes``, ``lines``: objects or paths (:class:`trafficgeo.site.Site`; the surface
     of a point cloud gridded at ``resolution_m`` m, ``surface_crs`` for a file without a CRS); ``options``: the
     detector, time range, frame step and checkpoints (:class:`~trafficgeo.video.pipeline.ProcessOptions`); counts
     per ``interval_s`` s; ``trajectory``: the smoother's options; ``roi``: a bool mask (H, W) or a mask image / CSV
@@ -137,10 +140,8 @@ def process_video(video: PathLike, camera: Camera | PathLike, surface: Surface |
     if annotate is not None and Path(annotate).suffix.lower() != ".mp4":
         raise InputError(f"annotate {annotate}: write the annotated video as .mp4", parameters=("annotate",))
     video = Path(video)
-    cam, doc = load_camera_document(camera)
-    surf = load_surface(surface, camera if doc is not None else cam, surface_crs=surface_crs,
-                        resolution_m=resolution_m)
-    lane_set, count_lines = load_layout(cam, surf, lanes, lines)
+    site = Site.load(camera, surface, lanes, lines, surface_crs=surface_crs, resolution_m=resolution_m)
+    cam, surf, lane_set, count_lines = site.camera.camera, site.surface, site.lanes, site.count_lines
     opts = settled_options(options or ProcessOptions(), video_info(video).fps)
     mask = roi
     if roi is not None and not isinstance(roi, np.ndarray):
@@ -173,7 +174,7 @@ def process_video(video: PathLike, camera: Camera | PathLike, surface: Surface |
 
         result = analyze(cam, surf, tracks_from_table(tracks), lanes=lane_set, lines=count_lines,
                          interval_s=interval_s, options=trajectory,
-                         knowledge=ScaleKnowledge.from_document(doc, cam, str(camera)))
+                         knowledge=ScaleKnowledge.from_camera(site.camera))
         plan_doc = detector_doc.get("tiling") or {}
         if plan_doc.get("line_warnings"):  # the counting lines too far for the detector: in summary.json too
             result = replace(result, warnings=[*plan_doc["line_warnings"], *result.warnings])
@@ -183,7 +184,7 @@ def process_video(video: PathLike, camera: Camera | PathLike, surface: Surface |
 
             annotate_video(video, annotate, tracks, result.points, camera=cam, lines=count_lines, surface=surf,
                            start_s=opts.start_s, end_s=opts.end_s, progress=annotate_progress)
-        write_run_info(out, video=str(video), camera=str(camera) if doc is not None else "", options=opts,
+        write_run_info(out, video=str(video), camera=site.camera.source, options=opts,
                        seconds=elapsed, detections=len(detections), track_rows=len(tracks), read=read_doc,
                        detector=detector_doc or None)
         finish_run(out)
@@ -200,18 +201,17 @@ def _chunk(folder: Path) -> tuple[pd.DataFrame, tuple[float, float], str | None]
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder; give the output folders of finished 'trafficgeo process' runs")
     table = run.tracks()
-    info = run.process_info() or {}
-    options = info.get("options") or {}
+    info = run.process()
     times = pd.to_numeric(table["time"], errors="coerce")
-    start, end = options.get("start_s"), options.get("end_s")
-    start = float(start) if isinstance(start, int | float) else float(times.min()) if times.notna().any() else 0.0
-    end = float(end) if isinstance(end, int | float) else float(times.max()) if times.notna().any() else start
-    video = Path(str(info["video"])).name if isinstance(info.get("video"), str) else None
+    start, end = (info.options.start_s, info.options.end_s) if info is not None else (None, None)
+    start = start if start is not None else float(times.min()) if times.notna().any() else 0.0
+    end = end if end is not None else float(times.max()) if times.notna().any() else start
+    video = Path(info.video).name if info is not None else None
     return table, (start, end), video
 
 
-def stitch(chunks: Sequence[PathLike], camera: Camera | PathLike, surface: Surface | float | PathLike,
-           out_dir: PathLike, lanes: Lanes | PathLike | None = None,
+def stitch(chunks: Sequence[PathLike], camera: CalibratedCamera | Camera | PathLike,
+           surface: Surface | float | PathLike, out_dir: PathLike, lanes: Lanes | PathLike | None = None,
            lines: Sequence[CountLine] | PathLike | None = None, *, interval_s: float = 60.0,
            resolution_m: float = 0.25, surface_crs: str | None = None,
            notice: Callable[[str], None] | None = None) -> TrafficResult:
@@ -240,16 +240,14 @@ def stitch(chunks: Sequence[PathLike], camera: Camera | PathLike, surface: Surfa
     for text in problems:
         if notice is not None:
             notice(f"warning: {text}")
-    cam, doc = load_camera_document(camera)
-    surf = load_surface(surface, camera if doc is not None else cam, surface_crs=surface_crs,
-                        resolution_m=resolution_m)
-    lane_set, count_lines = load_layout(cam, surf, lanes, lines)
+    site = Site.load(camera, surface, lanes, lines, surface_crs=surface_crs, resolution_m=resolution_m)
+    cam, surf = site.camera.camera, site.surface
     joined = stitch_tracks([read[k][0] for k in order])
     joined["class"] = joined["class"].fillna("")
     from trafficgeo.traffic.tracks import tracks_from_table
 
-    result = analyze(cam, surf, tracks_from_table(joined), lanes=lane_set, lines=count_lines, interval_s=interval_s,
-                     knowledge=ScaleKnowledge.from_document(doc, cam, str(camera)))
+    result = analyze(cam, surf, tracks_from_table(joined), lanes=site.lanes, lines=site.count_lines,
+                     interval_s=interval_s, knowledge=ScaleKnowledge.from_camera(site.camera))
     folder = RunFolder(out)
     written = folder.write_traffic(result, cam, publish=False)
     write_csv_atomic(out / "tracks.csv", joined, float_format="%.3f")

@@ -26,7 +26,7 @@ def scene():
     """(camera, surface, tracks table, count lines) of the reference run."""
     from trafficgeo.camera.model import Camera
     from trafficgeo.geo.surface import ConstantSurface
-    from trafficgeo.traffic.lines import CountLine
+    from trafficgeo.site.lines import CountLine
 
     df = pd.read_csv(DATA)
     df["track_id"] = df["Vehicle_ID"].astype(str) + "/" + df["v_length"].map("{:g}".format)

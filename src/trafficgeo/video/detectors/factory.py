@@ -21,8 +21,8 @@ from trafficgeo.video.detectors.sizes import SizeRules
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera
     from trafficgeo.geo.mapping import Surface
-    from trafficgeo.traffic.lanes import Lanes
-    from trafficgeo.traffic.lines import CountLine
+    from trafficgeo.site.lanes import Lanes
+    from trafficgeo.site.lines import CountLine
 
 
 # ---------------------------------------------------------------------------------------------------- factory

@@ -27,8 +27,8 @@ if TYPE_CHECKING:
 
     from trafficgeo.camera.model import Camera
     from trafficgeo.geo.mapping import Surface
-    from trafficgeo.traffic.lanes import Lanes
-    from trafficgeo.traffic.lines import CountLine
+    from trafficgeo.site.lanes import Lanes
+    from trafficgeo.site.lines import CountLine
     from trafficgeo.video.detectors.backends import BackendChoice
 
 BUILTIN = "nanodet"

@@ -1,4 +1,5 @@
-"""Counting lines (virtual detectors): where trajectories cross them, and counts, flows, speeds and headways.
+"""Counts at counting lines (virtual detectors; the lines: :mod:`trafficgeo.site.lines`): where trajectories
+cross them, and counts, flows, speeds and headways.
 
 A counting line is a polyline in the camera's CRS. A vehicle is counted once per line, at its first crossing, with
 
@@ -13,49 +14,17 @@ A line may be limited to some lanes with a ``lanes`` attribute (comma-separated 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
-import pyproj
-import shapely
 
-from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
-from trafficgeo.geo.mapping import Surface
-from trafficgeo.traffic.lanes import Lanes
-from trafficgeo.traffic.layout import feature_names, read_layout
+from trafficgeo.site.lanes import Lanes
+from trafficgeo.site.lines import CountLine
 
 CROSSING_COLUMNS = ["line", "track_id", "class", "lane", "direction", "time", "speed_kmh", "x", "y"]
 MIN_SPACING_M = 3.0  # m of travel: two crossings of one line closer than this are one vehicle (if also side by side)
 MIN_LATERAL_M = 1.75  # m along the line: crossings farther apart than this may be vehicles side by side
 DEFAULT_SPEED_MPS = 15.0  # m/s assumed for the spacing test when neither crossing has a speed
-
-
-@dataclass(frozen=True)
-class CountLine:
-    """A named counting line (CRS units); ``lanes`` limits it to those lanes (empty: all)."""
-
-    name: str
-    geometry: shapely.LineString
-    lanes: tuple[str, ...] = ()
-
-
-def read_count_lines(path: str | Path, *, crs: pyproj.CRS | None, camera: Camera | None = None,
-                     surface: Surface | None = None) -> list[CountLine]:
-    """Counting lines from a GIS file of lines or a CSV of lines drawn in the image."""
-    gdf = read_layout(path, "lines", crs=crs, camera=camera, surface=surface)
-    kinds = set(gdf.geometry.geom_type)
-    if not kinds <= {"LineString"}:
-        raise InputError(f"lines {path}: geometries are {', '.join(sorted(kinds))}; counting lines must be "
-                         "single lines (LineString)", parameters=("lines",))
-    names = feature_names(gdf, ("name", "line", "id"))
-    if len(set(names)) != len(names):
-        raise InputError(f"lines {path}: line names must be unique; got {', '.join(names)}", parameters=("lines",))
-    lanes = [tuple(s.strip() for s in str(v).split(",") if s.strip()) if isinstance(v, str) else ()
-             for v in (gdf["lanes"] if "lanes" in gdf.columns else [None] * len(gdf))]
-    return [CountLine(n, g, ln) for n, g, ln in zip(names, gdf.geometry, lanes, strict=True)]
 
 
 def _segment_crossings(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

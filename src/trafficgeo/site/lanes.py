@@ -1,6 +1,7 @@
-"""Lanes: polygons on the road, the lane of each trajectory point, and each vehicle's lanes and lane changes.
+"""Lanes: polygons on the road and the lane of each point (a vehicle's lanes over time:
+:mod:`trafficgeo.traffic.lane_changes`).
 
-Lanes come from :func:`trafficgeo.traffic.layout.read_layout` as either
+Lanes come from :func:`trafficgeo.site.layout.read_layout` as either
 
 * **polygons** - one per lane, named by a ``lane``/``name``/``id`` column (else ``1, 2, ...`` in file order), or
 * **boundary lines** - the lane lines and road edges, in any order and drawing direction. They are ordered across
@@ -29,7 +30,7 @@ import shapely
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
-from trafficgeo.traffic.layout import feature_names, read_layout
+from trafficgeo.site.layout import feature_names, read_layout
 
 
 @dataclass(frozen=True)
@@ -179,46 +180,3 @@ def _bearings(gdf, path: str | Path) -> list[float] | None:
                          "lane's direction of travel in degrees clockwise from north (or leave it empty)",
                          parameters=("lanes",))
     return list(values % 360.0)
-
-
-@dataclass(frozen=True)
-class LaneVisit:
-    """A stretch of a track in one lane: ``lane`` from ``start`` to ``end`` (s)."""
-
-    lane: str
-    start: float
-    end: float
-
-
-def lane_visits(time: object, lanes: object, *, min_dwell_s: float = 1.0) -> list[LaneVisit]:
-    """The lanes a track drove in, in order, ignoring points outside every lane and stays shorter than
-    ``min_dwell_s`` (jitter across a lane line is not a lane change). ``time`` (N,) s increasing."""
-    t = np.asarray(time, dtype=np.float64).reshape(-1)
-    lane = np.asarray(lanes, dtype=object).reshape(-1)
-    use = lane != ""
-    t, lane = t[use], lane[use]
-    if t.size == 0:
-        return []
-    change = np.flatnonzero(lane[1:] != lane[:-1]) + 1
-    starts = np.concatenate([[0], change])
-    ends = np.concatenate([change, [t.size]])
-    runs = [LaneVisit(str(lane[s]), float(t[s]), float(t[e - 1])) for s, e in zip(starts, ends, strict=True)]
-    longest = max(r.end - r.start for r in runs)
-    kept = [r for r in runs if r.end - r.start >= min(min_dwell_s, longest)]
-    merged: list[LaneVisit] = []
-    for r in kept:
-        if merged and merged[-1].lane == r.lane:
-            merged[-1] = LaneVisit(r.lane, merged[-1].start, r.end)
-        else:
-            merged.append(r)
-    return merged
-
-
-def main_lane(visits: list[LaneVisit]) -> str:
-    """The lane a vehicle spent the most time in (``""`` if none)."""
-    if not visits:
-        return ""
-    totals: dict[str, float] = {}
-    for v in visits:
-        totals[v.lane] = totals.get(v.lane, 0.0) + (v.end - v.start)
-    return max(totals, key=lambda k: totals[k])

@@ -1,0 +1,91 @@
+"""A site: the calibrated camera, the road surface, the lanes and the counting lines, loaded once.
+
+Each input is an object or what a user gives on the command line (a path, a number): ``Site.load("camera.json",
+"cloud.laz", lanes="lanes.gpkg", lines="lines.gpkg")`` and the same call with loaded objects build the same site.
+
+* ``camera`` - a :class:`~trafficgeo.camera.calibrated.CalibratedCamera`, a bare
+  :class:`~trafficgeo.camera.model.Camera` (knowing nothing of its calibration) or a camera JSON;
+* ``surface`` - see :func:`trafficgeo.site.surface.load_surface` (``"plane"`` needs the calibration's GCPs);
+* ``lanes``, ``lines`` - objects, a GIS file in world coordinates, or a CSV of lines drawn in the image
+  (``line,u,v``; mapped to the ground through the camera and surface).
+
+World geometry is in the camera's CRS and its units.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from trafficgeo.camera.calibrated import CalibratedCamera, load_calibrated_camera
+from trafficgeo.camera.model import Camera
+from trafficgeo.errors import InputError
+from trafficgeo.geo.mapping import Surface, camera_crs
+from trafficgeo.site.checks import check_camera_above_surface
+from trafficgeo.site.lanes import Lanes, read_lanes
+from trafficgeo.site.lines import CountLine, read_count_lines
+from trafficgeo.site.surface import load_surface
+
+PathLike = str | os.PathLike
+CameraLike = CalibratedCamera | Camera | PathLike
+
+
+@dataclass(frozen=True, eq=False)
+class Site:
+    """What a camera looks at: the calibrated ``camera``, the road ``surface`` (in the camera's CRS), and, when
+    given, the ``lanes`` and counting ``lines``."""
+
+    camera: CalibratedCamera
+    surface: Surface
+    lanes: Lanes | None = None
+    lines: tuple[CountLine, ...] | None = None
+
+    @classmethod
+    def load(cls, camera: CameraLike, surface: Surface | float | PathLike, lanes: Lanes | PathLike | None = None,
+             lines: Sequence[CountLine] | PathLike | None = None, *, surface_crs: str | None = None,
+             resolution_m: float = 0.25) -> Site:
+        """The site from objects or paths (see the module docstring), having checked that the camera is above the
+        surface (a surface in feet read as metres would map nothing). A point cloud is gridded at ``resolution_m``
+        m; ``surface_crs`` for a surface file without a CRS."""
+        calibrated = load_calibrated_camera(camera)
+        surf = load_surface(surface, calibrated, surface_crs=surface_crs, resolution_m=resolution_m)
+        check_camera_above_surface(calibrated.camera, surf)
+        found = load_lines(lines, calibrated.camera, surf)
+        return cls(calibrated, surf, load_lanes(lanes, calibrated.camera, surf),
+                   None if found is None else tuple(found))
+
+    @property
+    def count_lines(self) -> list[CountLine] | None:
+        """The counting lines as a list (None without lines)."""
+        return None if self.lines is None else list(self.lines)
+
+
+def load_camera(camera: CameraLike) -> Camera:
+    """A :class:`Camera` as it is, the camera of a CalibratedCamera, or read from the camera JSON at ``camera``."""
+    return load_calibrated_camera(camera).camera
+
+
+def load_lanes(lanes: Lanes | PathLike | None, camera: Camera, surface: Surface | None = None) -> Lanes | None:
+    """Lanes as they are, or read from a GIS file (polygons or boundary lines) or an image CSV (boundary lines
+    drawn in the frame, mapped through ``camera`` onto ``surface``); None stays None."""
+    if lanes is None or isinstance(lanes, Lanes):
+        return lanes
+    if not isinstance(lanes, str | os.PathLike):
+        raise InputError(f"lanes: {type(lanes).__name__} is neither Lanes nor the path of a lanes file",
+                         parameters=("lanes",))
+    return read_lanes(Path(lanes), crs=camera_crs(camera), camera=camera, surface=surface)
+
+
+def load_lines(lines: Sequence[CountLine] | PathLike | None, camera: Camera, surface: Surface | None = None
+               ) -> list[CountLine] | None:
+    """Counting lines as they are, or read from a GIS file or an image CSV (see :func:`load_lanes`)."""
+    if lines is None:
+        return None
+    if isinstance(lines, str | os.PathLike):
+        return read_count_lines(Path(lines), crs=camera_crs(camera), camera=camera, surface=surface)
+    out = list(lines)
+    if not all(isinstance(ln, CountLine) for ln in out):
+        raise InputError("lines: give CountLine objects or the path of a counting lines file", parameters=("lines",))
+    return out
