@@ -60,6 +60,7 @@ import pandas as pd
 
 from trafficgeo.camera.io import read_camera_json
 from trafficgeo.camera.model import Camera
+from trafficgeo.geo.cuboids import cuboid_boxes, dimensions_for
 from trafficgeo.geo.mapping import pixels_to_world
 from trafficgeo.geo.surface import ConstantSurface, PlaneSurface
 from trafficgeo.site.lanes import read_lanes
@@ -71,7 +72,7 @@ from trafficgeo.synth.noisy_paths import PathNoise, metres_per_px, noisy_road_tr
 from trafficgeo.synth.scoring import count_scores
 from trafficgeo.synth.world import WorldOptions, build_world, truth_lane_name
 from trafficgeo.traffic.analyze import analyze
-from trafficgeo.traffic.boxes import cuboid_boxes, dimensions_for, estimate_length, estimate_length_refit
+from trafficgeo.traffic.box_length import estimate_length, estimate_length_refit
 from trafficgeo.traffic.counts import find_crossings
 from trafficgeo.traffic.speed import scale_drift_warning
 from trafficgeo.traffic.tracks import ImageTracks, tracks_from_table

@@ -55,6 +55,7 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.camera.io import read_camera_json
+from trafficgeo.pipeline.run import process_video
 from trafficgeo.site.lanes import read_lanes
 from trafficgeo.site.lines import read_count_lines
 from trafficgeo.site.surface import load_surface
@@ -66,7 +67,6 @@ from trafficgeo.traffic.tracks import tracks_from_table
 from trafficgeo.video.detections import box_iou
 from trafficgeo.video.pipeline import TRACK_COLUMNS, ProcessOptions, settled_options
 from trafficgeo.video.reader import iter_frames, video_info
-from trafficgeo.video.run import process_video
 from trafficgeo.video.track import VehicleTracker
 
 ROOT = Path(__file__).resolve().parents[1]

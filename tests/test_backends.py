@@ -233,7 +233,8 @@ def test_process_tells_and_records_the_backend_and_the_estimate(no_openvino, tmp
                                                                tile_schedule: str) -> None:
     from test_video_learned import FLAT, lanes_along_y
     from trafficgeo.camera.model import Camera
-    from trafficgeo.video.pipeline import ProcessOptions, detect_and_track, write_run_info
+    from trafficgeo.pipeline.run import write_run_info
+    from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
     from video_support import write_two_car_video
 
     video = write_two_car_video(tmp_path / "v.mp4", 10, 1.0, rows=(60, 120), seed=2)

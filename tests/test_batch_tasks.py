@@ -53,8 +53,8 @@ def _run(ctx: BatchContext, *tasks: Task) -> list:
 @pytest.fixture(scope="module")
 def anchor(small_world: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
     """``process`` and a one-file batch (background detector) over the whole small-world video."""
+    from trafficgeo.pipeline.run import process_video
     from trafficgeo.video.pipeline import ProcessOptions
-    from trafficgeo.video.run import process_video
 
     root = tmp_path_factory.mktemp("batch_anchor")
     w = small_world
@@ -268,7 +268,7 @@ def test_killed_detect_resumes_and_ends_equal(small_world: Path, tmp_path: Path,
     straight = BatchContext(tmp_path / "straight", {"cam1": entry}, "EPSG:2949")
     _run(straight, det)
     ctx = BatchContext(tmp_path / "killed", {"cam1": entry}, "EPSG:2949")
-    real = batch_tasks.detect_and_track
+    real = batch_tasks.detect
 
     class Killed(Exception):
         pass
@@ -277,13 +277,13 @@ def test_killed_detect_resumes_and_ends_equal(small_world: Path, tmp_path: Path,
         if done == 120:
             raise Killed
 
-    monkeypatch.setattr(batch_tasks, "detect_and_track", lambda *a, **k: real(*a, **k, progress=kill))
+    monkeypatch.setattr(batch_tasks, "detect", lambda *a, **k: real(*a, **k, progress=kill))
     with pytest.raises(Killed):
         run_task(det, ctx)
     work = ctx.dataset / "_work" / "detect--cam1--whole" / ".checkpoint"
     assert len(list(work.glob("part*.npz"))) == 2  # 0-2 s and 2-4 s were kept
     notices: list[str] = []
-    monkeypatch.setattr(batch_tasks, "detect_and_track", lambda *a, **k: real(*a, **k, notice=notices.append))
+    monkeypatch.setattr(batch_tasks, "detect", lambda *a, **k: real(*a, **k, notice=notices.append))
     assert run_task(det, ctx).status == "done"
     assert any("resuming from 4.0 s" in n for n in notices)
     assert not (ctx.dataset / "_work").exists()

@@ -14,7 +14,7 @@ import shapely
 from cli_support import invoke
 from trafficgeo.camera.io import write_camera_json
 from trafficgeo.camera.model import Camera
-from trafficgeo.traffic.boxes import cuboid_boxes
+from trafficgeo.geo.cuboids import cuboid_boxes
 
 E0, N0, Z0 = 500000.0, 5000000.0, 100.0  # where conftest's roadside_camera stands (ROADSIDE_ORIGIN)
 CRS = "EPSG:32633"

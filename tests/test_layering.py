@@ -1,7 +1,7 @@
-"""The import layering docs/architecture.md states: camera -> calibration -> geo -> site -> traffic -> video ->
-synth/report/ui -> batch/demo -> cli, with errors, crs, groups and io at the bottom; no module imports a layer above
-its own (imports inside functions and under TYPE_CHECKING count too), and synth, report and ui do not import each
-other."""
+"""The import layering docs/architecture.md states: camera -> calibration -> geo -> site -> traffic / video
+(siblings) -> pipeline / simulation -> synth/report/ui -> batch/demo -> cli, with errors, crs, groups and io at the
+bottom; no module imports a layer above its own or a sibling (imports inside functions and under TYPE_CHECKING count
+too), and synth, report and ui do not import each other."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "trafficgeo"
 # Each top-level part of the package and its layer; a part may import only parts of a lower layer.
 LAYER = {"errors": 0, "crs": 1, "groups": 1, "io": 2, "camera": 3, "calibration": 4, "geo": 5, "site": 6, "traffic": 7,
-         "registration": 7, "video": 8, "simulation": 8,
+         "registration": 7, "video": 7, "simulation": 8, "pipeline": 8,
          "synth": 9, "report": 9, "ui": 9, "batch": 10, "demo": 10, "cli": 11, "__init__": 12}
 
 

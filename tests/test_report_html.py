@@ -20,11 +20,11 @@ import shapely
 from cli_support import invoke
 from trafficgeo.camera.io import read_camera_json
 from trafficgeo.camera.model import Camera
+from trafficgeo.geo.cuboids import cuboid_boxes
 from trafficgeo.geo.raster import write_geotiff
 from trafficgeo.io.run_manifest import COMPARE_MANIFEST, MANIFEST, publish_outputs
 from trafficgeo.report import figures as F
 from trafficgeo.report.html import build_page, build_report
-from trafficgeo.traffic.boxes import cuboid_boxes
 
 pytestmark = pytest.mark.slow  # its site fixture runs calibrate and analyze and renders full report pages
 

@@ -168,7 +168,7 @@ def test_an_unwritable_out_is_found_before_any_work(command: str, scene: dict[st
 
     # the modules that bind these names at import are patched first (and so restored to the real functions):
     # otherwise the first import, made while patched, would keep the stand-in for the rest of the session
-    for target in ("trafficgeo.video.run.analyze", "trafficgeo.traffic.analyze.analyze",
+    for target in ("trafficgeo.pipeline.run.analyze", "trafficgeo.traffic.analyze.analyze",
                    "trafficgeo.traffic.tracks.read_tracks",
                    "trafficgeo.video.pipeline.detect_and_track", "trafficgeo.traffic.validation.read_observed_run"):
         monkeypatch.setattr(target, no_work)

@@ -202,7 +202,8 @@ def test_a_comparison_summary_reads_back_typed(reference_run: dict) -> None:
 
 
 def test_process_json_of_the_pipeline_writer_reads_back_typed(tmp_path: Path) -> None:
-    from trafficgeo.video.pipeline import ProcessOptions, write_run_info
+    from trafficgeo.pipeline.run import write_run_info
+    from trafficgeo.video.pipeline import ProcessOptions
 
     opts = ProcessOptions(detector="background", start_s=1.5, end_s=6.0, every=2)
     read = {"start_s": 1.5, "end_s": 5.0, "frames": 88, "complete": False}

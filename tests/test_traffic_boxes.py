@@ -8,18 +8,11 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from trafficgeo.camera.model import Camera
+from trafficgeo.geo.cuboids import VEHICLE_DIMENSIONS, cuboid_boxes, cuboid_corners, dimensions_for, free_edges
 from trafficgeo.geo.surface import ConstantSurface, PlaneSurface
 from trafficgeo.synth.render import Boxes
-from trafficgeo.traffic.boxes import (
-    VEHICLE_DIMENSIONS,
-    box_ground_points,
-    cuboid_boxes,
-    cuboid_corners,
-    dimensions_for,
-    estimate_length,
-    estimate_length_refit,
-    free_edges,
-)
+from trafficgeo.traffic.box_length import estimate_length, estimate_length_refit
+from trafficgeo.traffic.box_points import box_ground_points
 
 E0, N0, Z0 = 500000.0, 4000000.0, 100.0
 SIZE = (1280, 720)
@@ -386,7 +379,7 @@ def test_length_in_a_us_feet_crs_is_the_metric_length():
 
 
 def test_box_derivatives_match_finite_differences():
-    from trafficgeo.traffic.cuboids import _Cuboids
+    from trafficgeo.geo.cuboids import Cuboids
 
     cam, surf = world_camera(), crossfall_road()
     rng = np.random.default_rng(4)
@@ -394,7 +387,7 @@ def test_box_derivatives_match_finite_differences():
     heading = rng.uniform(0.0, 360.0, n)
     xy = np.column_stack([rng.uniform(-6.0, 6.0, n), rng.uniform(15.0, 60.0, n)])
     dims = dimensions_for(rng.choice(["car", "van", "truck"], n))
-    model = _Cuboids.at(cam, surf, heading)
+    model = Cuboids.at(cam, surf, heading)
     _, j_xy, j_more = model.boxes_jac(xy, dims)
     e = 1e-5
 
@@ -407,7 +400,7 @@ def test_box_derivatives_match_finite_differences():
     for p in range(3):
         np.testing.assert_allclose(central(lambda d, p=p: model.boxes(xy, dims + d * np.eye(3)[p])), j_more[..., p],
                                    atol=2e-3 * np.abs(j_more[..., p]).max())
-    turned = central(lambda d: _Cuboids.at(cam, surf, heading + np.degrees(d)).boxes(xy, dims))
+    turned = central(lambda d: Cuboids.at(cam, surf, heading + np.degrees(d)).boxes(xy, dims))
     np.testing.assert_allclose(turned, j_more[..., 3], atol=2e-3 * np.abs(j_more[..., 3]).max())
 
 

@@ -11,8 +11,8 @@ import pytest
 
 import trafficgeo.traffic.trajectories as trajectories
 from trafficgeo.camera.model import Camera
+from trafficgeo.geo.cuboids import VEHICLE_DIMENSIONS, cuboid_boxes
 from trafficgeo.geo.surface import PlaneSurface
-from trafficgeo.traffic.boxes import VEHICLE_DIMENSIONS, cuboid_boxes
 from trafficgeo.traffic.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import world_trajectories
 

@@ -13,9 +13,9 @@ import shapely
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
+from trafficgeo.geo.cuboids import cuboid_boxes
 from trafficgeo.geo.surface import ConstantSurface
 from trafficgeo.site.lanes import Lanes
-from trafficgeo.traffic.boxes import cuboid_boxes
 from trafficgeo.video.detections import Detections
 from trafficgeo.video.detectors.factory import make_detector
 from trafficgeo.video.detectors.learned import SizeClasses, detector_plan

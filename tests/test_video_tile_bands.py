@@ -23,7 +23,7 @@ from test_video_tiling import (
     spaced_truth,
 )
 from trafficgeo.errors import InputError
-from trafficgeo.traffic.boxes import cuboid_boxes
+from trafficgeo.geo.cuboids import cuboid_boxes
 from trafficgeo.video.detections import Detections, box_iou
 from trafficgeo.video.detectors.tile_bands import input_hw_for, plan_bands
 from trafficgeo.video.detectors.tiling import LARGE_VEHICLE_M, TiledDetector, box_size_px, plan_tiles

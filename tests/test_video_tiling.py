@@ -14,9 +14,9 @@ from hypothesis import strategies as st
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
+from trafficgeo.geo.cuboids import cuboid_boxes
 from trafficgeo.geo.surface import ConstantSurface
 from trafficgeo.site.lanes import Lanes
-from trafficgeo.traffic.boxes import cuboid_boxes
 from trafficgeo.video.detections import Detections, box_iou
 from trafficgeo.video.detectors.tiling import (
     REFERENCE_CAR_M,

@@ -73,10 +73,10 @@ _API: dict[str, str] = {
     "drape_orthophoto": "trafficgeo.geo.drape",
     "background_frame": "trafficgeo.video.background_frame",
     # video
-    "process_video": "trafficgeo.video.run",
-    "ProcessResult": "trafficgeo.video.run",
+    "process_video": "trafficgeo.pipeline.run",
+    "ProcessResult": "trafficgeo.pipeline.run",
     "ProcessOptions": "trafficgeo.video.pipeline",
-    "stitch": "trafficgeo.video.run",
+    "stitch": "trafficgeo.pipeline.run",
     "make_detector": "trafficgeo.video.detectors.factory",
     "Detections": "trafficgeo.video.detections",
     # many cameras (batch)
@@ -176,6 +176,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.geo.drape import drape_orthophoto
     from trafficgeo.geo.mapping import GroundPoints, georeference
     from trafficgeo.geo.surface import ConstantSurface
+    from trafficgeo.pipeline.run import ProcessResult, process_video, stitch
     from trafficgeo.registration.refine import OrthoRefinement, RefineOptions, refine_camera
     from trafficgeo.simulation.loop import SumoLoopResult, SumoValidation, close_sumo_loop, validate_sumo_scenario
     from trafficgeo.simulation.network import SumoNet, build_sumo_net
@@ -193,4 +194,3 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.video.detections import Detections
     from trafficgeo.video.detectors.factory import make_detector
     from trafficgeo.video.pipeline import ProcessOptions
-    from trafficgeo.video.run import ProcessResult, process_video, stitch

@@ -286,10 +286,10 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     far road), track, analyze."""
     from rich.progress import BarColumn, Progress, TimeRemainingColumn
 
+    from trafficgeo.pipeline.run import process_video
     from trafficgeo.report.traffic import print_analysis
     from trafficgeo.synth.scoring import count_scores, detection_scores
     from trafficgeo.video.reader import video_info
-    from trafficgeo.video.run import process_video
 
     folder = out / "video"
     con.print(f"\n$ trafficgeo process {wdir / 'video.mp4'} --camera {out / 'camera.json'} --surface "

@@ -20,7 +20,7 @@ their times in **seconds since the camera's local midnight** of the partition's 
 (EPSG:4326) and a geometry in the dataset CRS: vehicles the smoothed path (LineString; a Point for a vehicle of one
 position), crossings the crossing point, counts the counting line, trajectories the smoothed position. ``x``,
 ``y`` (and ``x_obs``, ``y_obs``) are in the dataset CRS too; ``z`` stays in the camera's vertical unit. Counts
-always have ``count_<class>`` for the classes of :data:`~trafficgeo.traffic.cuboids.VEHICLE_DIMENSIONS` and
+always have ``count_<class>`` for the classes of :data:`~trafficgeo.geo.cuboids.VEHICLE_DIMENSIONS` and
 ``count_unknown`` (0 where none), so every file of a table has the same columns.
 """
 
@@ -280,7 +280,7 @@ def _conform(table: pd.DataFrame, schema_name: str) -> pd.DataFrame:
 def _class_counts(counts: pd.DataFrame) -> pd.DataFrame:
     """``count_<class>`` for every class of ``VEHICLE_DIMENSIONS`` and ``unknown`` (0 where none; all vehicles
     ``unknown`` when the analysis gave no class columns), extra classes kept."""
-    from trafficgeo.traffic.cuboids import VEHICLE_DIMENSIONS
+    from trafficgeo.geo.cuboids import VEHICLE_DIMENSIONS
 
     have = [c for c in counts.columns if c.startswith("count_")]
     out = counts.copy()

@@ -1,16 +1,16 @@
 """Running one task of a batch into the dataset (:mod:`trafficgeo.batch.dataset`), idempotently.
 
-* **detect** runs :func:`trafficgeo.video.pipeline.detect_and_track` over its window of the video in
+* **detect** runs the pipeline's :func:`~trafficgeo.pipeline.stages.detect` stage over its window of the video in
   ``DATASET/_work/<task>/`` (a retried task resumes from its checkpoint), then writes the window's detection boxes
-  and the frames read (``detections`` and ``frames`` tables, full precision, from the checkpoint's parts) and
-  removes the work folder.
+  and the frames read (``detections`` and ``frames`` tables, full precision, from the stage's
+  :class:`~trafficgeo.video.detections.DetectionFrames`) and removes the work folder.
 * **track** reads the frames and detections of the detect tasks it depends on, keeps those of its camera-day (local
   midnight to midnight), cuts them into *segments* where consecutive frames are more than ``max(1 s, 3 frame
-  steps)`` apart (or the frame rate changes), tracks each segment with a fresh
-  :class:`~trafficgeo.video.track.VehicleTracker` set up as the pipeline sets it up (``fps / every``; frame times
+  steps)`` apart (or the frame rate changes), tracks each segment with the
+  :func:`~trafficgeo.pipeline.stages.track` stage set up as the pipeline sets it up (``fps / every``; frame times
   only for variable-frame-rate video), so that a vehicle crossing from one file into the next stays one vehicle, and
-  analyses each segment with :func:`trafficgeo.traffic.analyze.analyze` (boxes rounded to 1/1000 px as ``process``
-  writes them in ``tracks.csv``, so that one file gives exactly ``process``'s results). Track ids are
+  analyses each segment with the :func:`~trafficgeo.pipeline.stages.analyze` stage (boxes rounded to 1/1000 px as
+  ``process`` writes them in ``tracks.csv``, so that one file gives exactly ``process``'s results). Track ids are
   ``<segment>-<tracker id>``, unique in the day. The analysis of a segment runs on seconds from an origin a whole
   number of counting intervals after local midnight, so count intervals start on the clock (whole minutes for 60 s);
   a segment gets counts of its own, so an interval a gap cuts in two appears twice, each with its observed part.
@@ -54,7 +54,8 @@ from trafficgeo.batch.day_report import report_path, write_day_report
 from trafficgeo.batch.model import BATCH_OPTIONS, CameraEntry, Task, TaskOutcome, task_folder, utc_text
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import write_json_atomic
-from trafficgeo.video.pipeline import ProcessOptions, detect_and_track, settled_options
+from trafficgeo.pipeline.stages import analyze, detect, track
+from trafficgeo.video.pipeline import ProcessOptions, settled_options
 
 __all__ = ["BatchContext", "is_done", "run_task", "task_key"]
 
@@ -284,7 +285,6 @@ def _site(entry: CameraEntry, *, lines: bool):
 
 # ------------------------------------------------------------------------------------------------ detect
 def _run_detect(task: Task, ctx: BatchContext, entry: CameraEntry, work: Path):
-    from trafficgeo.video.checkpoint import CHECKPOINT_DIR
     from trafficgeo.video.reader import video_info
 
     if task.video is None or not Path(task.video).is_file():
@@ -292,18 +292,16 @@ def _run_detect(task: Task, ctx: BatchContext, entry: CameraEntry, work: Path):
     video = Path(task.video)
     opts = process_options(entry, start_s=task.video_start_s, end_s=task.video_end_s)
     site = _site(entry, lines=entry.lanes is None)  # no lanes: lines plan the tiles
-    cam, surface, lane_set, count_lines = site.camera.camera, site.surface, site.lanes, site.count_lines
     info = video_info(video)
     opts = settled_options(opts, info.fps)
-    detect_and_track(video, cam, surface, work, opts, lanes=lane_set, lines=count_lines)
-    index, times, det = _checkpoint_rows(work / CHECKPOINT_DIR)
+    found = detect(video, site, work, opts)
+    index, times, row = found.frame_index, found.time_s, found.row
     file_start = task.start_utc - timedelta(seconds=task.video_start_s)
     frames = pd.DataFrame({"frame": index, "time_s": times, "time_utc": _utc(file_start, times),
-                           "detections": np.bincount(det["row"], minlength=index.size).astype(np.int32)})
-    boxes = pd.DataFrame({"frame": index[det["row"]], "time_s": times[det["row"]],
-                          "time_utc": _utc(file_start, times[det["row"]]),
-                          **dict(zip(BOX, det["box"].T, strict=True)), "score": det["score"],
-                          "class": det["class"].astype(object)})
+                           "detections": np.bincount(row, minlength=index.size).astype(np.int32)})
+    boxes = pd.DataFrame({"frame": index[row], "time_s": times[row], "time_utc": _utc(file_start, times[row]),
+                          **dict(zip(BOX, found.boxes.T, strict=True)), "score": found.scores,
+                          "class": found.classes.astype(object)})
     meta = {"fps": info.fps, "every": opts.every, "variable_frame_rate": bool(info.variable_frame_rate),
             "video": str(video), "file_start_utc": utc_text(file_start),
             "window_s": [task.video_start_s, task.video_end_s]}
@@ -319,25 +317,6 @@ def _utc(start: datetime, seconds: np.ndarray) -> pd.Series:
     micro = np.round(np.asarray(seconds, dtype=np.float64) * 1e6).astype(np.int64)
     return pd.Series(pd.Timestamp(start).as_unit("us") + pd.to_timedelta(micro, unit="us"),
                      dtype="datetime64[us, UTC]")
-
-
-def _checkpoint_rows(ck: Path) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-    """Frame indices, frame times (s) and detections (``row``: position of the frame) of a finished checkpoint."""
-    from trafficgeo.video.checkpoint import STATE_FILE, read_part
-
-    state = json.loads((ck / STATE_FILE).read_text(encoding="utf-8"))
-    if not state.get("complete"):
-        raise RuntimeError(f"{ck}: the detection did not finish")
-    parts = [read_part(ck, e).arrays for e in state["parts"]]
-    offsets = np.cumsum([0] + [p["frame_index"].size for p in parts])
-    cat = np.concatenate
-    index = cat([p["frame_index"] for p in parts]).astype(np.int64)
-    times = cat([p["frame_time"] for p in parts]).astype(np.float64)
-    det = {"row": cat([p["det_frame"] + o for p, o in zip(parts, offsets, strict=False)]).astype(np.int64),
-           "box": cat([p["det_box"].reshape(-1, 4) for p in parts]).astype(np.float64),
-           "score": cat([p["det_score"] for p in parts]).astype(np.float64),
-           "class": cat([p["det_class"].astype(str) for p in parts])}
-    return index, times, det
 
 
 # ------------------------------------------------------------------------------------------------ track
@@ -420,38 +399,32 @@ def _track_segment(frames: pd.DataFrame, dets: pd.DataFrame, rows: np.ndarray, e
                    segment: int) -> pd.DataFrame:
     """Track one segment as the pipeline does; the tracked boxes (``frame``: a frame number unique in the
     segment, ``file_frame``: the frame in its file, ``time_utc``)."""
-    from trafficgeo.video.detections import Detections
-    from trafficgeo.video.track import VehicleTracker
+    from trafficgeo.video.detections import DetectionFrames
 
     first = frames.iloc[rows[0]]
     fps, every, vfr = float(first["fps"]), int(first["every"]), bool(first["vfr"])
     opts = settled_options(process_options(entry), fps)
-    tracker = VehicleTracker(fps / every, opts.tracker)
     t_us = _micros(frames["time_utc"])[rows]
     seconds = (t_us - t_us[0]) / 1e6
     file_frame = frames["frame"].to_numpy()[rows]
     guess = file_frame[0] + np.round(seconds * fps).astype(np.int64)
     ramp = np.arange(rows.size)
     number = np.maximum.accumulate(guess - ramp) + ramp  # strictly increasing; the file's frames for one file
-    bounds = np.searchsorted(dets["row"].to_numpy(), np.append(rows, rows[-1] + 1), side="left")
-    boxes = dets[BOX].to_numpy(dtype=np.float64)
-    scores = dets["score"].to_numpy(dtype=np.float64)
-    classes = dets["class"].fillna("").astype(str).to_numpy(dtype=object)
-    out = []
-    for j in range(rows.size):
-        d = slice(bounds[j], bounds[j + 1])
-        tracked = tracker.update(Detections(boxes[d], scores[d], classes[d]), float(seconds[j]) if vfr else None)
-        if len(tracked):
-            out.append((j, tracked))
-    if not out:
+    det_rows = dets["row"].to_numpy()
+    lo, hi = np.searchsorted(det_rows, [rows[0], rows[-1] + 1], side="left")  # rows: one contiguous range
+    segment_frames = DetectionFrames(frame_index=file_frame, time_s=seconds, row=det_rows[lo:hi] - rows[0],
+                                     boxes=dets[BOX].to_numpy(dtype=np.float64)[lo:hi],
+                                     scores=dets["score"].to_numpy(dtype=np.float64)[lo:hi],
+                                     classes=dets["class"].fillna("").astype(str).to_numpy(dtype=object)[lo:hi])
+    tracked = track(segment_frames, fps / every, opts.tracker, variable_rate=vfr)
+    if not len(tracked):
         return pd.DataFrame()
-    j = np.concatenate([np.full(len(tr), k) for k, tr in out])
-    box = np.round(np.concatenate([tr.boxes for _, tr in out]).reshape(-1, 4), 3)
+    j = tracked["frame"].to_numpy()
     return pd.DataFrame({"frame": number[j], "file_frame": file_frame[j], "time_us": t_us[j],
-                         "track_id": [f"{segment}-{i}" for _, tr in out for i in tr.ids],
-                         **dict(zip(BOX, box.T, strict=True)),
-                         "score": np.round(np.concatenate([tr.scores for _, tr in out]), 3),
-                         "class": np.concatenate([tr.classes for _, tr in out]).astype(object)})
+                         "track_id": [f"{segment}-{i}" for i in tracked["track_id"]],
+                         **{c: np.round(tracked[c].to_numpy(dtype=np.float64), 3) for c in BOX},
+                         "score": np.round(tracked["score"].to_numpy(dtype=np.float64), 3),
+                         "class": tracked["class"].to_numpy(dtype=object)})
 
 
 def analysis_origin(first: datetime, midnight: datetime, interval_s: float) -> datetime:
@@ -462,7 +435,6 @@ def analysis_origin(first: datetime, midnight: datetime, interval_s: float) -> d
 
 
 def _run_track(task: Task, ctx: BatchContext, entry: CameraEntry):
-    from trafficgeo.traffic.analyze import analyze
     from trafficgeo.traffic.counts import check_interval
     from trafficgeo.traffic.tracks import tracks_from_table
 
@@ -471,10 +443,7 @@ def _run_track(task: Task, ctx: BatchContext, entry: CameraEntry):
     check_interval(interval_s)
     midnight, next_midnight = day_bounds(task.day, entry.timezone)
     site = _site(entry, lines=True)
-    cam, surface, lane_set, count_lines = site.camera.camera, site.surface, site.lanes, site.count_lines
-    from trafficgeo.traffic.speed import ScaleKnowledge
-
-    knowledge = ScaleKnowledge.from_camera(site.camera)
+    cam, lane_set, count_lines = site.camera.camera, site.lanes, site.count_lines
     frames, dets = _day_frames(task, ctx, midnight, next_midnight)
     results = []
     for k, rows in enumerate(_segments(frames) if frames is not None else []):
@@ -485,8 +454,7 @@ def _run_track(task: Task, ctx: BatchContext, entry: CameraEntry):
         origin = analysis_origin(first, midnight, interval_s)
         origin_us = (origin - datetime(1970, 1, 1, tzinfo=UTC)) // timedelta(microseconds=1)
         tracks["time"] = (tracks["time_us"].to_numpy() - origin_us) / 1e6
-        result = analyze(cam, surface, tracks_from_table(tracks), lanes=lane_set, lines=count_lines,
-                         interval_s=interval_s, knowledge=knowledge)
+        result = analyze(tracks_from_table(tracks), site, interval_s=interval_s)
         results.append((result, origin, tracks))
     day = merge_day(results, midnight, lane_set, count_lines)
     tables = day_tables(day, cam, ctx.crs, midnight, task.camera_id)

@@ -70,9 +70,9 @@ def process(
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from trafficgeo.cli.report import check_html_path
+    from trafficgeo.pipeline.run import process_video
     from trafficgeo.report.traffic import print_analysis
     from trafficgeo.video.pipeline import ProcessOptions
-    from trafficgeo.video.run import process_video
 
     _check_out_dir(out)
     check_html_path(report_html)
@@ -131,8 +131,8 @@ def stitch(
     resolution: ResolutionOpt = 0.25,
 ) -> None:
     """Join the tracks of time chunks of one video (processed apart, e.g. on several machines) and analyze them."""
+    from trafficgeo.pipeline.run import stitch as stitch_runs
     from trafficgeo.report.traffic import print_analysis
-    from trafficgeo.video.run import stitch as stitch_runs
 
     _check_out_dir(out)
     result = stitch_runs(chunks, camera, surface, out, lanes, lines, interval_s=interval, resolution_m=resolution,

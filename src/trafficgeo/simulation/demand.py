@@ -19,7 +19,7 @@ SUMO lane where it was seen) and, when its route starts on that edge, the lane o
 line of its first observed edge in its interval (drawn without replacement while there are enough), and departs at
 its desired speed. Drivers keep their desired speed (``sigma="0"``: no random dawdling), so that free-flowing
 simulated vehicles pass the lines at the observed speeds. Vehicle types: one ``vType`` per observed class (ids
-``car``, ``truck``, ...: the names :func:`trafficgeo.traffic.boxes.dimensions_for` knows, so that the comparison
+``car``, ``truck``, ...: the names :func:`trafficgeo.traffic.box_points.dimensions_for` knows, so that the comparison
 finds their lengths), length the median observed length (else the class's typical length), in a
 ``vTypeDistribution`` ``observed`` with the class shares of the observed crossings and a truncated normal
 ``speedFactor`` from the class's speeds, for vehicles that no observed vehicle was drawn for.
@@ -38,9 +38,9 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.errors import InputError
+from trafficgeo.geo.cuboids import dimensions_for
 from trafficgeo.simulation.mapping import LaneMapping
 from trafficgeo.simulation.tools import run_sumo_tool
-from trafficgeo.traffic.boxes import dimensions_for
 from trafficgeo.traffic.counts import aggregate_counts
 from trafficgeo.traffic.validation import ObservedRun
 

@@ -21,11 +21,11 @@ import cv2
 import numpy as np
 
 from trafficgeo.camera.model import Camera
+from trafficgeo.geo.cuboids import cuboid_corners
 from trafficgeo.geo.drape import drape_orthophoto as drape
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.geo.raster import GeoRaster
 from trafficgeo.synth.vehicle_mesh import BODY, GLASS, MATERIAL_RGB, Mesh, kind_name, place, vehicle_mesh
-from trafficgeo.traffic.boxes import cuboid_corners
 
 SUPERSAMPLE = 3
 SHADOW_DARKEN = 0.45  # the sun shadow removes this share of the light
@@ -52,7 +52,7 @@ class Boxes:
         return int(self.centre.shape[0])
 
     def corners(self) -> np.ndarray:
-        """World corners (N, 8, 3) (:func:`trafficgeo.traffic.boxes.cuboid_corners`)."""
+        """World corners (N, 8, 3) (:func:`trafficgeo.traffic.box_points.cuboid_corners`)."""
         return cuboid_corners(self.centre, self.heading_deg, self.length, self.width, self.height)
 
     def kinds(self) -> np.ndarray:

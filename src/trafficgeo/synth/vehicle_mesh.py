@@ -4,7 +4,7 @@ from their length, width and height, so that a learned (COCO) detector sees vehi
 A mesh is a list of flat convex polygons in the **vehicle frame** (metres): ``x`` forward from the footprint
 centre, ``y`` to the right, ``z`` up from the road; every vertex lies inside the cuboid
 ``|x| <= L/2, |y| <= W/2, 0 <= z <= H`` (the wheels touch ``z = 0``). :func:`place` puts meshes in the world with
-the convention of :func:`trafficgeo.traffic.boxes.cuboid_corners` (``heading_deg`` clockwise from north,
+the convention of :func:`trafficgeo.traffic.box_points.cuboid_corners` (``heading_deg`` clockwise from north,
 ``centre`` the footprint centre on the road, the vehicle level).
 
 Each polygon carries an outward normal (for back-face culling and Lambert shading), a material and a draw

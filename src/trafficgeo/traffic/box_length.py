@@ -1,5 +1,5 @@
 """One vehicle's length from its boxes in many frames: :func:`estimate_length` (centres and headings known) and
-:func:`estimate_length_refit` (fitted with the length); see :mod:`trafficgeo.traffic.boxes`."""
+:func:`estimate_length_refit` (fitted with the length); see :mod:`trafficgeo.traffic.box_points`."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import numpy as np
 import scipy.linalg
 
 from trafficgeo.camera.model import Camera
+from trafficgeo.geo.cuboids import Cuboids, cuboid_boxes, free_edges, units_per_metre
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.traffic.box_points import box_ground_points
-from trafficgeo.traffic.cuboids import _Cuboids, _units_per_metre, cuboid_boxes, free_edges
 
 
 # ---------------------------------------------------------------------------------------------------- length
@@ -80,7 +80,7 @@ def estimate_length(camera: Camera, centres: object, heading_deg: object, boxes:
     usable = np.isfinite(heading) & np.all(np.isfinite(c), axis=1)
     free = free_edges(camera, obs, border_px) & usable[:, None]
     free[:, 1] &= use_top
-    upm = _units_per_metre(camera)
+    upm = units_per_metre(camera)
 
     def predict(theta: np.ndarray) -> np.ndarray:
         return cuboid_boxes(camera, c, heading, *(theta * upm))
@@ -165,7 +165,7 @@ class _VehicleFit:
         self.camera, self.surface, self.obs, self.free, self.prior = camera, surface, obs, free, prior
         self.heading0 = np.unwrap(np.radians(heading_deg))  # no jumps at north: mean headings and turns
         self.pixel_sigma, self.refine = float(pixel_sigma), refine_heading
-        self.upm = _units_per_metre(camera)
+        self.upm = units_per_metre(camera)
         self.sizes = np.flatnonzero(~prior.fixed())
         self.m = obs.shape[0]
         self.prior_jac = np.zeros((2, 3))
@@ -179,7 +179,7 @@ class _VehicleFit:
         per-frame diagonal blocks D (M, q, q), blocks E (M-1, q, q) between neighbours, frame-size blocks
         C (M, q, k), the sizes' block G (k, k), and the gradients a (M, q) and g (k,) (J^T r)."""
         m, upm = self.m, self.upm
-        model = _Cuboids.at(self.camera, self.surface, np.degrees(h))
+        model = Cuboids.at(self.camera, self.surface, np.degrees(h))
         pred, j_xy, j_more = model.boxes_jac(xy, np.broadcast_to(theta * upm, (m, 3)))
         w = np.where(self.free, 1.0 / self.pixel_sigma, 0.0)  # (M, 4)
         r = np.where(self.free, pred - self.obs, 0.0) * w

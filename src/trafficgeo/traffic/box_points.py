@@ -1,5 +1,18 @@
-"""Footprint centres of vehicles from their image boxes: :func:`box_ground_points` (see
-:mod:`trafficgeo.traffic.boxes`)."""
+"""Vehicle ground points from image bounding boxes, corrected for the vehicle's 3-D extent.
+
+A detector gives a vehicle's axis-aligned image box ``(x1, y1, x2, y2)`` in pixels (OpenCV pixel-centre convention:
+pixel (0, 0) is the centre of the top-left pixel). The naive ground point, the box's bottom centre
+``((x1 + x2) / 2, y2)`` mapped to the road, is where the vehicle's *nearest bottom corner or edge* meets the road,
+not its footprint centre: it lies up to half the vehicle's length or width (1-2 m) towards the camera.
+
+With a calibrated camera, a road surface and the vehicle's heading (from its track), :func:`box_ground_points`
+models the vehicle as a level cuboid of typical size (:data:`trafficgeo.geo.cuboids.VEHICLE_DIMENSIONS`) and solves
+for the footprint centre whose projected cuboid matches the observed box's horizontal centre and bottom edge, the two
+box quantities least sensitive to the size being a bit wrong. :mod:`trafficgeo.traffic.box_length` recovers one
+vehicle's length from many frames.
+
+Conventions: :mod:`trafficgeo.geo.cuboids`.
+"""
 
 from __future__ import annotations
 
@@ -8,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from trafficgeo.camera.model import Camera
+from trafficgeo.geo.cuboids import Cuboids, cuboid_corners, free_edges, units_per_metre
 from trafficgeo.geo.mapping import Surface, pixels_to_world
-from trafficgeo.traffic.cuboids import _Cuboids, _units_per_metre, cuboid_corners, free_edges
 
 # Statuses of box_ground_points beyond those of pixels_to_world ("ok", "above_horizon", ...).
 NO_BOX = "no_box"  # the box is missing or not finite
@@ -82,14 +95,14 @@ def _norm(r: np.ndarray) -> np.ndarray:
 
 
 
-def _newton_centres(model: _Cuboids, xy: np.ndarray, dims: np.ndarray, T: np.ndarray, target: np.ndarray,
+def _newton_centres(model: Cuboids, xy: np.ndarray, dims: np.ndarray, T: np.ndarray, target: np.ndarray,
                     iterations: int, tol_px: float,
                     halvings: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Newton iterations on the footprint centres (N, 2) so that the cuboids' fitted box quantities (``T``, from
     :func:`_selection`) match ``target`` (N, 2) px, halving a step that does not reduce a row's residual. Rows
     stop once their residual is within ``tol_px``.
 
-    Returns the centres' (x, y), and at them the boxes, their derivatives (:meth:`_Cuboids.boxes_jac`) and the
+    Returns the centres' (x, y), and at them the boxes, their derivatives (:meth:`Cuboids.boxes_jac`) and the
     residual norms (px)."""
     n = xy.shape[0]
     xy = xy.copy()
@@ -200,7 +213,7 @@ def box_ground_points(camera: Camera, surface: Surface, boxes: object, heading_d
     residual_px = np.full(n, np.nan)
     fit = np.flatnonzero(status == "ok")
     if fit.size:
-        dims_u = dims_m[fit] * _units_per_metre(camera)
+        dims_u = dims_m[fit] * units_per_metre(camera)
         xyz_fit, converged, residual_fit = _fit_centres(camera, surface, b[fit], heading[fit], dims_u, naive[fit],
                                                         free[fit], iterations, tol_px)
         xyz[fit] = np.where(converged[:, None], xyz_fit, np.nan)
@@ -228,7 +241,7 @@ def _fit_centres(camera: Camera, surface: Surface, boxes: np.ndarray, heading: n
                  start: np.ndarray, free: np.ndarray, iterations: int,
                  tol_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fitted centres (N, 3), converged (N,) and all-edge RMS residuals (N,) px; ``dims`` in CRS units."""
-    model = _Cuboids.at(camera, surface, heading)
+    model = Cuboids.at(camera, surface, heading)
     T = _selection(free)
     # The box's bottom is the footprint's corner nearest the camera: start from its centre seen from there.
     ray = start[:, :2] - camera.position[:2]

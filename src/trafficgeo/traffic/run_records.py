@@ -3,7 +3,7 @@
 ============================  ==========================  ===================================================
 ``summary.json``              :class:`RunSummary`         ``analyze`` / ``process`` / ``stitch``
                                                           (:func:`trafficgeo.traffic.analyze.summary`)
-``process.json``              :class:`ProcessRecord`      ``process`` (:func:`trafficgeo.video.pipeline.write_run_info`)
+``process.json``              :class:`ProcessRecord`      ``process`` (:func:`trafficgeo.pipeline.run.write_run_info`)
 ``compare_summary.json``      :class:`CompareSummary`     ``compare-sumo`` / ``sumo-validate``
                                                           (:func:`trafficgeo.traffic.validation.write_comparison`)
 ============================  ==========================  ===================================================

@@ -16,7 +16,7 @@ curvature of the image-to-ground map, so it biases positions and speeds.
 
 With boxes, the bottom centre of a box is not the footprint centre (the lowest point of a vehicle is its nearest
 bottom corner). A second pass fits a level cuboid of the class's typical size, heading along the smoothed track,
-to each box (:mod:`trafficgeo.traffic.boxes`) and smooths again; it also estimates each vehicle's length where the
+to each box (:mod:`trafficgeo.traffic.box_points`) and smooths again; it also estimates each vehicle's length where the
 view allows.
 
 Speeds are along each point's direction of travel, the smoothed velocity's trend over ~+-2 s
@@ -439,7 +439,8 @@ def _fit_boxes(camera: Camera, surface: Surface, tracks: ImageTracks, heading: n
     succeeds. Where it fails, the bottom-centre point is up to half a vehicle off; it stays in its track only as
     a hint (the caller gives it a 100 m sigma) so that the smoother bridges it from its neighbours. Returns the
     success mask (N,) and the class dimensions used (N, 3) m."""
-    from trafficgeo.traffic.boxes import box_ground_points, dimensions_for
+    from trafficgeo.geo.cuboids import dimensions_for
+    from trafficgeo.traffic.box_points import box_ground_points
 
     dims = dimensions_for(_known_classes(tracks))
     good = np.zeros(len(tracks), dtype=bool)
@@ -456,9 +457,9 @@ def _fit_boxes(camera: Camera, surface: Surface, tracks: ImageTracks, heading: n
 def _vehicle_length(camera: Camera, surface: Surface, heading: np.ndarray, boxes: np.ndarray, dims: np.ndarray,
                     good: np.ndarray, opts: TrajectoryOptions, max_frames: int = 40) -> tuple[float, float]:
     """Length (m) and its 1-sigma (m) of one vehicle from up to ``max_frames`` of its boxes (NaN where the view
-    does not determine it, e.g. seen only from behind; see :func:`trafficgeo.traffic.boxes.estimate_length_refit`).
+    does not determine it, e.g. seen only from behind; see :func:`trafficgeo.traffic.box_points.estimate_length_refit`).
     The box's top edge is not used: real roofs are shorter than their vehicles."""
-    from trafficgeo.traffic.boxes import estimate_length_refit
+    from trafficgeo.traffic.box_length import estimate_length_refit
 
     idx = np.flatnonzero(good)
     if idx.size < 5:

@@ -98,11 +98,11 @@ def _layout_layers(gpkg: Path) -> tuple[list[CountLine], Lanes | None]:
 def simulated_points(fcd: str | Path, crs: pyproj.CRS | None, *, net: str | Path | None = None,
                      net_crs: str | None = None, time_offset_s: float = 0.0) -> pd.DataFrame:
     """SUMO FCD as track points in ``crs``: footprint centres (the front bumper moved back by half the typical
-    length of the vehicle's type, :data:`trafficgeo.traffic.boxes.VEHICLE_DIMENSIONS`; a car's for unknown
+    length of the vehicle's type, :data:`trafficgeo.traffic.box_points.VEHICLE_DIMENSIONS`; a car's for unknown
     types), times shifted to observed time."""
     from trafficgeo.crs import metres_per_unit
+    from trafficgeo.geo.cuboids import dimensions_for
     from trafficgeo.io.sumo import read_fcd
-    from trafficgeo.traffic.boxes import dimensions_for
 
     pts = read_fcd(fcd, net=net, crs=crs, net_crs=net_crs)
     half = 0.5 * dimensions_for(pts["class"].to_numpy())[:, 0] / metres_per_unit(crs)
@@ -204,9 +204,9 @@ def export_fcd(run: str | Path, output: str | Path, *, net: str | Path | None = 
     """Write a run's observed trajectories as SUMO FCD (``trafficgeo export-fcd``): front bumpers, m/s, in the
     run's CRS, or in the coordinates of the SUMO network ``net`` (``net_crs`` when its PROJ string is not enough),
     or lon/lat with ``geo`` (like ``sumo --fcd-output.geo``). Returns the number of points written."""
+    from trafficgeo.geo.cuboids import dimensions_for
     from trafficgeo.io.run_manifest import check_writable_file
     from trafficgeo.io.sumo import write_fcd
-    from trafficgeo.traffic.boxes import dimensions_for
     from trafficgeo.traffic.run_folder import RunFolder
 
     if Path(output).suffix.lower() != ".xml":

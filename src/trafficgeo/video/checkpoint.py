@@ -25,12 +25,15 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_open, write_json_atomic
+
+if TYPE_CHECKING:
+    from trafficgeo.video.detections import DetectionFrames
 
 CHECKPOINT_DIR = ".checkpoint"
 STATE_FILE = "state.json"
@@ -356,3 +359,27 @@ def _lock(fd: int) -> None:
         msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
         return
     fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def read_detections(out_dir: str | os.PathLike[str]) -> DetectionFrames:
+    """The detections over time of a finished run in ``out_dir``, read from its checkpoint (a run whose detection
+    did not finish, or whose checkpoint was removed when the run completed, is refused)."""
+    from trafficgeo.video.detections import DetectionFrames
+
+    ck = Path(out_dir) / CHECKPOINT_DIR
+    try:
+        state = json.loads((ck / STATE_FILE).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        state = None
+    if not isinstance(state, dict) or not state.get("complete") or not isinstance(state.get("parts"), list):
+        raise InputError(f"{ck}: no finished detection run here; run the detection again")
+    parts = [read_part(ck, e).arrays for e in state["parts"]]
+    offsets = np.cumsum([0] + [p["frame_index"].size for p in parts])
+    cat = np.concatenate
+    return DetectionFrames(
+        frame_index=cat([p["frame_index"] for p in parts]).astype(np.int64),
+        time_s=cat([p["frame_time"] for p in parts]).astype(np.float64),
+        row=cat([p["det_frame"] + o for p, o in zip(parts, offsets, strict=False)]).astype(np.int64),
+        boxes=cat([p["det_box"].reshape(-1, 4) for p in parts]).astype(np.float64),
+        scores=cat([p["det_score"] for p in parts]).astype(np.float64),
+        classes=cat([p["det_class"].astype(str) for p in parts]).astype(object))

@@ -125,3 +125,31 @@ def in_roi(roi: np.ndarray, points: np.ndarray, shape: tuple[int, int]) -> np.nd
     v = np.clip(uv[:, 1], 0, shape[0] - 1)
     return mask[v, u]
 
+
+
+@dataclass(frozen=True, eq=False)
+class DetectionFrames:
+    """Detections over time: every frame a run detected on, in order, and its detections (image px, pixel (0, 0) at
+    the centre of the top-left pixel). ``frame_index`` (N,) frame numbers in the video file, ``time_s`` (N,) s of
+    video (or of any clock, increasing); per detection ``row`` (M,) the position of its frame in ``frame_index``
+    (non-decreasing), ``boxes`` (M, 4) x1, y1, x2, y2, ``scores`` (M,) and ``classes`` (M,) names."""
+
+    frame_index: np.ndarray
+    time_s: np.ndarray
+    row: np.ndarray
+    boxes: np.ndarray
+    scores: np.ndarray
+    classes: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.frame_index.size)
+
+    def on_frame(self, j: int, bounds: np.ndarray | None = None) -> Detections:
+        """The detections of frame position ``j`` (``bounds``: :meth:`frame_bounds`, computed once by a loop)."""
+        b = self.frame_bounds() if bounds is None else bounds
+        d = slice(int(b[j]), int(b[j + 1]))
+        return Detections(self.boxes[d], self.scores[d], self.classes[d])
+
+    def frame_bounds(self) -> np.ndarray:
+        """(N + 1,) bounds: frame j's detections are rows ``bounds[j]:bounds[j + 1]``."""
+        return np.searchsorted(self.row, np.arange(len(self) + 1), side="left")

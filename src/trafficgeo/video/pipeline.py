@@ -66,7 +66,7 @@ if TYPE_CHECKING:
     from trafficgeo.video.detectors.schedule import TileSchedule
 
 __all__ = ["CHECKPOINT_DIR", "PRIME_S", "ProcessOptions", "detect_and_track", "finish_run", "hold_folder",
-           "write_run_info"]
+           ]
 
 DETECTION_COLUMNS = ["frame", "time", "x1", "y1", "x2", "y2", "score", "class"]
 TRACK_COLUMNS = ["frame", "time", "track_id", "x1", "y1", "x2", "y2", "score", "class"]
@@ -449,23 +449,3 @@ def finish_run(out_dir: str | Path) -> None:
     ck = Path(out_dir) / CHECKPOINT_DIR
     if ck.exists():
         shutil.rmtree(ck)
-
-
-def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: ProcessOptions, seconds: float,
-                   detections: int, track_rows: int, read: dict | None = None, detector: dict | None = None) -> None:
-    """``process.json``: what was processed (``video``, ``camera``: paths as given, or relative to ``out_dir``), how
-    (the detector and time range asked for in ``options``), what was read (``read``: ``start_s``/``end_s`` of the
-    frames decoded (s, the end of the last frame), ``frames``, and ``complete``: false when the video ended before
-    the asked end, e.g. a truncated file), and how fast (``seconds`` of wall clock). The file is the record
-    :class:`~trafficgeo.traffic.run_records.ProcessRecord`, written by the run folder."""
-    from trafficgeo.traffic.run_folder import RunFolder
-    from trafficgeo.traffic.run_records import ProcessRecord, ProcessSettings, VideoRead
-
-    settings = ProcessSettings(detector=options.detector, detector_format=options.detector_format,
-                               start_s=options.start_s, end_s=options.end_s, every=options.every,
-                               tiles=options.tiles, tiling=options.tiling, backend=options.backend,
-                               tile_schedule=options.tile_schedule)
-    RunFolder(out_dir).write_process(ProcessRecord(
-        video=video, camera=camera, options=settings, detector=detector,
-        read=VideoRead(read["start_s"], read["end_s"], read["frames"], read["complete"]) if read is not None else None,
-        seconds=seconds, detections=detections, track_rows=track_rows))

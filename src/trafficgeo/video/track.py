@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.detections import Detections
+from trafficgeo.video.detections import DetectionFrames, Detections
 
 
 @dataclass(frozen=True)
@@ -101,3 +101,18 @@ class VehicleTracker:
                             scores=(np.asarray(out.confidence)[keep] if out.confidence is not None
                                     else np.ones(int(keep.sum()))),
                             classes=names[np.where(cls >= 0, cls, len(self._classes))])
+
+
+def track_frames(frames: DetectionFrames, fps: float, options: TrackerOptions | None = None, *,
+                 variable_rate: bool = False) -> list[tuple[int, TrackedBoxes]]:
+    """Track stored detections over time with a fresh tracker, frame by frame as the pipeline does: ``fps`` is the
+    rate of the frames given (the video's fps / its frame step); with ``variable_rate`` the frames' ``time_s``
+    drive the motion model. Returns (frame position, tracked boxes) of every frame with confirmed tracks."""
+    tracker = VehicleTracker(fps, options)
+    bounds = frames.frame_bounds()
+    out = []
+    for j in range(len(frames)):
+        tracked = tracker.update(frames.on_frame(j, bounds), float(frames.time_s[j]) if variable_rate else None)
+        if len(tracked):
+            out.append((j, tracked))
+    return out

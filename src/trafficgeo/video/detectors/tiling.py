@@ -42,10 +42,10 @@ import shapely
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.errors import InputError
+from trafficgeo.geo.cuboids import VEHICLE_DIMENSIONS, cuboid_boxes
 from trafficgeo.geo.mapping import Surface, camera_crs, pixels_to_world, world_to_pixels
 from trafficgeo.site.lanes import Lanes
 from trafficgeo.site.lines import CountLine
-from trafficgeo.traffic.boxes import VEHICLE_DIMENSIONS, cuboid_boxes
 from trafficgeo.video.detections import check_roi
 from trafficgeo.video.detectors.tile_plan import (
     REFERENCE_CAR_M,

@@ -1,6 +1,6 @@
-"""The video entry points of the Python API: :func:`process_video` (``trafficgeo process``: decode -> detect ->
-track -> analyze, streaming and resumable, into a run folder) and :func:`stitch` (``trafficgeo stitch``: the runs of
-time chunks of one video joined and analysed).
+"""The run entry points of the Python API, composed of the stages of :mod:`trafficgeo.pipeline.stages`:
+:func:`process_video` (``trafficgeo process``: decode -> detect -> track -> analyze, streaming and resumable, into a
+run folder) and :func:`stitch` (``trafficgeo stitch``: the runs of time chunks of one video joined and analysed).
 
 Both write a :class:`~trafficgeo.traffic.run_folder.RunFolder` and return what they computed. Inputs are objects or
 paths (:class:`trafficgeo.site.Site`). Times are seconds of video from its start.
@@ -23,18 +23,18 @@ from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
+from trafficgeo.pipeline.stages import analyze
 from trafficgeo.site.lanes import Lanes
 from trafficgeo.site.lines import CountLine
 from trafficgeo.site.site import Site
 from trafficgeo.site.surface import check_resolution
-from trafficgeo.traffic.analyze import TrafficResult, analyze
+from trafficgeo.traffic.analyze import TrafficResult
 from trafficgeo.traffic.counts import check_interval
 from trafficgeo.traffic.run_folder import RunFolder
-from trafficgeo.traffic.speed import ScaleKnowledge
 from trafficgeo.traffic.trajectories import TrajectoryOptions
 from trafficgeo.video.pipeline import ProcessOptions
 
-__all__ = ["ProcessResult", "process_video", "stitch"]
+__all__ = ["ProcessResult", "process_video", "stitch", "write_run_info"]
 
 PathLike = str | os.PathLike
 
@@ -131,7 +131,7 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
     """
     from trafficgeo.io.run_manifest import begin_outputs, check_writable_folder
     from trafficgeo.video.checkpoint import hold_folder
-    from trafficgeo.video.pipeline import detect_and_track, finish_run, settled_options, write_run_info
+    from trafficgeo.video.pipeline import detect_and_track, finish_run, settled_options
     from trafficgeo.video.reader import VideoReadWarning, video_info
 
     out = Path(out_dir)
@@ -172,9 +172,7 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
             raise InputError(f"{video}: no vehicle was tracked; check the ROI, the time range and the detector")
         from trafficgeo.traffic.tracks import tracks_from_table
 
-        result = analyze(cam, surf, tracks_from_table(tracks), lanes=lane_set, lines=count_lines,
-                         interval_s=interval_s, options=trajectory,
-                         knowledge=ScaleKnowledge.from_camera(site.camera))
+        result = analyze(tracks_from_table(tracks), site, interval_s=interval_s, options=trajectory)
         plan_doc = detector_doc.get("tiling") or {}
         if plan_doc.get("line_warnings"):  # the counting lines too far for the detector: in summary.json too
             result = replace(result, warnings=[*plan_doc["line_warnings"], *result.warnings])
@@ -241,15 +239,32 @@ def stitch(chunks: Sequence[PathLike], camera: CalibratedCamera | Camera | PathL
         if notice is not None:
             notice(f"warning: {text}")
     site = Site.load(camera, surface, lanes, lines, surface_crs=surface_crs, resolution_m=resolution_m)
-    cam, surf = site.camera.camera, site.surface
     joined = stitch_tracks([read[k][0] for k in order])
     joined["class"] = joined["class"].fillna("")
     from trafficgeo.traffic.tracks import tracks_from_table
 
-    result = analyze(cam, surf, tracks_from_table(joined), lanes=site.lanes, lines=site.count_lines,
-                     interval_s=interval_s, knowledge=ScaleKnowledge.from_camera(site.camera))
+    result = analyze(tracks_from_table(joined), site, interval_s=interval_s)
     folder = RunFolder(out)
-    written = folder.write_traffic(result, cam, publish=False)
+    written = folder.write_traffic(result, site.camera.camera, publish=False)
     write_csv_atomic(out / "tracks.csv", joined, float_format="%.3f")
     folder.publish([*written, "tracks.csv"], command="stitch")
     return result
+
+
+def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: ProcessOptions, seconds: float,
+                   detections: int, track_rows: int, read: dict | None = None, detector: dict | None = None) -> None:
+    """``process.json``: what was processed (``video``, ``camera``: paths as given, or relative to ``out_dir``), how
+    (the detector and time range asked for in ``options``), what was read (``read``: ``start_s``/``end_s`` of the
+    frames decoded (s, the end of the last frame), ``frames``, and ``complete``: false when the video ended before
+    the asked end, e.g. a truncated file), and how fast (``seconds`` of wall clock). The file is the record
+    :class:`~trafficgeo.traffic.run_records.ProcessRecord`, written by the run folder."""
+    from trafficgeo.traffic.run_records import ProcessRecord, ProcessSettings, VideoRead
+
+    settings = ProcessSettings(detector=options.detector, detector_format=options.detector_format,
+                               start_s=options.start_s, end_s=options.end_s, every=options.every,
+                               tiles=options.tiles, tiling=options.tiling, backend=options.backend,
+                               tile_schedule=options.tile_schedule)
+    RunFolder(out_dir).write_process(ProcessRecord(
+        video=video, camera=camera, options=settings, detector=detector,
+        read=VideoRead(read["start_s"], read["end_s"], read["frames"], read["complete"]) if read is not None else None,
+        seconds=seconds, detections=detections, track_rows=track_rows))

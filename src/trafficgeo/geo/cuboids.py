@@ -1,8 +1,14 @@
 """Level vehicle cuboids: typical dimensions (metres), world corners, projected image boxes (px) and, for the
 fits in :mod:`trafficgeo.traffic.box_points` and :mod:`trafficgeo.traffic.box_length`, their derivatives.
 
-Conventions as in :mod:`trafficgeo.traffic.boxes` (world coordinates in the camera CRS's units, headings
-clockwise from grid north, corners front-left, front-right, rear-right, rear-left, bottom then top).
+Conventions (those of :mod:`trafficgeo.synth.render`, whose boxes :func:`cuboid_corners` builds):
+
+* World coordinates in the camera's CRS and its units (x east, y north, z up). Vehicle dimensions given in metres
+  are converted to CRS units with :func:`trafficgeo.crs.metres_per_unit` (US-foot CRSs exist).
+* ``heading_deg``: direction of travel, degrees clockwise from grid north.
+* A cuboid's ``centre`` is the centre of its footprint on the road; the cuboid is level (its bottom at the height of
+  the centre, even on a grade), ``length`` along the heading, ``width`` across it, ``height`` up.
+* Corners are ordered front-left, front-right, rear-right, rear-left, bottom (0-3) then top (4-7).
 """
 
 from __future__ import annotations
@@ -42,7 +48,7 @@ def dimensions_for(classes: object) -> np.ndarray:
     return table[inverse.reshape(-1)]
 
 
-def _units_per_metre(camera: Camera) -> float:
+def units_per_metre(camera: Camera) -> float:
     """CRS units in one metre for the camera's CRS (1 without a CRS)."""
     crs = camera_crs(camera)
     return 1.0 / (metres_per_unit(crs) if crs is not None else 1.0)
@@ -94,7 +100,7 @@ _EDGE_COMPONENT = np.array([0, 1, 0, 1])  # x1, y1, x2, y2 are extremes of u, v,
 
 
 @dataclass(frozen=True)
-class _Cuboids:
+class Cuboids:
     """Level cuboids standing on ``surface`` in N frames at fixed headings: their boxes as functions of the
     footprint centres' (x, y) and of the dimensions, with derivatives.
 
@@ -110,17 +116,17 @@ class _Cuboids:
     step: float
 
     @classmethod
-    def at(cls, camera: Camera, surface: Surface, heading_deg: np.ndarray) -> _Cuboids:
+    def at(cls, camera: Camera, surface: Surface, heading_deg: np.ndarray) -> Cuboids:
         h = np.radians(np.asarray(heading_deg, dtype=np.float64))
         zero = np.zeros_like(h)
         axes = np.stack([np.stack([np.sin(h), np.cos(h), zero], axis=1),
                          np.stack([np.cos(h), -np.sin(h), zero], axis=1),
                          np.stack([zero, zero, zero + 1.0], axis=1)], axis=1)
-        return cls(camera, surface, axes, 1e-3 * _units_per_metre(camera))
+        return cls(camera, surface, axes, 1e-3 * units_per_metre(camera))
 
-    def take(self, rows: np.ndarray) -> _Cuboids:
+    def take(self, rows: np.ndarray) -> Cuboids:
         """The cuboids of some frames."""
-        return _Cuboids(self.camera, self.surface, self.axes[rows], self.step)
+        return Cuboids(self.camera, self.surface, self.axes[rows], self.step)
 
     def centres(self, xy: np.ndarray) -> np.ndarray:
         return np.column_stack([xy, self.surface.elevation(xy[:, 0], xy[:, 1])])

@@ -1,0 +1,77 @@
+"""The stages a run is composed of, public so that :func:`~trafficgeo.pipeline.run.process_video`,
+:func:`~trafficgeo.pipeline.run.stitch`, batch and the demo build on the same calls:
+
+* :func:`detect` - decode a time window of a video and detect the vehicles on the site (resumable, in a work
+  folder; the tracker runs too, for the tile schedule), giving the detections over time
+  (:class:`~trafficgeo.video.detections.DetectionFrames`);
+* :func:`track` - the tracker over stored detections (e.g. the frames of several files of one camera-day);
+* :func:`analyze` - image tracks on the site -> world trajectories, speeds (km/h), lanes and counts.
+
+Inputs are a :class:`~trafficgeo.site.site.Site` (loaded once) and plain tables; times in seconds.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from trafficgeo.site.site import Site
+from trafficgeo.traffic.analyze import TrafficResult
+from trafficgeo.traffic.analyze import analyze as analyze_world
+from trafficgeo.traffic.speed import ScaleKnowledge
+from trafficgeo.traffic.tracks import ImageTracks, load_tracks
+from trafficgeo.traffic.trajectories import TrajectoryOptions
+from trafficgeo.video.detections import DetectionFrames
+from trafficgeo.video.pipeline import ProcessOptions
+from trafficgeo.video.track import TrackerOptions, track_frames
+
+__all__ = ["TRACKED_COLUMNS", "analyze", "detect", "track"]
+
+BOX = ("x1", "y1", "x2", "y2")
+TRACKED_COLUMNS = ("frame", "time", "track_id", *BOX, "score", "class")
+
+
+def detect(video: str | os.PathLike, site: Site, work_dir: str | os.PathLike, options: ProcessOptions, *,
+           roi: np.ndarray | None = None, restart: bool = False,
+           progress: Callable[[int, int, float], None] | None = None,
+           notice: Callable[[str], None] | None = None) -> DetectionFrames:
+    """Detect the vehicles of ``video`` (the time window and detector of ``options``, settled for the video with
+    :func:`~trafficgeo.video.pipeline.settled_options`) on ``site`` (its camera and surface size the boxes, its
+    lanes, else its lines, plan the tiles), resumably in ``work_dir``; the detections over time of the window."""
+    from trafficgeo.video.checkpoint import read_detections
+    from trafficgeo.video.pipeline import detect_and_track
+
+    detect_and_track(video, site.camera.camera, site.surface, work_dir, options, roi=roi, restart=restart,
+                     lanes=site.lanes, lines=site.count_lines, progress=progress, notice=notice)
+    return read_detections(Path(work_dir))
+
+
+def track(frames: DetectionFrames, fps: float, options: TrackerOptions | None = None, *,
+          variable_rate: bool = False) -> pd.DataFrame:
+    """The tracked boxes of ``frames`` (detected at ``fps`` frames per second; ``variable_rate``: the frames' times
+    drive the motion model) as a table of :data:`TRACKED_COLUMNS`: ``frame`` is the position in ``frames``, ``time``
+    its ``time_s``, ``track_id`` the tracker's integer id, boxes in px."""
+    out = track_frames(frames, fps, options, variable_rate=variable_rate)
+    if not out:
+        return pd.DataFrame({c: pd.Series(dtype=object if c == "class" else float) for c in TRACKED_COLUMNS})
+    j = np.concatenate([np.full(len(tr), k) for k, tr in out])
+    return pd.DataFrame({"frame": j, "time": frames.time_s[j], "track_id": np.concatenate([tr.ids for _, tr in out]),
+                         **dict(zip(BOX, np.concatenate([tr.boxes for _, tr in out]).reshape(-1, 4).T, strict=True)),
+                         "score": np.concatenate([tr.scores for _, tr in out]),
+                         "class": np.concatenate([tr.classes for _, tr in out]).astype(object)})
+
+
+def analyze(tracks: ImageTracks | pd.DataFrame | str | os.PathLike, site: Site, *, interval_s: float = 60.0,
+            options: TrajectoryOptions | None = None, fps: float | None = None, progress: Any = None,
+            knowledge: ScaleKnowledge | None = None) -> TrafficResult:
+    """Image tracks (a table or file, see :func:`~trafficgeo.traffic.tracks.load_tracks`) on ``site`` -> world
+    trajectories, speeds (km/h), lanes and counts per ``interval_s`` s; the headline speeds placed by what the
+    site's calibrated camera knows of its ground scale (``knowledge`` overrides it)."""
+    return analyze_world(site.camera.camera, site.surface, load_tracks(tracks, fps=fps), lanes=site.lanes,
+                         lines=site.count_lines, interval_s=interval_s, options=options, progress=progress,
+                         knowledge=knowledge if knowledge is not None else ScaleKnowledge.from_camera(site.camera))
