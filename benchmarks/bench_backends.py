@@ -53,7 +53,8 @@ def main() -> None:
     from trafficgeo.video.detectors.backends import OpenVinoBackend, openvino_version
     from trafficgeo.video.detectors.builtin import builtin_model_path
     from trafficgeo.video.detectors.onnx import OnnxDetector
-    from trafficgeo.video.detectors.tiling import TiledDetector, grid_plan
+    from trafficgeo.video.detectors.tiled import TiledDetector
+    from trafficgeo.video.detectors.tiling import grid_plan
 
     path = builtin_model_path("nanodet")
     print(f"CPU: {platform.processor() or platform.machine()}; flags: {cpu_flags()}")

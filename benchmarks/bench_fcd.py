@@ -86,14 +86,14 @@ def _table(time_s: list, cols: dict[str, list]) -> pd.DataFrame:
 
 
 def read_ours(path: str) -> pd.DataFrame:
-    from trafficgeo.io.sumo import read_fcd
+    from trafficgeo.io.fcd_read import read_fcd
 
     return read_fcd(path)
 
 
 def read_ours_expat(path: str) -> pd.DataFrame:
     import trafficgeo.io.fcd_parse as fcd_parse
-    from trafficgeo.io.sumo import read_fcd
+    from trafficgeo.io.fcd_read import read_fcd
 
     fcd_parse._parse_fcd_fast = lambda *args: None  # force the general path
     return read_fcd(path)
@@ -187,8 +187,9 @@ def sumo_world_times(folder: Path, repeat: int) -> None:
     """Wall time of ``run_sumo_world`` (a 60 s scene at 25 fps after its 60 s warm-up, the default 2 x 2 lane road
     and demand: netconvert, routes, sumo, the FCD copy and ``read_fcd``) against the bare ``sumo`` binary run on
     its net and routes with the same simulation options and FCD output (the baseline), in the same run."""
+    from trafficgeo.simulation.tools import sumo_binary
     from trafficgeo.synth.sumo_scene import Demand, RoadSpec
-    from trafficgeo.synth.sumo_world import LANE_CHANGE_DURATION_S, WARMUP_S, run_sumo_world, sumo_binary
+    from trafficgeo.synth.sumo_world import LANE_CHANGE_DURATION_S, WARMUP_S, run_sumo_world
 
     ours, bare = [], []
     for k in range(max(repeat, 1)):

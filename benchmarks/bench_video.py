@@ -124,7 +124,8 @@ def part_real_frames() -> None:
     sys.path.insert(0, str(ROOT / "tests"))
     from labelled_frames import INTEL_LABELS, NGSIM_LABELS, Score, load_labels, score_frame
     from trafficgeo.video.detectors.factory import make_detector
-    from trafficgeo.video.detectors.tiling import TiledDetector, grid_plan
+    from trafficgeo.video.detectors.tiled import TiledDetector
+    from trafficgeo.video.detectors.tiling import grid_plan
 
     shared = ROOT.parent / "shared" / "data"
     nanodet = make_detector("nanodet")

@@ -15,7 +15,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from trafficgeo.batch.manifest import (
-    DEFAULT_NAME_PATTERN,
     MAX_WINDOW_S,
     build_tasks,
     plan_batch,
@@ -26,7 +25,7 @@ from trafficgeo.batch.manifest import (
     write_tasks,
 )
 from trafficgeo.batch.model import CameraEntry, VideoFile
-from trafficgeo.batch.names import compile_pattern, local_to_utc
+from trafficgeo.batch.names import DEFAULT_NAME_PATTERN, compile_pattern, local_to_utc
 from trafficgeo.camera.io import write_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError

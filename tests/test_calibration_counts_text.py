@@ -10,7 +10,8 @@ import numpy as np
 from rich.console import Console
 
 from trafficgeo.calibration import Calibration, build_report, calibrate
-from trafficgeo.calibration.pipeline import CalibrationOptions, _base_model, _choose_model, fit_camera
+from trafficgeo.calibration.pipeline import CalibrationOptions, _base_model, _choose_model
+from trafficgeo.calibration.refine import fit_camera
 from trafficgeo.report.terminal import print_calibration_report
 from trafficgeo.synth import make_gcp_scene
 

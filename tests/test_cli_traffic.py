@@ -170,7 +170,7 @@ def test_export_fcd_and_compare_sumo_round_trip(scene: dict[str, Path], tmp_path
     assert code == 0, stderr
     assert "3 vehicles" in stdout
     assert fcd.read_text().startswith("<?xml") and "<fcd-export" in fcd.read_text()
-    from trafficgeo.io.sumo import read_fcd
+    from trafficgeo.io.fcd_read import read_fcd
 
     back = read_fcd(fcd, crs=CRS)
     pts = pd.read_csv(run / "trajectories.csv", dtype={"track_id": str})

@@ -22,7 +22,8 @@ from trafficgeo.errors import InputError
 from trafficgeo.video.detectors.builtin import builtin_model_path
 from trafficgeo.video.detectors.factory import make_detector
 from trafficgeo.video.detectors.onnx import OnnxDetector
-from trafficgeo.video.detectors.tiling import TiledDetector, grid_plan
+from trafficgeo.video.detectors.tiled import TiledDetector
+from trafficgeo.video.detectors.tiling import grid_plan
 
 pytestmark = pytest.mark.slow  # the learned detector on real labelled frames
 

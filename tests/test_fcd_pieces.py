@@ -11,7 +11,8 @@ import pandas as pd
 import pytest
 
 import trafficgeo.io.fcd_parse as fcd_parse
-from trafficgeo.io.sumo import read_fcd, write_fcd
+from trafficgeo.io.fcd_read import read_fcd
+from trafficgeo.io.fcd_write import write_fcd
 
 
 def _points(n_vehicles: int, n_steps: int, seed: int = 0) -> pd.DataFrame:
@@ -106,7 +107,7 @@ def test_memory_bounded_by_pieces_not_file(monkeypatch: pytest.MonkeyPatch, tmp_
         monkeypatch.setattr(fcd_parse, "_PIECE_BYTES", piece_bytes)
         tracemalloc.start()
         try:
-            cols = fcd_parse._fcd_columns(f)
+            cols = fcd_parse.fcd_columns(f)
             return tracemalloc.get_traced_memory()[1] / size
         finally:
             tracemalloc.stop()

@@ -1,4 +1,5 @@
-"""Tests of trafficgeo.calibration.gcps: reading GCP files and validating their geometry."""
+"""Tests of the GCP table, reader and checks (trafficgeo.calibration.gcp_*): reading GCP files and validating
+their geometry."""
 
 from __future__ import annotations
 
@@ -13,7 +14,9 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from trafficgeo.calibration.gcps import GCPTable, read_gcps, validate_gcps
+from trafficgeo.calibration.gcp_checks import validate_gcps
+from trafficgeo.calibration.gcp_read import read_gcps
+from trafficgeo.calibration.gcp_table import GCPTable
 from trafficgeo.crs import looks_like_lonlat, parse_crs
 from trafficgeo.errors import InputError
 

@@ -12,14 +12,10 @@ import pytest
 import trafficgeo.io.fcd_parse as fcd_parse
 from trafficgeo.crs import projected_to_lonlat
 from trafficgeo.errors import InputError
-from trafficgeo.io.sumo import (
-    FCD_COLUMNS,
-    MEANDATA_COLUMNS,
-    read_fcd,
-    read_meandata,
-    read_net_location,
-    write_fcd,
-)
+from trafficgeo.io.fcd_read import FCD_COLUMNS, read_fcd
+from trafficgeo.io.fcd_write import write_fcd
+from trafficgeo.io.sumo import MEANDATA_COLUMNS, read_meandata
+from trafficgeo.io.sumo_net import read_net_location
 from trafficgeo.synth.sumo_scene import VEHICLE_CLASSES, Demand, RoadSpec
 from trafficgeo.synth.sumo_world import SumoRun, _run_tool, run_sumo_world
 

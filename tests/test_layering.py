@@ -1,7 +1,8 @@
 """The import layering docs/architecture.md states: camera -> calibration -> geo -> site -> traffic / video
 (siblings) -> pipeline / simulation -> synth/report/ui -> batch/demo -> cli, with errors, crs, groups and io at the
 bottom; no module imports a layer above its own or a sibling (imports inside functions and under TYPE_CHECKING count
-too), and synth, report and ui do not import each other."""
+too), and synth, report and ui do not import each other; no private name crosses a module and no module re-exports
+what it imports (package ``__init__`` namespaces aside)."""
 
 from __future__ import annotations
 
@@ -71,3 +72,56 @@ def test_the_checker_sees_every_form_of_import() -> None:
             "    from trafficgeo.video import detectors\n    from ..traffic import lanes\n"
             "    from . import raster\n    from trafficgeo import synth\n")
     assert {p for p, _ in parts_in(text, ("geo", "surface.py"))} == {"errors", "video", "traffic", "geo", "synth"}
+
+
+def _module_name(path: Path) -> str:
+    return ".".join(("trafficgeo", *path.relative_to(PACKAGE).with_suffix("").parts)).removesuffix(".__init__")
+
+
+def _top_level_names(tree: ast.Module) -> set[str]:
+    """Names a module defines itself (functions, classes, assignments), not those it imports."""
+    names: set[str] = set()
+    for node in tree.body:
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+            names.add(node.name)
+        elif isinstance(node, ast.Assign | ast.AnnAssign):
+            for target in node.targets if isinstance(node, ast.Assign) else [node.target]:
+                names |= {n.id for n in ast.walk(target) if isinstance(n, ast.Name)}
+    return names
+
+
+def _absolute_imports(tree: ast.Module) -> list[tuple[str, str, int]]:
+    """(module, name, line) of every ``from trafficgeo.x import name`` in ``tree``."""
+    return [(node.module, a.name, node.lineno) for node in ast.walk(tree)
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module
+            and node.module.startswith("trafficgeo.") for a in node.names]
+
+
+def test_no_private_name_crosses_a_module() -> None:
+    """A helper another module needs is public in the module that defines it (no ``from m import _helper``)."""
+    bad = [f"{path.relative_to(PACKAGE)}:{line} imports {name} from {module}"
+           for path in sorted(PACKAGE.rglob("*.py"))
+           for module, name, line in _absolute_imports(ast.parse(path.read_text(encoding="utf-8")))
+           if name.startswith("_") and not name.startswith("__")]
+    assert not bad, "; ".join(bad)
+
+
+def test_names_are_imported_from_the_module_that_defines_them() -> None:
+    """No module passes on names it imports (a re-export facade): importers name the defining module. Package
+    ``__init__`` files are the curated namespaces and may re-export."""
+    trees = {_module_name(p): (ast.parse(p.read_text(encoding="utf-8")), p.name == "__init__.py")
+             for p in PACKAGE.rglob("*.py")}
+    own = {module: _top_level_names(tree) for module, (tree, _) in trees.items()}
+    bad = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for module, name, line in _absolute_imports(trees[_module_name(path)][0]):
+            if module in trees and not trees[module][1] and name not in own[module] \
+                    and f"{module}.{name}" not in trees:
+                bad.append(f"{path.relative_to(PACKAGE)}:{line} imports {name} from {module}, which only imports it")
+    assert not bad, "; ".join(bad)
+
+
+def test_the_facade_checks_see_a_facade() -> None:
+    tree = ast.parse("from trafficgeo.geo.raster import _to_pyproj, open_raster\nx = 1\ndef f():\n    pass\n")
+    assert [n for _, n, _ in _absolute_imports(tree) if n.startswith("_")] == ["_to_pyproj"]
+    assert _top_level_names(tree) == {"x", "f"}

@@ -140,7 +140,7 @@ def test_world_file_parsed_when_gdal_does_not(tmp_path: Path) -> None:
 def test_world_file_parser_matches_gdal() -> None:
     with rasterio.open(JPG) as ds:
         gdal_transform = ds.transform
-    ours = raster_mod._read_world_file(JPG.with_suffix(".wld"))
+    ours = raster_mod.read_world_file(JPG.with_suffix(".wld"))
     np.testing.assert_allclose(ours[:6], gdal_transform[:6], atol=1e-9, rtol=0)
 
 

@@ -18,7 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cli_support import invoke
-from trafficgeo.calibration.gcps import read_gcps
+from trafficgeo.calibration.gcp_read import read_gcps
 from trafficgeo.calibration.pipeline import calibrate
 from trafficgeo.calibration.validation import build_report
 from trafficgeo.camera.io import read_camera_json

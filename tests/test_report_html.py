@@ -381,7 +381,7 @@ def test_traffic_only_run_in_feet(feet_run: tuple[Path, dict[str, pd.DataFrame]]
 
 def test_ortho_in_another_crs_is_reprojected(site: dict[str, Path], tmp_path: Path) -> None:
     """An orthophoto in UTM 34N (same place, other CRS) is warped to the camera's UTM 33N behind the map."""
-    from trafficgeo.report.html import read_background
+    from trafficgeo.report.context import read_background
 
     _ortho(tmp_path / "o33.tif")
     import rasterio

@@ -254,8 +254,8 @@ def test_compare_sumo_time_offset_must_be_finite(scene: dict[str, Path], tmp_pat
 def test_nan_in_messages_is_a_plain_number(tmp_path: Path) -> None:
     import shapely
 
+    from trafficgeo.io.fcd_write import write_fcd
     from trafficgeo.io.gis import Layer, write_gis
-    from trafficgeo.io.sumo import write_fcd
 
     layer = Layer("p", [shapely.Point(500000.0, 5000001.0), shapely.Point(np.nan, 5000000.0)], {})
     with pytest.raises(InputError) as err:

@@ -10,16 +10,10 @@ import pyproj
 import pytest
 
 from trafficgeo.errors import InputError, TrafficgeoError
+from trafficgeo.simulation.tools import sumo_binary
 from trafficgeo.synth.gcp_scene import RoadSurface
 from trafficgeo.synth.sumo_scene import VEHICLE_CLASSES, Demand, RoadSpec
-from trafficgeo.synth.sumo_world import (
-    SumoRun,
-    Trajectories,
-    _run_tool,
-    read_fcd,
-    run_sumo_world,
-    sumo_binary,
-)
+from trafficgeo.synth.sumo_world import SumoRun, Trajectories, _run_tool, read_fcd, run_sumo_world
 
 pytestmark = pytest.mark.slow  # runs SUMO several times (one run of 120 s of busy traffic)
 

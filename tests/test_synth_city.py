@@ -10,7 +10,8 @@ import pandas as pd
 import pytest
 from tests.cli_support import invoke
 
-from trafficgeo.batch.manifest import DEFAULT_NAME_PATTERN, plan_batch, read_cameras
+from trafficgeo.batch.manifest import plan_batch, read_cameras
+from trafficgeo.batch.names import DEFAULT_NAME_PATTERN
 from trafficgeo.errors import InputError
 from trafficgeo.synth.city import (
     CITY_NAME_PATTERN,

@@ -17,8 +17,8 @@ from trafficgeo.video.detectors.schedule import (
     _extent_along_m,
     tile_periods,
 )
+from trafficgeo.video.detectors.tile_plan import TilePlan
 from trafficgeo.video.detectors.tiled import TiledDetector
-from trafficgeo.video.detectors.tiling import TilePlan
 from trafficgeo.video.pipeline import LEARNED_TRACKER
 from trafficgeo.video.track import VehicleTracker
 

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from trafficgeo.calibration.gcps import GCPTable
+from trafficgeo.calibration.gcp_table import GCPTable
 from trafficgeo.calibration.pipeline import CalibrationOptions
 from trafficgeo.calibration.run import camera_covariance, run_calibration
 from trafficgeo.camera.calibrated import CalibratedCamera, CameraCovariance

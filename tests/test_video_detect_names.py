@@ -153,7 +153,7 @@ def test_blobs_no_single_vehicle_explains_are_of_unknown_class(monkeypatch: pyte
     "" (unknown), not "truck"/"van"; single vehicles keep their class."""
     from trafficgeo.camera.model import Camera
     from trafficgeo.geo.surface import ConstantSurface
-    from trafficgeo.video.detectors.blobs import _Blobs
+    from trafficgeo.video.detectors.blobs import Blobs
 
     cam = Camera.from_orientation((400, 200), 300.0, [0.0, -20.0, 8.0], 0.0, 20.0, crs="EPSG:32633")
     det = BackgroundDetector(camera=cam, surface=ConstantSurface(0.0))
@@ -170,7 +170,7 @@ def test_blobs_no_single_vehicle_explains_are_of_unknown_class(monkeypatch: pyte
     monkeypatch.setattr(det, "_measure", measure)
     boxes = np.array([[10, 10, 49, 29], [60, 10, 99, 29], [110, 10, 149, 29], [160, 50, 179, 59]], dtype=float)
     areas = np.array([700.0, 300.0, 500.0, 190.0])  # boxes of 800, 800, 800 and 200 px: fill 0.88, 0.38, 0.63, 0.95
-    kept, classes = det._metric(_Blobs(boxes, areas, [[1], [2], [3], [4]]))
+    kept, classes = det._metric(Blobs(boxes, areas, [[1], [2], [3], [4]]))
     assert len(kept.areas) == 4
     assert list(classes) == ["truck", "", "", "car"]
 
@@ -214,7 +214,8 @@ def test_a_vehicle_mostly_of_unknown_class_is_unknown() -> None:
 
 
 def test_detector_threads_follow_the_batch_worker_setting(monkeypatch: pytest.MonkeyPatch) -> None:
-    from trafficgeo.video.detectors.learned import BUILTIN, builtin_model_path
+    from trafficgeo.video.detectors.builtin import builtin_model_path
+    from trafficgeo.video.detectors.learned import BUILTIN
     from trafficgeo.video.detectors.onnx import OnnxDetector, default_threads
 
     path = builtin_model_path(BUILTIN)

@@ -20,7 +20,7 @@ from trafficgeo.video.detections import Detections
 from trafficgeo.video.detectors.factory import make_detector
 from trafficgeo.video.detectors.learned import SizeClasses, detector_plan
 from trafficgeo.video.detectors.onnx import OnnxDetector
-from trafficgeo.video.detectors.tiling import TiledDetector
+from trafficgeo.video.detectors.tiled import TiledDetector
 from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
 
 FLAT = ConstantSurface(0.0)

@@ -11,7 +11,8 @@ import pandas as pd
 import pytest
 
 from cli_support import invoke
-from trafficgeo.video.pipeline import CHECKPOINT_DIR, ProcessOptions, detect_and_track
+from trafficgeo.video.checkpoint import CHECKPOINT_DIR
+from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
 
 pytestmark = pytest.mark.slow  # processes an 8 s world video several times with the learned detector (minutes)
 

@@ -26,7 +26,9 @@ from trafficgeo.errors import InputError
 from trafficgeo.geo.cuboids import cuboid_boxes
 from trafficgeo.video.detections import Detections, box_iou
 from trafficgeo.video.detectors.tile_bands import input_hw_for, plan_bands
-from trafficgeo.video.detectors.tiling import LARGE_VEHICLE_M, TiledDetector, box_size_px, plan_tiles
+from trafficgeo.video.detectors.tile_plan import box_size_px
+from trafficgeo.video.detectors.tiled import TiledDetector
+from trafficgeo.video.detectors.tiling import LARGE_VEHICLE_M, plan_tiles
 
 pytestmark = pytest.mark.slow  # plans detector tiles over whole 1080p views
 

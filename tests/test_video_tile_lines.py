@@ -11,14 +11,8 @@ import shapely
 from trafficgeo.geo.surface import ConstantSurface
 from trafficgeo.site.lines import CountLine
 from trafficgeo.video.detectors.tile_bands import plan_bands
-from trafficgeo.video.detectors.tiling import (
-    LINE_BAND_ACROSS_M,
-    REFERENCE_CAR_M,
-    TilePlan,
-    line_reach,
-    plan_tiles,
-    vehicle_boxes,
-)
+from trafficgeo.video.detectors.tile_plan import REFERENCE_CAR_M, TilePlan
+from trafficgeo.video.detectors.tiling import LINE_BAND_ACROSS_M, line_reach, plan_tiles, vehicle_boxes
 
 W, H = 1280, 720  # the clip
 INPUT = 416

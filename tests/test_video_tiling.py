@@ -18,15 +18,9 @@ from trafficgeo.geo.cuboids import cuboid_boxes
 from trafficgeo.geo.surface import ConstantSurface
 from trafficgeo.site.lanes import Lanes
 from trafficgeo.video.detections import Detections, box_iou
-from trafficgeo.video.detectors.tiling import (
-    REFERENCE_CAR_M,
-    TiledDetector,
-    TilePlan,
-    box_size_px,
-    merge_boxes,
-    plan_tiles,
-    vehicle_size_px,
-)
+from trafficgeo.video.detectors.tile_plan import REFERENCE_CAR_M, TilePlan, box_size_px
+from trafficgeo.video.detectors.tiled import TiledDetector, merge_boxes
+from trafficgeo.video.detectors.tiling import plan_tiles, vehicle_size_px
 
 W, H = 1920, 1080
 INPUT = 416

@@ -32,8 +32,8 @@ _API: dict[str, str] = {
     "Calibration": "trafficgeo.calibration.pipeline",
     "CalibrationOptions": "trafficgeo.calibration.pipeline",
     "CalibrationReport": "trafficgeo.calibration.report",
-    "read_gcps": "trafficgeo.calibration.gcps",
-    "GCPTable": "trafficgeo.calibration.gcps",
+    "read_gcps": "trafficgeo.calibration.gcp_read",
+    "GCPTable": "trafficgeo.calibration.gcp_table",
     # ground
     "georeference": "trafficgeo.geo.mapping",
     "GroundPoints": "trafficgeo.geo.mapping",
@@ -168,7 +168,8 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from __getattr__
-    from trafficgeo.calibration.gcps import GCPTable, read_gcps
+    from trafficgeo.calibration.gcp_read import read_gcps
+    from trafficgeo.calibration.gcp_table import GCPTable
     from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, calibrate
     from trafficgeo.calibration.report import CalibrationReport
     from trafficgeo.camera.calibrated import CalibratedCamera

@@ -92,7 +92,8 @@ def score(model: Path) -> dict[str, float]:
     """F1 of ``model`` on each hand-labelled set, full frame and 2 x 2 tiles (name -> F1)."""
     from labelled_frames import INTEL_LABELS, NGSIM_LABELS, load_labels, score_labels
     from trafficgeo.video.detectors.onnx import OnnxDetector
-    from trafficgeo.video.detectors.tiling import TiledDetector, grid_plan
+    from trafficgeo.video.detectors.tiled import TiledDetector
+    from trafficgeo.video.detectors.tiling import grid_plan
 
     det = OnnxDetector(model, format="nanodet")
     out = {}

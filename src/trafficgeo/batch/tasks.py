@@ -55,6 +55,7 @@ from trafficgeo.batch.model import BATCH_OPTIONS, CameraEntry, Task, TaskOutcome
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import write_json_atomic
 from trafficgeo.pipeline.stages import analyze, detect, track
+from trafficgeo.site.site import Site
 from trafficgeo.video.pipeline import ProcessOptions, settled_options
 
 __all__ = ["BatchContext", "is_done", "run_task", "task_key"]
@@ -274,10 +275,9 @@ def _surface(spec: str, camera: str, identity: tuple[str | None, str | None]) ->
     return load_surface(spec, camera)
 
 
-def _site(entry: CameraEntry, *, lines: bool):
-    """The camera's site (its surface from the worker's cache) and the calibrated camera's scale knowledge."""
+def _site(entry: CameraEntry, *, lines: bool) -> Site:
+    """The camera's site (its surface from the worker's cache); ``lines``: with its counting lines."""
     from trafficgeo.camera.calibrated import CalibratedCamera
-    from trafficgeo.site.site import Site
 
     surface = _surface(str(entry.surface), str(entry.camera), (_input_id(entry.surface), _input_id(entry.camera)))
     return Site.load(CalibratedCamera.read(entry.camera), surface, entry.lanes, entry.lines if lines else None)

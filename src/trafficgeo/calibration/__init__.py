@@ -1,6 +1,8 @@
 """GCP tables, hierarchical calibration, validation (see :mod:`.pipeline` for the stages)."""
 
-from trafficgeo.calibration.gcps import GCPTable, read_gcps, validate_gcps
+from trafficgeo.calibration.gcp_checks import validate_gcps
+from trafficgeo.calibration.gcp_read import read_gcps
+from trafficgeo.calibration.gcp_table import GCPTable
 from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, Finding, calibrate
 from trafficgeo.calibration.report import CalibrationReport, GCPResidual, read_calibration_report
 from trafficgeo.calibration.run import CalibrationRun, run_calibration

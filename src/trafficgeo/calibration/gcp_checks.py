@@ -1,5 +1,5 @@
 """Sanity checks of a GCP table before calibration (:func:`validate_gcps`): enough control points, spread,
-duplicates, collinear or coplanar layouts. See :mod:`trafficgeo.calibration.gcps` for the conventions."""
+duplicates, collinear or coplanar layouts. See :mod:`trafficgeo.calibration.gcp_table` for the conventions."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from trafficgeo.calibration.gcp_table import (
     GCPTable,
-    _first,
-    _fmt,
+    first_index,
+    format_number,
 )
 from trafficgeo.crs import (
     metres_per_unit,
@@ -84,9 +84,10 @@ def validate_gcps(table: GCPTable, image_size: tuple[int, int], *, min_control: 
     px = table.pixels
     outside = (px[:, 0] < -0.5) | (px[:, 0] > w - 0.5) | (px[:, 1] < -0.5) | (px[:, 1] > h - 0.5)
     if np.any(outside):
-        i = _first(outside)
+        i = first_index(outside)
         raise InputError(
-            f"{table.where(i)}: pixel (u={_fmt(px[i, 0])}, v={_fmt(px[i, 1])}) is outside the {w}x{h} image "
+            f"{table.where(i)}: pixel (u={format_number(px[i, 0])}, v={format_number(px[i, 1])}) is outside the "
+            f"{w}x{h} image "
             f"(u from -0.5 to {w - 0.5}, v from -0.5 to {h - 0.5}, (0, 0) = centre of the top-left pixel); "
             "check image_size or the pixel",
             parameters=("image_size",),

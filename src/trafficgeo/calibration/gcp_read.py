@@ -1,5 +1,5 @@
 """Reading GCP files: CSV (``id,x,y,z,u,v[,role,sigma_px]``) and OpenDroneMap ``gcp_list.txt``, with their CRS
-(:func:`read_gcps`). See :mod:`trafficgeo.calibration.gcps` for the conventions."""
+(:func:`read_gcps`). See :mod:`trafficgeo.calibration.gcp_table` for the conventions."""
 
 from __future__ import annotations
 
@@ -14,16 +14,16 @@ import numpy as np
 import pyproj
 
 from trafficgeo.calibration.gcp_table import (
-    _HINTS,
-    _ODM_COLUMNS,
+    COLUMN_HINTS,
     CSV_COLUMNS,
+    ODM_COLUMNS,
     REQUIRED_COLUMNS,
     ROLE_CONTROL,
     ROLES,
     GCPTable,
-    _first,
-    _fmt,
-    _q,
+    first_index,
+    format_number,
+    quote_text,
 )
 from trafficgeo.crs import (
     crs_label,
@@ -58,9 +58,9 @@ def _number(text: str, column: str, where: str, hint: str) -> float:
         value = float(raw)
     except ValueError:
         extra = "; use a dot as the decimal separator" if "," in raw else ""
-        raise InputError(f'{where}: column "{column}" is {_q(raw)}, not a number; {hint}{extra}') from None
+        raise InputError(f'{where}: column "{column}" is {quote_text(raw)}, not a number; {hint}{extra}') from None
     if not math.isfinite(value):
-        raise InputError(f'{where}: column "{column}" is {_q(raw)}, not a finite number; {hint}')
+        raise InputError(f'{where}: column "{column}" is {quote_text(raw)}, not a finite number; {hint}')
     return value
 
 
@@ -128,21 +128,21 @@ def _parse_csv(text: str, source: str, delim: str) -> _Rows:
         gcp_id = row[col["id"]].strip()
         if not gcp_id:
             raise InputError(f'{source} line {line}: column "id" is empty; give every GCP a unique id')
-        where = f"{source} line {line} (id {_q(gcp_id)})"
-        vals = tuple(_number(row[col[c]], c, where, _HINTS[c]) for c in ("x", "y", "z", "u", "v"))
+        where = f"{source} line {line} (id {quote_text(gcp_id)})"
+        vals = tuple(_number(row[col[c]], c, where, COLUMN_HINTS[c]) for c in ("x", "y", "z", "u", "v"))
         role = row[col["role"]].strip().lower() if "role" in col else ""
         role = role or ROLE_CONTROL
         if role not in ROLES:
             raise InputError(
-                f'{where}: column "role" is {_q(row[col["role"]].strip())}; use "control" (used in the fit) '
+                f'{where}: column "role" is {quote_text(row[col["role"]].strip())}; use "control" (used in the fit) '
                 'or "check" (independent check point), or leave it empty for "control"'
             )
         sigma = 1.0
         if "sigma_px" in col and row[col["sigma_px"]].strip():
-            sigma = _number(row[col["sigma_px"]], "sigma_px", where, _HINTS["sigma_px"])
+            sigma = _number(row[col["sigma_px"]], "sigma_px", where, COLUMN_HINTS["sigma_px"])
             if sigma <= 0:
                 raise InputError(
-                    f'{where}: column "sigma_px" is {_fmt(sigma)}, not > 0; {_HINTS["sigma_px"]}'
+                    f'{where}: column "sigma_px" is {format_number(sigma)}, not > 0; {COLUMN_HINTS["sigma_px"]}'
                 )
         rows.ids.append(gcp_id)
         rows.values.append(vals)  # type: ignore[arg-type]
@@ -169,9 +169,9 @@ def _parse_odm(lines: list[str], first: int, source: str) -> _Rows:
                 "geo_x geo_y geo_z im_x im_y image_name [gcp_name]; fix or delete the line"
             )
         gcp_id = parts[6] if len(parts) > 6 else f"row{line}"
-        where = f"{source} line {line} (id {_q(gcp_id)})"
+        where = f"{source} line {line} (id {quote_text(gcp_id)})"
         hints = ("x", "y", "z", "u", "v")
-        vals = tuple(_number(parts[j], _ODM_COLUMNS[j], where, _HINTS[hints[j]]) for j in range(5))
+        vals = tuple(_number(parts[j], ODM_COLUMNS[j], where, COLUMN_HINTS[hints[j]]) for j in range(5))
         rows.ids.append(gcp_id)
         rows.values.append(vals)  # type: ignore[arg-type]
         rows.roles.append(ROLE_CONTROL)
@@ -214,7 +214,7 @@ def _select_image(rows: _Rows, odm_image: str | None, source: str) -> np.ndarray
     ]
     if not sel:
         raise InputError(
-            f"{source}: no GCP rows for image {_q(odm_image)}; the file has images {_list_names(names)}; "
+            f"{source}: no GCP rows for image {quote_text(odm_image)}; the file has images {_list_names(names)}; "
             "pass one of them as odm_image",
             parameters=("odm_image",),
         )
@@ -227,7 +227,8 @@ def _check_unique_ids(rows: _Rows, idx: np.ndarray, source: str) -> None:
         gcp_id = rows.ids[i]
         if gcp_id in seen:
             raise InputError(
-                f"{source} line {rows.lines[i]} (id {_q(gcp_id)}): id {_q(gcp_id)} is also used on line "
+                f"{source} line {rows.lines[i]} (id {quote_text(gcp_id)}): id {quote_text(gcp_id)} is also used on "
+                f"line "
                 f"{seen[gcp_id]}; give every GCP a unique id"
             )
         seen[gcp_id] = rows.lines[i]
@@ -257,7 +258,7 @@ def _resolve_crs(
     xn, yn = names
 
     def at(i: int) -> str:
-        return f"line {lines[i]}: {xn}={_fmt(x[i])}, {yn}={_fmt(y[i])}"
+        return f"line {lines[i]}: {xn}={format_number(x[i])}, {yn}={format_number(y[i])}"
 
     if crs is not None and not (crs.is_projected and not is_geographic(crs)):
         hint = " (to read longitude/latitude GCPs give gcp_crs EPSG:4326)" if is_geographic(crs) else ""
@@ -280,15 +281,15 @@ def _resolve_crs(
     if is_geographic(gcp_crs):
         lat_first = (np.abs(y) > 90) & (np.abs(x) <= 90)
         if np.any(lat_first) and np.all(np.abs(x) <= 90):
-            i = _first(lat_first)
+            i = first_index(lat_first)
             raise InputError(
-                f"{source}: {yn} should be latitude but reaches {_fmt(y[i])} ({at(i)}) while {xn} stays "
+                f"{source}: {yn} should be latitude but reaches {format_number(y[i])} ({at(i)}) while {xn} stays "
                 f"within ±90: the file seems to list latitude first; swap the {xn} and {yn} columns so "
                 "longitude comes first"
             )
         bad = (np.abs(x) > 180) | (np.abs(y) > 90)
         if np.any(bad):
-            i = _first(bad)
+            i = first_index(bad)
             raise InputError(
                 f"{source} {at(i)} is not longitude/latitude in degrees, but the GCP CRS "
                 f"{crs_label(gcp_crs)} ({declared_by}) is geographic; "
@@ -327,7 +328,7 @@ def _resolve_crs(
     tx, ty = transform_xy(x, y, gcp_crs, target)
     bad = ~(np.isfinite(tx) & np.isfinite(ty))
     if np.any(bad):
-        i = _first(bad)
+        i = first_index(bad)
         raise InputError(
             f"{source} {at(i)} cannot be transformed from {crs_label(gcp_crs)} to {crs_label(target)}; "
             "check the point and the CRSs (gcp_crs, `crs`)",
@@ -383,7 +384,7 @@ def read_gcps(
         raise InputError(
             f"{source} line {first + 1}: the header lacks the column(s) "
             f"{', '.join(repr(c) for c in missing)}; "
-            f"a GCP CSV needs the columns id,x,y,z,u,v (any order, any case; found {_q(header, 60)})"
+            f"a GCP CSV needs the columns id,x,y,z,u,v (any order, any case; found {quote_text(header, 60)})"
         )
     else:
         try:
@@ -394,7 +395,7 @@ def read_gcps(
             header_crs = parse_crs(header)
         except InputError:
             raise InputError(
-                f"{source} line {first + 1}: {_q(header, 60)} is neither a CSV header with columns "
+                f"{source} line {first + 1}: {quote_text(header, 60)} is neither a CSV header with columns "
                 'id,x,y,z,u,v nor an OpenDroneMap CRS line such as "WGS84 UTM 10N" or "EPSG:32610"; '
                 "fix the first line"
             ) from None

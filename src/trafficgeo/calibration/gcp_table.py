@@ -1,5 +1,34 @@
-"""The GCP table (:class:`GCPTable`): ids, world and pixel coordinates, roles, pixel sigmas and the CRS; its CSV
-form. See :mod:`trafficgeo.calibration.gcps` for the conventions."""
+"""Ground control points (GCPs): the GCP table (:class:`GCPTable`: ids, world and pixel coordinates, roles, pixel
+sigmas and the CRS) and its CSV form; read with :func:`~trafficgeo.calibration.gcp_read.read_gcps`, checked with
+:func:`~trafficgeo.calibration.gcp_checks.validate_gcps` before calibration.
+
+A GCP pairs a world point with the pixel where it appears in the camera image.
+
+Conventions
+-----------
+* **World** coordinates (X, Y, Z): a projected CRS with X east, Y north, Z up, in the CRS's own unit (metres
+  or feet; see :func:`trafficgeo.crs.metres_per_unit`), float64. ``crs=None`` means local coordinates in an
+  unknown CRS. Z is never transformed: it is whatever height the file gives.
+* **Pixels** (u, v): (0, 0) is the *centre* of the top-left pixel, u grows to the right and v downwards.
+  A pixel lies inside a W x H image when ``-0.5 <= u <= W - 0.5`` and ``-0.5 <= v <= H - 0.5``.
+  OpenDroneMap/OpenSfM use the same convention for ``im_x im_y``.
+* **Roles**: ``"control"`` points are used in the fit; ``"check"`` points are independent check points that
+  are never used in the fit, only to measure its accuracy.
+* ``sigma_px``: the standard deviation of a point's pixel position (default 1.0 px), used to weight it.
+
+Input formats (detected from the first non-empty line)
+------------------------------------------------------
+* **CSV** with a header naming ``id,x,y,z,u,v`` in any order and any case; optional ``role`` and ``sigma_px``
+  columns; other columns are ignored. The delimiter may be ``,``, ``;`` or a tab. Blank lines are skipped.
+* **OpenDroneMap** ``gcp_list.txt``: the first line is the CRS of the points ("WGS84 UTM 10N", "EPSG:32610",
+  a PROJ string, ...), then one observation per line, whitespace separated:
+  ``geo_x geo_y geo_z im_x im_y image_name [gcp_name ...]``. Lines starting with ``#`` are comments.
+  A GCP list usually covers many images; the rows of one image (``odm_image``) are taken.
+  The id is ``gcp_name`` if present, else ``row<line number>``.
+
+Every problem a user can fix raises :class:`~trafficgeo.errors.InputError` with a one-line message naming the
+file, line and id, and the fix.
+"""
 
 from __future__ import annotations
 
@@ -25,8 +54,8 @@ OPTIONAL_COLUMNS: tuple[str, ...] = ("role", "sigma_px")
 #: Columns written by :meth:`GCPTable.to_csv`, in order.
 CSV_COLUMNS: tuple[str, ...] = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
 
-_ODM_COLUMNS = ("geo_x", "geo_y", "geo_z", "im_x", "im_y")
-_HINTS = {
+ODM_COLUMNS = ("geo_x", "geo_y", "geo_z", "im_x", "im_y")
+COLUMN_HINTS = {
     "x": "give world coordinates as numbers",
     "y": "give world coordinates as numbers",
     "z": "give world coordinates as numbers (use 0 for flat ground)",
@@ -36,7 +65,7 @@ _HINTS = {
 }
 
 
-def _q(text: str, limit: int = 40) -> str:
+def quote_text(text: str, limit: int = 40) -> str:
     """Quote user text for a one-line message (control characters escaped, long text shortened)."""
     text = str(text)
     if len(text) > limit:
@@ -44,7 +73,7 @@ def _q(text: str, limit: int = 40) -> str:
     return f'"{text}"' if text.isprintable() else repr(text)
 
 
-def _fmt(value: float) -> str:
+def format_number(value: float) -> str:
     return f"{value:.10g}"
 
 
@@ -187,7 +216,7 @@ class GCPTable:
         """Row ``i`` without the file name, e.g. ``line 5 (id "P4")`` (``row 5`` when it has no line)."""
         line = self.lines[i]
         place = f"line {line}" if line > 0 else f"row {i + 1}"
-        return f"{place} (id {_q(self.ids[i])})"
+        return f"{place} (id {quote_text(self.ids[i])})"
 
     def where(self, i: int) -> str:
         """Row ``i`` for messages, e.g. ``gcps.csv line 5 (id "P4")``."""
@@ -208,5 +237,5 @@ class GCPTable:
                 u, v = (repr(float(c)) for c in self.pixels[i])
                 writer.writerow([self.ids[i], x, y, z, u, v, self.roles[i], repr(float(self.sigma_px[i]))])
 
-def _first(mask: np.ndarray) -> int:
+def first_index(mask: np.ndarray) -> int:
     return int(np.flatnonzero(mask)[0])

@@ -23,7 +23,8 @@ import cv2
 import numpy as np
 from scipy import stats
 
-from trafficgeo.calibration.gcps import GCPTable, validate_gcps
+from trafficgeo.calibration.gcp_checks import validate_gcps
+from trafficgeo.calibration.gcp_table import GCPTable
 from trafficgeo.calibration.initial import initial_cameras
 from trafficgeo.calibration.params import ParameterModel, project_full
 from trafficgeo.calibration.refine import (

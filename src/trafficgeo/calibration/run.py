@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trafficgeo.calibration.gcps import GCPTable
+from trafficgeo.calibration.gcp_table import GCPTable
 from trafficgeo.calibration.params import ParameterModel
 from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, calibrate
 from trafficgeo.calibration.refine import fit_camera

@@ -16,11 +16,12 @@ fixed-point iterations, which leaves errors of tenths of a pixel to pixels near 
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 NDArray = np.ndarray
 
 
-def as_dist(dist: object | None) -> NDArray:
+def as_dist(dist: ArrayLike | None) -> NDArray:
     """Return distortion coefficients as a float64 array of 5 values (None -> zeros)."""
     if dist is None:
         return np.zeros(5)

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 import pyproj
+from numpy.typing import ArrayLike
 from pyproj.exceptions import CRSError
 
 from trafficgeo.camera.distortion import as_dist, distort_normalized, undistort_normalized
@@ -50,7 +51,7 @@ def crs_to_text(crs: pyproj.CRS | None) -> str | None:
     return crs.to_wkt()
 
 
-def _as_points(a: object, dim: int, name: str) -> np.ndarray:
+def _as_points(a: ArrayLike, dim: int, name: str) -> np.ndarray:
     arr = np.asarray(a, dtype=np.float64)
     if arr.ndim == 1 and arr.shape[0] == dim:
         arr = arr[None, :]
@@ -115,12 +116,12 @@ class Camera:
         cls,
         image_size: tuple[int, int],
         focal_px: float,
-        position: object,
+        position: ArrayLike,
         heading_deg: float,
         tilt_deg: float,
         roll_deg: float = 0.0,
         *,
-        dist: object | None = None,
+        dist: ArrayLike | None = None,
         principal_point: tuple[float, float] | None = None,
         crs: CRSInput = None,
     ) -> Camera:
@@ -135,8 +136,8 @@ class Camera:
         return cls(image_size=(w, h), K=K, dist=as_dist(dist), R=R, position=np.asarray(position, float), crs=crs)
 
     @classmethod
-    def from_rvec_tvec(cls, image_size: tuple[int, int], K: object, dist: object, rvec: object, tvec: object,
-                       *, origin: object = (0.0, 0.0, 0.0), crs: CRSInput = None) -> Camera:
+    def from_rvec_tvec(cls, image_size: tuple[int, int], K: ArrayLike, dist: ArrayLike, rvec: ArrayLike,
+                       tvec: ArrayLike, *, origin: ArrayLike = (0.0, 0.0, 0.0), crs: CRSInput = None) -> Camera:
         """From OpenCV ``rvec``/``tvec`` that map ``Xw - origin`` to camera coordinates."""
         R, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))
         t = np.asarray(tvec, dtype=np.float64).reshape(3)
@@ -184,19 +185,19 @@ class Camera:
         return (float(np.degrees(2 * np.arctan(w / (2 * self.K[0, 0])))),
                 float(np.degrees(2 * np.arctan(h / (2 * self.K[1, 1])))))
 
-    def rvec_tvec(self, origin: object = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    def rvec_tvec(self, origin: ArrayLike = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
         """OpenCV ``rvec`` (Rodrigues, rad) and ``tvec`` mapping ``Xw - origin`` to camera coordinates."""
         rvec, _ = cv2.Rodrigues(self.R)
         tvec = -self.R @ (self.position - np.asarray(origin, dtype=np.float64).reshape(3))
         return rvec.ravel(), tvec
 
     # ------------------------------------------------------------------ world <-> image
-    def world_to_camera(self, world: object) -> np.ndarray:
+    def world_to_camera(self, world: ArrayLike) -> np.ndarray:
         """Camera-frame coordinates (N, 3) of world points (N, 3), in CRS units."""
         pts = _as_points(world, 3, "world points")
         return (pts - self.position) @ self.R.T
 
-    def project(self, world: object) -> np.ndarray:
+    def project(self, world: ArrayLike) -> np.ndarray:
         """Pixels (N, 2) of world points (N, 3). Points on or behind the camera plane get NaN."""
         xc = self.world_to_camera(world)
         z = xc[:, 2]
@@ -212,7 +213,7 @@ class Camera:
         v = K[1, 1] * xyd[:, 1] + K[1, 2]
         return np.stack([u, v], axis=-1)
 
-    def pixels_to_normalized(self, uv: object) -> np.ndarray:
+    def pixels_to_normalized(self, uv: ArrayLike) -> np.ndarray:
         """Undistorted normalized coordinates (N, 2) of pixels (N, 2); NaN where the lens model has no inverse."""
         pts = _as_points(uv, 2, "pixels")
         K = self.K
@@ -220,12 +221,12 @@ class Camera:
         xd = (pts[:, 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
         return undistort_normalized(np.stack([xd, yd], axis=-1), self.dist)
 
-    def undistort_pixels(self, uv: object) -> np.ndarray:
+    def undistort_pixels(self, uv: ArrayLike) -> np.ndarray:
         """Pixels (N, 2) as an ideal distortion-free camera with the same K would see them."""
         xn = self.pixels_to_normalized(uv)
         return self.normalized_to_pixels(xn)
 
-    def rays(self, uv: object) -> np.ndarray:
+    def rays(self, uv: ArrayLike) -> np.ndarray:
         """Unit viewing directions (N, 3) in world coordinates for pixels (N, 2); rays start at ``position``.
 
         NaN rows for pixels outside the invertible region of the lens model.
@@ -235,7 +236,7 @@ class Camera:
         d_world = d_cam @ self.R
         return d_world / np.linalg.norm(d_world, axis=1, keepdims=True)
 
-    def intersect_horizontal_plane(self, uv: object, z: object) -> np.ndarray:
+    def intersect_horizontal_plane(self, uv: ArrayLike, z: ArrayLike) -> np.ndarray:
         """World points (N, 3) where the rays of pixels ``uv`` meet the horizontal planes ``Z = z``.
 
         ``z`` is a scalar or (N,) array in CRS units. Rays parallel to the plane or meeting it behind the camera
@@ -248,7 +249,7 @@ class Camera:
         s = np.where(s > 0, s, np.nan)
         return self.position + s[:, None] * d
 
-    def in_image(self, uv: object, margin: float = 0.0) -> np.ndarray:
+    def in_image(self, uv: ArrayLike, margin: float = 0.0) -> np.ndarray:
         """Boolean (N,) whether pixels lie within the frame (pixel-centre convention), shrunk by ``margin``."""
         pts = _as_points(uv, 2, "pixels")
         w, h = self.image_size

@@ -159,7 +159,7 @@ def _is_positive_int(v: Any) -> bool:
 
 
 # ---------------------------------------------------------------------------------------------- reading
-def _scalar(node: Any) -> float | None:
+def node_scalar(node: Any) -> float | None:
     """The number in a scalar node, or None if the node is not a number."""
     if node.isInt() or node.isReal():
         return float(node.real())
@@ -174,7 +174,7 @@ def _seq_values(node: Any, where: str) -> np.ndarray:
         if item.isSeq():
             rows.append(_seq_values(item, where))
         else:
-            v = _scalar(item)
+            v = node_scalar(item)
             if v is None:
                 raise InputError(f"{where}: element {i} is not a number; {_FIX_HINT}")
             rows.append(v)
@@ -187,7 +187,7 @@ def _seq_values(node: Any, where: str) -> np.ndarray:
     return np.array(rows, dtype=np.float64)
 
 
-def _node_array(node: Any, where: str) -> np.ndarray:
+def node_array(node: Any, where: str) -> np.ndarray:
     """The array in a matrix node: ``!!opencv-matrix``, ``{rows, cols, data}`` map or a (nested) sequence."""
     if node.isMap():
         keys = set(node.keys())
@@ -207,7 +207,7 @@ def _node_array(node: Any, where: str) -> np.ndarray:
             if not data.isSeq():
                 raise InputError(f"{where}: 'data' must be a list of numbers; {_FIX_HINT}")
             arr = _seq_values(data, where).reshape(-1)
-            rows, cols = _scalar(node.getNode("rows")), _scalar(node.getNode("cols"))
+            rows, cols = node_scalar(node.getNode("rows")), node_scalar(node.getNode("cols"))
             if rows is not None and cols is not None:
                 if rows * cols != arr.size:
                     raise InputError(
@@ -222,7 +222,7 @@ def _node_array(node: Any, where: str) -> np.ndarray:
     raise InputError(f"{where}: expected a matrix, found a single value or text; {_FIX_HINT}")
 
 
-def _first_key(fs: Any, keys: tuple[str, ...]) -> tuple[str, Any] | None:
+def first_key(fs: Any, keys: tuple[str, ...]) -> tuple[str, Any] | None:
     for key in keys:
         node = fs.getNode(key)
         if not node.empty() and not node.isNone():
@@ -231,7 +231,7 @@ def _first_key(fs: Any, keys: tuple[str, ...]) -> tuple[str, Any] | None:
 
 
 def _positive_int(node: Any, where: str) -> int:
-    v = _scalar(node)
+    v = node_scalar(node)
     if v is None or not _is_positive_int(v):
         raise InputError(f"{where}: must be a positive integer number of pixels; {_FIX_HINT}")
     return int(v)
@@ -251,18 +251,18 @@ def _read_image_size(fs: Any, src: str) -> tuple[int, int] | None:
             _positive_int(w_node, f"{src}, key 'image_width'"),
             _positive_int(h_node, f"{src}, key 'image_height'"),
         )
-    found = _first_key(fs, IMAGE_SIZE_KEYS)
+    found = first_key(fs, IMAGE_SIZE_KEYS)
     if found is None:
         return None
     key, node = found
     where = f"{src}, key '{key}'"
-    arr = _node_array(node, where).reshape(-1) if (node.isSeq() or node.isMap()) else np.array([])
+    arr = node_array(node, where).reshape(-1) if (node.isSeq() or node.isMap()) else np.array([])
     if arr.size != 2 or not all(_is_positive_int(v) for v in arr):
         raise InputError(f"{where}: expected [width, height] as two positive integers; {_FIX_HINT}")
     return int(arr[0]), int(arr[1])
 
 
-def _cv_error_detail(exc: BaseException) -> str:
+def cv_error_detail(exc: BaseException) -> str:
     """The useful part of an OpenCV error, on one line ("file(line): what is wrong" for parse errors)."""
     cause = exc.__cause__ or exc.__context__ or exc
     text = " ".join(str(cause).split())
@@ -297,7 +297,7 @@ def read_intrinsics_yaml(path: str | os.PathLike[str]) -> Intrinsics:
         root = fs.root() if opened else None
         is_map = root is not None and root.isMap()
     except (cv2.error, SystemError) as exc:  # a parse error surfaces as SystemError in the OpenCV 5 bindings
-        detail = _cv_error_detail(exc)
+        detail = cv_error_detail(exc)
         raise InputError(
             f"{src}: not a readable OpenCV FileStorage YAML/XML/JSON file ({detail}); give an OpenCV "
             f".yml with camera_matrix"
@@ -310,7 +310,7 @@ def read_intrinsics_yaml(path: str | os.PathLike[str]) -> Intrinsics:
     try:
         if not is_map:
             raise InputError(f"{src}: empty or not a key/value file; give an OpenCV .yml with camera_matrix")
-        found = _first_key(fs, CAMERA_MATRIX_KEYS)
+        found = first_key(fs, CAMERA_MATRIX_KEYS)
         if found is None:
             raise InputError(
                 f"{src}: no camera matrix (looked for keys {', '.join(CAMERA_MATRIX_KEYS)}); "
@@ -318,7 +318,7 @@ def read_intrinsics_yaml(path: str | os.PathLike[str]) -> Intrinsics:
             )
         key, node = found
         where = f"{src}, key '{key}'"
-        K = _node_array(node, where)
+        K = node_array(node, where)
         if K.size == 9 and K.ndim == 1:  # a flat list of 9 values, row-major
             K = K.reshape(3, 3)
         _check_K(K, where)
@@ -331,21 +331,21 @@ def read_intrinsics_yaml(path: str | os.PathLike[str]) -> Intrinsics:
                     f"{src}, key 'distortion_model': '{model}' is not supported, only the OpenCV "
                     f"5-term model (plumb_bob) [k1, k2, p1, p2, k3]; recalibrate with it"
                 )
-        found = _first_key(fs, DISTORTION_KEYS)
+        found = first_key(fs, DISTORTION_KEYS)
         if found is None:
             dist = np.zeros(5)
         else:
             dkey, dnode = found
             dwhere = f"{src}, key '{dkey}'"
-            dist = _as_dist(_node_array(dnode, dwhere), dwhere)
+            dist = _as_dist(node_array(dnode, dwhere), dwhere)
 
         image_size = _read_image_size(fs, src)
 
         rms: float | None = None
-        found = _first_key(fs, RMS_KEYS)
+        found = first_key(fs, RMS_KEYS)
         if found is not None:
             rkey, rnode = found
-            rms = _scalar(rnode)
+            rms = node_scalar(rnode)
             if rms is None or not (math.isfinite(rms) and rms >= 0):
                 raise InputError(f"{src}, key '{rkey}': must be a finite number >= 0 (pixels); {_FIX_HINT}")
     finally:

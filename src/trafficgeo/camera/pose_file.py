@@ -40,13 +40,14 @@ from typing import Any
 import cv2
 import numpy as np
 import pyproj
+from numpy.typing import ArrayLike
 
 from trafficgeo.camera.model import Camera, CRSInput
 from trafficgeo.camera.opencv_yaml import (
-    _cv_error_detail,
-    _first_key,
-    _node_array,
-    _scalar,
+    cv_error_detail,
+    first_key,
+    node_array,
+    node_scalar,
     read_intrinsics_yaml,
 )
 from trafficgeo.crs import is_geographic, metres_per_unit, parse_crs
@@ -85,7 +86,7 @@ def _enu_basis(lat_deg: float, lon_deg: float) -> np.ndarray:
                      [0.0, np.cos(la), np.sin(la)]])
 
 
-def local_to_crs(points: object, origin: tuple[float, float, float], crs: pyproj.CRS,
+def local_to_crs(points: ArrayLike, origin: tuple[float, float, float], crs: pyproj.CRS,
                  frame: str = "enu") -> np.ndarray:
     """Points (N, 3) of a local tangent frame (metres; ``frame`` "enu" or "ned") at the geodetic ``origin``
     (lat, lon [deg], alt [m]) -> (N, 3) in the projected ``crs``: X, Y and Z in CRS units, Z = altitude."""
@@ -114,7 +115,7 @@ def _rotation_local_to_crs(centre: np.ndarray, origin: tuple[float, float, float
     return A
 
 
-def camera_from_pose(image_size: tuple[int, int], K: object, dist: object, R: object, t: object, *,
+def camera_from_pose(image_size: tuple[int, int], K: ArrayLike, dist: ArrayLike, R: ArrayLike, t: ArrayLike, *,
                      crs: CRSInput = None, origin: tuple[float, float, float] | None = None,
                      frame: str = "enu") -> Camera:
     """A :class:`Camera` from OpenCV's pose ``x_cam = R X + t`` (``R`` 3x3 or a Rodrigues ``rvec``).
@@ -148,7 +149,7 @@ def camera_from_pose(image_size: tuple[int, int], K: object, dist: object, R: ob
     return Camera(image_size=image_size, K=K, dist=dist, R=Rm @ A, position=position, crs=target)
 
 
-def _check_origin(origin: object) -> tuple[float, float, float]:
+def _check_origin(origin: ArrayLike) -> tuple[float, float, float]:
     try:
         lat, lon, alt = (float(v) for v in origin)  # type: ignore[union-attr]
     except (TypeError, ValueError):
@@ -165,16 +166,16 @@ def _file_origin(fs: Any, src: str) -> tuple[float, float, float] | None:
     nodes = [fs.getNode(k) for k in keys]
     present = [not n.empty() and not n.isNone() for n in nodes]
     if any(present):
-        values = [_scalar(n) for n in nodes]
+        values = [node_scalar(n) for n in nodes]
         missing = [k for k, v in zip(keys, values, strict=True) if v is None]
         if missing:
             raise InputError(f"{src}: keys {', '.join(missing)} are missing or not numbers; give origin_lat, "
                              "origin_lon (degrees) and origin_alt (metres) together")
         return values[0], values[1], values[2]  # type: ignore[return-value]
-    found = _first_key(fs, ("origin",))
+    found = first_key(fs, ("origin",))
     if found is None:
         return None
-    arr = _node_array(found[1], f"{src}, key 'origin'").reshape(-1)
+    arr = node_array(found[1], f"{src}, key 'origin'").reshape(-1)
     if arr.size != 3:
         raise InputError(f"{src}, key 'origin': expected [lat, lon, alt] (degrees, degrees, metres)")
     return float(arr[0]), float(arr[1]), float(arr[2])
@@ -207,18 +208,18 @@ def read_pose_file(path: str | os.PathLike[str], *, crs: CRSInput = None,
     try:
         fs = cv2.FileStorage(src, cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as exc:
-        raise InputError(f"{src}: not a readable OpenCV FileStorage file ({_cv_error_detail(exc)}); {_HINT}") from None
+        raise InputError(f"{src}: not a readable OpenCV FileStorage file ({cv_error_detail(exc)}); {_HINT}") from None
     try:
-        found = _first_key(fs, ROTATION_KEYS)
+        found = first_key(fs, ROTATION_KEYS)
         if found is None:
             raise InputError(f"{src}: no rotation (looked for keys {', '.join(ROTATION_KEYS)}); {_HINT}")
         rkey, rnode = found
-        R = _rotation(_node_array(rnode, f"{src}, key '{rkey}'"), f"{src}, key '{rkey}'")
-        found = _first_key(fs, TRANSLATION_KEYS)
+        R = _rotation(node_array(rnode, f"{src}, key '{rkey}'"), f"{src}, key '{rkey}'")
+        found = first_key(fs, TRANSLATION_KEYS)
         if found is None:
             raise InputError(f"{src}: no translation (looked for keys {', '.join(TRANSLATION_KEYS)}); {_HINT}")
         tkey, tnode = found
-        t = _node_array(tnode, f"{src}, key '{tkey}'").reshape(-1)
+        t = node_array(tnode, f"{src}, key '{tkey}'").reshape(-1)
         if t.size != 3 or not np.all(np.isfinite(t)):
             raise InputError(f"{src}, key '{tkey}': expected 3 finite values (x_cam = R X + t); {_HINT}")
         file_crs = _file_text(fs, "crs", src)

@@ -98,9 +98,9 @@ def calibrate(
 
     size = parse_image_size(image_size)
     if gis is not None:
-        from trafficgeo.cli.geo import _check_gis_path
+        from trafficgeo.cli.geo import check_gis_path
 
-        _check_gis_path(gis, "--gis")
+        check_gis_path(gis, "--gis")
     if report_html is not None:
         from trafficgeo.cli.report import check_html_path
 

@@ -18,19 +18,19 @@ SurfaceCrsOpt = Annotated[str | None, typer.Option(help="CRS of the surface file
 ResolutionOpt = Annotated[float, typer.Option(help="DEM cell size (m) when the surface is a point cloud")]
 
 
-def _camera(path: Path):
+def camera_argument(path: Path):
     from trafficgeo.camera.calibrated import CalibratedCamera
 
     return CalibratedCamera.read(path)
 
 
-def _surface(spec: str, camera, surface_crs: str | None, resolution: float):
+def surface_argument(spec: str, camera, surface_crs: str | None, resolution: float):
     from trafficgeo.site.surface import load_surface
 
     return load_surface(spec, camera, surface_crs=surface_crs, resolution_m=resolution)
 
 
-def _check_gis_path(path: Path | None, option: str) -> None:
+def check_gis_path(path: Path | None, option: str) -> None:
     """Refuse an unknown GIS suffix before anything is computed or written."""
     from trafficgeo.io.gis import GIS_SUFFIXES
 
@@ -64,11 +64,11 @@ def georef(
     if not np.isfinite(height):
         raise InputError(f"--height {height} must be a finite height above the road in metres, e.g. 1.4")
     check_table_output(output)
-    calibrated = _camera(camera)
+    calibrated = camera_argument(camera)
     cam = calibrated.camera
     table = read_point_table(pixels, ("u", "v"), "pixels", "give a CSV with columns u,v (pixels, origin at the "
                              "centre of the top-left pixel)")
-    surf = _surface(surface, calibrated, surface_crs, resolution)
+    surf = surface_argument(surface, calibrated, surface_crs, resolution)
     crs = camera_crs(cam)
     m = metres_per_unit(crs) if crs is not None else 1.0
     out = georeference_table(cam, table, surf, height=height / m, min_incidence_deg=min_incidence)
@@ -93,11 +93,11 @@ def project(
     from trafficgeo.io.tables import read_point_table, write_point_table
 
     check_table_output(output)
-    calibrated = _camera(camera)
+    calibrated = camera_argument(camera)
     cam = calibrated.camera
     table = read_point_table(world, ("x", "y", "z"), "world points",
                              "give a CSV with columns x,y,z in the camera's CRS and units")
-    surf = _surface(surface, calibrated, surface_crs, resolution) if surface else None
+    surf = surface_argument(surface, calibrated, surface_crs, resolution) if surface else None
     out = lonlat_columns(project_table(cam, table, surf), camera_crs(cam))
     write_point_table(output, out, camera_crs(cam))
     console.print(f"{len(out)} points: {_status_summary(out['status'].to_numpy())}")
@@ -216,15 +216,15 @@ def accuracy(
         raise InputError(f"--max-distance {max_distance} must be positive (m)")
     if output.suffix.lower() not in (".tif", ".tiff"):
         raise InputError(f"{output}: the accuracy map is a GeoTIFF; name it .tif")
-    _check_gis_path(gis, "--gis")
-    calibrated = _camera(camera)
+    check_gis_path(gis, "--gis")
+    calibrated = camera_argument(camera)
     cam = calibrated.camera
     if cam.crs is None:
         raise InputError(f"{camera}: the camera has no CRS, so the map cannot be georeferenced; calibrate with --crs")
     cov = calibrated.covariance
     if cov is None:
         console.print("[yellow]no calibration covariance in the camera JSON: mapping pixel noise only[/]")
-    surf = _surface(surface, calibrated, surface_crs, resolution)
+    surf = surface_argument(surface, calibrated, surface_crs, resolution)
     grid = accuracy_grid(cam, surf, cov, pixel_sigma=pixel_sigma, resolution_m=cell, max_distance_m=max_distance)
     foot = footprint_polygon(grid)
     layers = site_layers(calibrated, foot) if gis is not None else None

@@ -11,7 +11,7 @@ import typer
 
 from trafficgeo.cli import app, console
 from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt
-from trafficgeo.cli.traffic import IntervalOpt, LanesOpt, LinesOpt, ReportHtmlOpt, _check_out_dir
+from trafficgeo.cli.traffic import IntervalOpt, LanesOpt, LinesOpt, ReportHtmlOpt, check_out_dir
 from trafficgeo.video.detectors.names import DETECTOR_HELP
 from trafficgeo.video.detectors.onnx_formats import FORMAT_HELP
 
@@ -74,7 +74,7 @@ def process(
     from trafficgeo.report.traffic import print_analysis
     from trafficgeo.video.pipeline import ProcessOptions
 
-    _check_out_dir(out)
+    check_out_dir(out)
     check_html_path(report_html)
     opts = ProcessOptions(detector=detector, detector_format=detector_format, start_s=start, end_s=end, every=every,
                           checkpoint_s=checkpoint, tiles=tiles, tiling=tiling, backend=backend,
@@ -134,7 +134,7 @@ def stitch(
     from trafficgeo.pipeline.run import stitch as stitch_runs
     from trafficgeo.report.traffic import print_analysis
 
-    _check_out_dir(out)
+    check_out_dir(out)
     result = stitch_runs(chunks, camera, surface, out, lanes, lines, interval_s=interval, resolution_m=resolution,
                          surface_crs=surface_crs,
                          notice=lambda text: console.print(text, markup=False, highlight=False))

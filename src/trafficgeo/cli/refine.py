@@ -37,7 +37,7 @@ def refine(
     correspondences, a robust re-fit, repeated until the camera stops moving. The user's own GCPs judge it: the
     refined camera is written only when it lowers their check-point / leave-one-out ground error; otherwise the
     original camera is written unchanged, the reason printed, and the exit code is 1."""
-    from trafficgeo.cli.geo import _camera, _surface
+    from trafficgeo.cli.geo import camera_argument, surface_argument
     from trafficgeo.registration.refine import RefineOptions
     from trafficgeo.registration.run import read_frame_image, refine_camera_files
 
@@ -45,8 +45,8 @@ def refine(
         raise InputError("give the video (--video) or a still without traffic (--frame), one of them",
                          parameters=("video", "frame"))
     options = RefineOptions(search_px=search)
-    calibrated = _camera(camera)
-    ground = _surface(surface, calibrated, surface_crs, resolution)
+    calibrated = camera_argument(camera)
+    ground = surface_argument(surface, calibrated, surface_crs, resolution)
     if video is not None:
         from trafficgeo.video.background_frame import background_frame
 

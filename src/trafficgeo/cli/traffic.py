@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 
 from trafficgeo.cli import app, console
-from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt, _camera
+from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt, camera_argument
 from trafficgeo.errors import InputError
 
 LanesOpt = Annotated[Path | None, typer.Option(help="lane polygons or boundary lines (GIS), or boundary lines drawn "
@@ -21,7 +21,7 @@ ReportHtmlOpt = Annotated[Path | None, typer.Option(help="also write an HTML rep
 
 
 
-def _check_out_dir(out: Path) -> None:
+def check_out_dir(out: Path) -> None:
     """Fail before any work when ``--out`` cannot be written."""
     from trafficgeo.io.run_manifest import check_writable_folder
 
@@ -65,13 +65,13 @@ def analyze(
     from trafficgeo.traffic.tracks import read_tracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
 
-    _check_out_dir(out)
+    check_out_dir(out)
     check_html_path(report_html)
     check_interval(interval)
     check_resolution(resolution)
     opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
                              max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
-    calibrated = _camera(camera)  # a bad camera file is named before the tracks are read
+    calibrated = camera_argument(camera)  # a bad camera file is named before the tracks are read
     cam = calibrated.camera
     knowledge = ScaleKnowledge.from_camera(calibrated)
     image_tracks = read_tracks(tracks, fps=fps)
@@ -109,7 +109,7 @@ def compare_sumo(
     from trafficgeo.traffic.validation import compare_with_sumo, read_observed_run, write_comparison
 
     out = out or observed
-    _check_out_dir(out)
+    check_out_dir(out)
     if not math.isfinite(time_offset):
         raise InputError(f"--time-offset {time_offset}: give the simulation's time minus the observed time as a "
                          "finite number of seconds, e.g. 0")

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
@@ -36,7 +37,7 @@ DEFAULT_CLASS = "car"
 CLASS_ALIASES: dict[str, str] = {"motorbike": "motorcycle", "bike": "bicycle", "passenger": "car",
                                  "delivery": "van", "lorry": "truck", "coach": "bus"}
 # ---------------------------------------------------------------------------------------------------- dimensions
-def dimensions_for(classes: object) -> np.ndarray:
+def dimensions_for(classes: ArrayLike) -> np.ndarray:
     """Typical (length, width, height) in metres, (N, 3), for class names (N,) (case-insensitive; aliases in
     :data:`CLASS_ALIASES`); unknown or empty names get the dimensions of a car."""
     names = np.asarray(classes, dtype=object).reshape(-1)
@@ -55,7 +56,8 @@ def units_per_metre(camera: Camera) -> float:
 
 
 # ---------------------------------------------------------------------------------------------------- cuboids
-def cuboid_corners(centre: object, heading_deg: object, length: object, width: object, height: object) -> np.ndarray:
+def cuboid_corners(centre: ArrayLike, heading_deg: ArrayLike, length: ArrayLike, width: ArrayLike,
+                   height: ArrayLike) -> np.ndarray:
     """World corners (N, 8, 3) of level cuboids: footprint centres ``centre`` (N, 3), ``heading_deg`` (N,) clockwise
     from north, ``length``/``width``/``height`` (N,) or scalars in the units of ``centre``. Corner order:
     front-left, front-right, rear-right, rear-left at the bottom (0-3), then the same on top (4-7)."""
@@ -70,8 +72,8 @@ def cuboid_corners(centre: object, heading_deg: object, length: object, width: o
     return np.stack(bottom + [b + up for b in bottom], axis=1)
 
 
-def cuboid_boxes(camera: Camera, centre: object, heading_deg: object, length: object, width: object,
-                 height: object) -> np.ndarray:
+def cuboid_boxes(camera: Camera, centre: ArrayLike, heading_deg: ArrayLike, length: ArrayLike, width: ArrayLike,
+                 height: ArrayLike) -> np.ndarray:
     """Image boxes (N, 4) ``x1, y1, x2, y2`` (px, unclipped) of the projected corners of :func:`cuboid_corners`
     (dimensions in CRS units); NaN rows where a corner is behind the camera."""
     corners = cuboid_corners(centre, heading_deg, length, width, height)
@@ -80,7 +82,7 @@ def cuboid_boxes(camera: Camera, centre: object, heading_deg: object, length: ob
     return np.concatenate([uv.min(axis=1), uv.max(axis=1)], axis=1)  # NaN propagates
 
 
-def free_edges(camera: Camera, boxes: object, border_px: float = 2.0) -> np.ndarray:
+def free_edges(camera: Camera, boxes: ArrayLike, border_px: float = 2.0) -> np.ndarray:
     """Boolean (N, 4) for ``x1, y1, x2, y2``: True where the edge is finite and lies more than ``border_px`` inside
     the outermost pixel centres (0 and W-1, H-1), i.e. the detector did not clip it. The margin catches boxes
     clipped to pixel centres ``[0, W-1]`` as well as to pixel edges ``[-0.5, W-0.5]`` or ``[0, W]``."""

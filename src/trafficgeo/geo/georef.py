@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 import pyproj
+from numpy.typing import ArrayLike
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
@@ -87,7 +88,7 @@ def _dem_lookup(surface: Surface, x: np.ndarray, y: np.ndarray, radius: float) -
     return z, spread
 
 
-def check_gcp_heights(table: pd.DataFrame, ground: object, crs: pyproj.CRS | None,
+def check_gcp_heights(table: pd.DataFrame, ground: ArrayLike, crs: pyproj.CRS | None,
                       options: GroundCheckOptions | None = None) -> pd.DataFrame:
     """Fill or check the ``z`` of GCPs against the ground (a :class:`trafficgeo.geo.pointcloud.GroundIndex` or a
     surface with ``elevation``), in the table's CRS units.

@@ -26,11 +26,12 @@ from pathlib import Path
 import numpy as np
 import rasterio
 from affine import Affine
+from numpy.typing import ArrayLike
 from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
 from trafficgeo.crs import is_geographic, parse_crs
 from trafficgeo.errors import InputError
-from trafficgeo.geo.raster import GeoRaster, _read_world_file, _world_file_candidates, pixel_to_map, write_geotiff
+from trafficgeo.geo.raster import GeoRaster, pixel_to_map, read_world_file, world_file_candidates, write_geotiff
 
 CORNER_NAMES = ("top-left", "top-right", "bottom-right", "bottom-left")
 
@@ -52,7 +53,7 @@ class ControlFit:
     max_error: float
 
 
-def fit_affine(pixels: object, world: object) -> ControlFit:
+def fit_affine(pixels: ArrayLike, world: ArrayLike) -> ControlFit:
     """Least-squares affine from ``pixels`` (N, 2: u, v with pixel centres on integers) to ``world`` (N, 2, CRS units).
 
     Raises:
@@ -168,13 +169,13 @@ def read_image_ortho(image: str | os.PathLike[str], crs: object, *, world_file: 
         wf = Path(world_file)
         if not wf.is_file():
             raise InputError(f"world_file {wf}: file not found; check the path", parameters=("world_file",))
-        transform = _read_world_file(wf)
+        transform = read_world_file(wf)
     else:
-        found = _world_file_candidates(p)
+        found = world_file_candidates(p)
         if not found:
             raise InputError(f"image {p}: no world file beside it ({p.with_suffix('.wld').name} or the like); give "
                              "`world_file` or control points (`control`)", parameters=("world_file", "control"))
-        transform = _read_world_file(found[0])
+        transform = read_world_file(found[0])
     return GeoRaster(data, transform, target, nodata, (), str(p)), fit
 
 

@@ -13,6 +13,7 @@ from typing import Protocol
 
 import numpy as np
 import pyproj
+from numpy.typing import ArrayLike
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import is_geographic, metres_per_unit, projected_to_lonlat
@@ -31,11 +32,11 @@ class Surface(Protocol):
 
     crs: pyproj.CRS | None
 
-    def elevation(self, x: object, y: object) -> np.ndarray: ...
+    def elevation(self, x: ArrayLike, y: ArrayLike) -> np.ndarray: ...
 
-    def normal(self, x: object, y: object) -> np.ndarray: ...
+    def normal(self, x: ArrayLike, y: ArrayLike) -> np.ndarray: ...
 
-    def intersect(self, origin: object, directions: object, height: float = 0.0,
+    def intersect(self, origin: ArrayLike, directions: ArrayLike, height: float = 0.0,
                   min_incidence_deg: float = DEFAULT_MIN_INCIDENCE_DEG) -> RayHits: ...
 
     def describe(self) -> str: ...
@@ -96,7 +97,7 @@ def lonlat_of(x: np.ndarray, y: np.ndarray, crs: pyproj.CRS | None) -> tuple[np.
     return projected_to_lonlat(x, y, crs)
 
 
-def pixels_to_world(camera: Camera, uv: object, surface: Surface, *, height: float = 0.0,
+def pixels_to_world(camera: Camera, uv: ArrayLike, surface: Surface, *, height: float = 0.0,
                     min_incidence_deg: float = DEFAULT_MIN_INCIDENCE_DEG, frame_margin_px: float = 0.5,
                     with_lonlat: bool = True) -> GroundPoints:
     """Map pixels (N, 2) to the first point where their rays meet ``surface`` lifted by ``height`` (CRS units).
@@ -124,7 +125,7 @@ def pixels_to_world(camera: Camera, uv: object, surface: Surface, *, height: flo
                         incidence_deg=np.where(code == OK, hits.incidence_deg, np.nan), lon=lon, lat=lat)
 
 
-def world_to_pixels(camera: Camera, xyz: object, surface: Surface | None = None, *,
+def world_to_pixels(camera: Camera, xyz: ArrayLike, surface: Surface | None = None, *,
                     occlusion_tolerance_m: float = 0.5) -> ImagePoints:
     """Project world points (N, 3) into the image; with ``surface``, flag points the surface hides from the camera.
 
@@ -152,7 +153,7 @@ def world_to_pixels(camera: Camera, xyz: object, surface: Surface | None = None,
     return ImagePoints(uv=uv, status=status, depth=depth)
 
 
-def georeference(camera: Camera, pixels: object, surface: Surface, *, height_m: float = 0.0,
+def georeference(camera: Camera, pixels: ArrayLike, surface: Surface, *, height_m: float = 0.0,
                  min_incidence_deg: float = DEFAULT_MIN_INCIDENCE_DEG) -> GroundPoints:
     """Pixels (N, 2) ``u, v`` (pixel-centre convention, :mod:`trafficgeo.camera.model`) to the ground: where each
     pixel's ray first meets ``surface`` lifted by ``height_m`` metres (e.g. a car roof), in the camera's CRS, with a

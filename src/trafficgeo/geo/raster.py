@@ -63,7 +63,7 @@ def _as_affine(transform: object) -> Affine:
     return Affine(*values[:6])
 
 
-def _to_pyproj(crs: object) -> pyproj.CRS | None:
+def to_pyproj_crs(crs: object) -> pyproj.CRS | None:
     """pyproj CRS from a pyproj CRS, rasterio CRS, EPSG/WKT/PROJ text or None."""
     if crs is None or isinstance(crs, pyproj.CRS):
         return crs
@@ -135,7 +135,7 @@ class GeoRaster:
             raise ValueError(f"{len(descriptions)} band descriptions for {data.shape[0]} bands")
         object.__setattr__(self, "data", _readonly(data))
         object.__setattr__(self, "transform", transform)
-        object.__setattr__(self, "crs", _to_pyproj(self.crs))
+        object.__setattr__(self, "crs", to_pyproj_crs(self.crs))
         object.__setattr__(self, "nodata", None if self.nodata is None else float(self.nodata))
         object.__setattr__(self, "descriptions", descriptions or (None,) * data.shape[0])
         object.__setattr__(self, "path", None if self.path is None else str(self.path))
@@ -277,7 +277,7 @@ def _check_file(path: Path, what: str) -> None:
         raise InputError(f"{what} {path} is a folder, not a file; give the path of the {what}")
 
 
-def _world_file_candidates(path: Path) -> list[Path]:
+def world_file_candidates(path: Path) -> list[Path]:
     ext = path.suffix.lower()
     suffixes: list[str] = []
     if len(ext) >= 3:
@@ -294,7 +294,7 @@ def _world_file_candidates(path: Path) -> list[Path]:
     return out
 
 
-def _read_world_file(path: Path) -> Affine:
+def read_world_file(path: Path) -> Affine:
     """Corner-convention transform from a world file (six numbers A, D, B, E, C, F; C, F = centre of pixel (0, 0)).
 
     Raises:
@@ -334,9 +334,9 @@ def _georeferencing(path: Path, transform: Affine, has_gcps: bool, label: str) -
     """
     if not (transform.is_identity or transform.determinant == 0 or not all(map(math.isfinite, transform[:6]))):
         return transform
-    worlds = _world_file_candidates(path)
+    worlds = world_file_candidates(path)
     if worlds:
-        return _read_world_file(worlds[0])
+        return read_world_file(worlds[0])
     if has_gcps:
         raise InputError(f"{label}: georeferenced only by ground control points, not a geotransform; "
                          "warp it first (e.g. gdalwarp in.tif out.tif)")
@@ -368,7 +368,7 @@ def _read(path: str | os.PathLike[str], crs: object, what: str, bands: Sequence[
     except RasterioError as exc:
         raise InputError(f"{what} {p} could not be read ({' '.join(str(exc).split())}); check the file") from None
     transform = _georeferencing(p, transform, has_gcps, str(p))
-    out_crs = parse_crs(crs) if crs is not None else _to_pyproj(file_crs)
+    out_crs = parse_crs(crs) if crs is not None else to_pyproj_crs(file_crs)
     picked = tuple(descriptions[i - 1] for i in indexes)
     return GeoRaster(data, transform, out_crs, nodata, picked, str(p))
 
@@ -446,7 +446,7 @@ def open_raster(path: str | os.PathLike[str], what: str = "raster") -> tuple[ras
 
 # ---------------------------------------------------------------------- writing
 def _rasterio_crs(crs: object) -> rasterio.crs.CRS | None:
-    pj = _to_pyproj(crs)
+    pj = to_pyproj_crs(crs)
     if pj is None:
         return None
     auth = pj.to_authority(min_confidence=100)

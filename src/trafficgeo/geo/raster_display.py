@@ -15,7 +15,7 @@ from affine import Affine
 from rasterio.errors import RasterioError
 
 from trafficgeo.errors import InputError
-from trafficgeo.geo.raster import _to_pyproj, open_raster, pixel_to_map
+from trafficgeo.geo.raster import open_raster, pixel_to_map, to_pyproj_crs
 
 __all__ = ["DisplayRaster", "display_rgb", "read_display"]
 
@@ -98,7 +98,7 @@ def read_display(path: str | os.PathLike[str], max_px: int, *, bounds: tuple[flo
     src, grid = open_raster(path, what)
     with src:
         try:
-            src_crs = _to_pyproj(src.crs)
+            src_crs = to_pyproj_crs(src.crs)
             warp = (crs is not None and src_crs is not None and not same_horizontal_crs(src_crs, crs)) or \
                 (north_up and (grid.b != 0 or grid.d != 0))
             if warp:

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pyproj
+from numpy.typing import ArrayLike
 
 STATUSES = ("ok", "above_horizon", "behind_camera", "miss", "no_data", "grazing", "outside_lens", "outside_image")
 OK, ABOVE_HORIZON, BEHIND_CAMERA, MISS, NO_DATA, GRAZING, OUTSIDE_LENS, OUTSIDE_IMAGE = range(len(STATUSES))
@@ -69,7 +70,7 @@ class RayHits:
         return np.asarray(STATUSES, dtype=object)[self.code]
 
 
-def _check_rays(origin: object, directions: object) -> tuple[np.ndarray, np.ndarray]:
+def _check_rays(origin: ArrayLike, directions: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     o = np.asarray(origin, dtype=np.float64).reshape(3)
     d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     return o, d
@@ -117,17 +118,17 @@ class ConstantSurface:
     z: float
     crs: pyproj.CRS | None = None
 
-    def elevation(self, x: object, y: object) -> np.ndarray:
+    def elevation(self, x: ArrayLike, y: ArrayLike) -> np.ndarray:
         """Surface Z at (x, y) (arrays broadcast)."""
         xb, _ = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
         return np.full(xb.shape, float(self.z))
 
-    def normal(self, x: object, y: object) -> np.ndarray:
+    def normal(self, x: ArrayLike, y: ArrayLike) -> np.ndarray:
         """Unit upward normals (N, 3)."""
         n = np.asarray(x, dtype=np.float64).reshape(-1).size
         return np.tile([0.0, 0.0, 1.0], (n, 1))
 
-    def intersect(self, origin: object, directions: object, height: float = 0.0,
+    def intersect(self, origin: ArrayLike, directions: ArrayLike, height: float = 0.0,
                   min_incidence_deg: float = DEFAULT_MIN_INCIDENCE_DEG) -> RayHits:
         """First hits of rays from ``origin`` (3,) along unit ``directions`` (N, 3); see the module docstring."""
         o, d = _check_rays(origin, directions)
@@ -194,7 +195,7 @@ class PlaneSurface:
         object.__setattr__(self, "point", np.asarray(self.point, dtype=np.float64).reshape(3))
 
     @classmethod
-    def fit(cls, points: object, crs: pyproj.CRS | None = None, robust: bool = True) -> PlaneSurface:
+    def fit(cls, points: ArrayLike, crs: pyproj.CRS | None = None, robust: bool = True) -> PlaneSurface:
         """Least-squares plane through (N >= 3) world points (N, 3), about their centroid.
 
         ``robust``: the plane starts from the consensus of all point triples (within 10 cm), then points off it by
@@ -227,16 +228,16 @@ class PlaneSurface:
                    rms=float(np.sqrt(np.mean(resid[use] ** 2))), excluded=tuple(int(i) for i in np.flatnonzero(
                        finite & ~use)))
 
-    def elevation(self, x: object, y: object) -> np.ndarray:
+    def elevation(self, x: ArrayLike, y: ArrayLike) -> np.ndarray:
         xx, yy = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
         return self.point[2] + self.gx * (xx - self.point[0]) + self.gy * (yy - self.point[1])
 
-    def normal(self, x: object, y: object) -> np.ndarray:
+    def normal(self, x: ArrayLike, y: ArrayLike) -> np.ndarray:
         n = np.asarray(x, dtype=np.float64).reshape(-1).size
         v = np.array([-self.gx, -self.gy, 1.0])
         return np.tile(v / np.linalg.norm(v), (n, 1))
 
-    def intersect(self, origin: object, directions: object, height: float = 0.0,
+    def intersect(self, origin: ArrayLike, directions: ArrayLike, height: float = 0.0,
                   min_incidence_deg: float = DEFAULT_MIN_INCIDENCE_DEG) -> RayHits:
         o, d = _check_rays(origin, directions)
         return _plane_intersect(o, d, self.point, self.gx, self.gy, height, min_incidence_deg)
@@ -260,7 +261,7 @@ class DEMSurface:
     bilinear patch with any NaN corner is no data.
     """
 
-    def __init__(self, values: object, left: float, top: float, xres: float, yres: float,
+    def __init__(self, values: ArrayLike, left: float, top: float, xres: float, yres: float,
                  crs: pyproj.CRS | None = None, name: str = "DEM") -> None:
         z = np.asarray(values, dtype=np.float64)
         if z.ndim != 2 or min(z.shape) < 1:
@@ -286,7 +287,7 @@ class DEMSurface:
         self._dr = z.shape[1] if z.shape[0] > 1 else 0
 
     @classmethod
-    def from_raster(cls, raster: object, name: str | None = None) -> DEMSurface:
+    def from_raster(cls, raster: ArrayLike, name: str | None = None) -> DEMSurface:
         """From a :class:`trafficgeo.geo.raster.GeoRaster` (band 1; must be north-up)."""
         tr = raster.transform  # type: ignore[attr-defined]
         if abs(tr.b) > 1e-12 or abs(tr.d) > 1e-12 or tr.a <= 0 or tr.e >= 0:
@@ -340,13 +341,13 @@ class DEMSurface:
         nan = np.where(inside, 0.0, np.nan)
         return z + nan, dzdc + nan, dzdr + nan
 
-    def elevation(self, x: object, y: object) -> np.ndarray:
+    def elevation(self, x: ArrayLike, y: ArrayLike) -> np.ndarray:
         """Bilinear elevation at map (x, y) (arrays broadcast); NaN outside the grid or over no-data cells."""
         xx, yy = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
         gc, gr = self._grid(xx.reshape(-1), yy.reshape(-1))
         return self._bilinear_grid(gc, gr)[0].reshape(xx.shape)
 
-    def normal(self, x: object, y: object) -> np.ndarray:
+    def normal(self, x: ArrayLike, y: ArrayLike) -> np.ndarray:
         """Unit upward normals (N, 3) of the bilinear surface at map (x, y); NaN outside."""
         gc, gr = self._grid(np.asarray(x, dtype=np.float64).reshape(-1), np.asarray(y, dtype=np.float64).reshape(-1))
         _, dzdc, dzdr = self._bilinear_grid(gc, gr)
@@ -356,7 +357,7 @@ class DEMSurface:
         return n / np.linalg.norm(n, axis=1, keepdims=True)
 
     # -- ray marching ---------------------------------------------------------------------------------------------
-    def intersect(self, origin: object, directions: object, height: float = 0.0,
+    def intersect(self, origin: ArrayLike, directions: ArrayLike, height: float = 0.0,
                   min_incidence_deg: float = DEFAULT_MIN_INCIDENCE_DEG) -> RayHits:
         """First hits of rays from ``origin`` (3,) along unit ``directions`` (N, 3); see the module docstring."""
         o, d = _check_rays(origin, directions)

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pyproj
+from numpy.typing import ArrayLike
 
 from trafficgeo.camera.calibrated import CameraCovariance
 from trafficgeo.camera.model import Camera
@@ -52,7 +53,7 @@ def _on_tangent_plane(camera: Camera, uv: np.ndarray, p0: np.ndarray, normal: np
     return (c[:2] + t[:, None] * d[:, :2]) - p0[:, :2]
 
 
-def ground_uncertainty(camera: Camera, uv: object, surface: Surface, covariance: CameraCovariance | None,
+def ground_uncertainty(camera: Camera, uv: ArrayLike, surface: Surface, covariance: CameraCovariance | None,
                        pixel_sigma: float = 1.0, *, height: float = 0.0, step: float = 0.1) -> GroundUncertainty:
     """Propagate the calibration covariance and ``pixel_sigma`` (px, per axis) to the ground for pixels (N, 2).
 

@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike
 
 from trafficgeo.errors import InputError
 
-_FCD_HINT = "give a SUMO --fcd-output file (<fcd-export><timestep time=..><vehicle id x y .../>)"
+FCD_HINT = "give a SUMO --fcd-output file (<fcd-export><timestep time=..><vehicle id x y .../>)"
 _VEHICLE_ATTRS = ("id", "x", "y", "z", "angle", "type", "speed", "lane")
 _STR_ATTRS = ("id", "type", "lane")
 _WS = np.frombuffer(b" \t\r\n", np.uint8)
@@ -112,7 +112,7 @@ def _parse_fcd_fast(body: bytes, where: str, last: bool = True) -> dict[str, obj
     t = first[ts]
     stamps = [body[a + 1:b] for a, b in zip(qo[t].tolist(), qc[t].tolist(), strict=True)]
     cols: dict[str, object] = {c: table[c] if c in _STR_ATTRS else table[c].to_numpy() for c in table.columns}
-    cols["time"] = _parse_time(np.asarray(stamps), where)[tix]
+    cols["time"] = parse_sumo_time(np.asarray(stamps), where)[tix]
     return cols
 
 
@@ -133,21 +133,21 @@ def _parse_fcd_expat(p: Path) -> dict[str, object]:
         with open(p, "rb") as fh:
             parser.ParseFile(fh)
     except xml.parsers.expat.ExpatError as exc:
-        raise InputError(f"{p}: broken XML ({exc}; a truncated file from an interrupted run?); {_FCD_HINT}") from None
+        raise InputError(f"{p}: broken XML ({exc}; a truncated file from an interrupted run?); {FCD_HINT}") from None
     columns = [list(c) for c in zip(*rows, strict=True)] if rows else [[] for _ in range(len(_VEHICLE_ATTRS) + 1)]
     cols: dict[str, object] = {"time": columns[0]}
     cols.update((k, v) for k, v in zip(_VEHICLE_ATTRS, columns[1:], strict=True) if any(x is not None for x in v))
     return cols
 
 
-def _fcd_columns(p: Path) -> dict[str, object]:
+def fcd_columns(p: Path) -> dict[str, object]:
     """Vehicle attribute columns of an FCD file: the vectorised parser piece by piece, else expat."""
     with open(p, "rb") as fh:
         head = fh.read(1 << 20)
-        root = _root_element(head, p, _FCD_HINT)
+        root = _root_element(head, p, FCD_HINT)
         if root.group(1) != b"fcd-export":
             raise InputError(f"{p}: root element is <{root.group(1).decode(errors='replace')}>, not <fcd-export>; "
-                             f"{_FCD_HINT}")
+                             f"{FCD_HINT}")
         cols = _parse_fcd_pieces(_pieces(fh, head[root.start(1) - 1:]), str(p))
     return cols if cols is not None else _parse_fcd_expat(p)
 
@@ -187,7 +187,7 @@ def _parse_fcd_pieces(pieces: Iterable[tuple[bytes, bool]], where: str) -> dict[
             np.concatenate([c[k] for c in parts]) for k in parts[0]}
 
 
-def _parse_time(values: ArrayLike, where: str) -> np.ndarray:
+def parse_sumo_time(values: ArrayLike, where: str) -> np.ndarray:
     """Times (s) from SUMO text: seconds, or ``[[d:]h:]m:s`` with --human-readable-time."""
     arr = np.asarray(values)
     try:
@@ -200,15 +200,15 @@ def _parse_time(values: ArrayLike, where: str) -> np.ndarray:
         try:
             parts = [float(v) for v in text.split(":")]
         except ValueError:
-            raise InputError(f"{where}: time {str(text)!r} is not seconds nor h:mm:ss; {_FCD_HINT}") from None
+            raise InputError(f"{where}: time {str(text)!r} is not seconds nor h:mm:ss; {FCD_HINT}") from None
         scale = (86400.0, 3600.0, 60.0, 1.0)[-len(parts):] if 1 <= len(parts) <= 4 else ()
         if not scale:
-            raise InputError(f"{where}: time {str(text)!r} is not seconds nor h:mm:ss; {_FCD_HINT}")
+            raise InputError(f"{where}: time {str(text)!r} is not seconds nor h:mm:ss; {FCD_HINT}")
         out[i] = sum(a * b for a, b in zip(parts, scale, strict=True))
     return out[inverse]
 
 
-def _float_column(cols: dict[str, object], key: str, n: int, where: str) -> np.ndarray:
+def float_column(cols: dict[str, object], key: str, n: int, where: str) -> np.ndarray:
     """A numeric attribute as float64 (NaN where absent)."""
     if key not in cols:
         return np.full(n, np.nan)
@@ -219,7 +219,7 @@ def _float_column(cols: dict[str, object], key: str, n: int, where: str) -> np.n
         return np.asarray(values).astype(np.float64)
     except ValueError:
         bad = next(v for v in np.asarray(values).tolist() if not _is_float(v))
-        raise InputError(f"{where}: vehicle attribute {key}={bad!r} is not a number; {_FCD_HINT}") from None
+        raise InputError(f"{where}: vehicle attribute {key}={bad!r} is not a number; {FCD_HINT}") from None
 
 
 def _is_float(v: object) -> bool:
@@ -230,7 +230,7 @@ def _is_float(v: object) -> bool:
     return True
 
 
-def _str_column(cols: dict[str, object], key: str, n: int) -> pd.Series:
+def str_column(cols: dict[str, object], key: str, n: int) -> pd.Series:
     """A text attribute as str ("" where absent), XML entities resolved."""
     values = cols.get(key)
     if values is None:
@@ -244,12 +244,12 @@ def _str_column(cols: dict[str, object], key: str, n: int) -> pd.Series:
     return series
 
 
-def _require(cols: dict[str, object], p: Path) -> int:
+def require_fcd_columns(cols: dict[str, object], p: Path) -> int:
     n = len(cols["time"])
     for key in ("id", "x", "y", "time"):
         values = cols.get(key)
         if n and (values is None or (isinstance(values, list) and any(v is None for v in values))):
             what = "<timestep> without time" if key == "time" else f"<vehicle> without attribute {key}"
-            raise InputError(f"{p}: {what}; {_FCD_HINT}")
+            raise InputError(f"{p}: {what}; {FCD_HINT}")
     return n
 

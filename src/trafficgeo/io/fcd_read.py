@@ -12,24 +12,24 @@ import pyproj
 from trafficgeo.crs import metres_per_unit, transform_xy
 from trafficgeo.errors import InputError
 from trafficgeo.io.fcd_parse import (
-    _FCD_HINT,
-    _fcd_columns,
-    _float_column,
-    _parse_time,
-    _require,
-    _str_column,
+    FCD_HINT,
+    fcd_columns,
+    float_column,
+    parse_sumo_time,
+    require_fcd_columns,
+    str_column,
 )
 from trafficgeo.io.sumo_net import (
+    FcdFrame,
     NetLocation,
-    _check_file,
-    _Frame,
-    _geodetic,
-    _label,
-    _location,
-    _reproject,
-    _same_projection,
-    _wkt,
-    _world_crs,
+    check_input_file,
+    checked_world_crs,
+    geodetic_of,
+    net_crs_label,
+    net_location,
+    reproject_with_headings,
+    same_projection,
+    wkt_or_none,
 )
 
 FCD_COLUMNS = ["track_id", "time", "x", "y", "z", "speed_kmh", "heading_deg", "class", "sumo_lane", "front_bumper"]
@@ -53,7 +53,7 @@ def _looks_geo(x: np.ndarray, y: np.ndarray, time: np.ndarray, ids: np.ndarray, 
     return bool(np.ptp(x) < 1.0 and np.ptp(y) < 1.0)
 
 
-def _to_world(f: _Frame, geo: bool, loc: NetLocation | None, crs: pyproj.CRS | None, p: Path) -> _Frame:
+def _to_world(f: FcdFrame, geo: bool, loc: NetLocation | None, crs: pyproj.CRS | None, p: Path) -> FcdFrame:
     """FCD coordinates (network, geo or plain) -> world coordinates in ``crs`` (or the network's CRS)."""
     if geo:
         src = loc.crs if loc is not None else pyproj.CRS.from_epsg(4326)
@@ -63,7 +63,7 @@ def _to_world(f: _Frame, geo: bool, loc: NetLocation | None, crs: pyproj.CRS | N
         if loc is None and crs is None:
             raise InputError(f"{p}: x, y are longitude/latitude (--fcd-output.geo); pass crs= (the projected CRS "
                              "to return, e.g. a UTM zone) or net= (the .net.xml)")
-        f.x, f.y = transform_xy(f.x, f.y, _geodetic(src), src if loc is not None else crs)
+        f.x, f.y = transform_xy(f.x, f.y, geodetic_of(src), src if loc is not None else crs)
         f.crs = src if loc is not None else crs
         if loc is None:
             f.notes.append("geo FCD without network: lon/lat taken as WGS 84; heading kept as SUMO wrote it")
@@ -78,10 +78,10 @@ def _to_world(f: _Frame, geo: bool, loc: NetLocation | None, crs: pyproj.CRS | N
             f.crs = crs
     else:
         f.crs = crs
-    if crs is not None and f.crs is not None and not _same_projection(f.crs, crs):
-        f.x, f.y, f.heading = _reproject(f.x, f.y, f.heading, f.crs, crs)
+    if crs is not None and f.crs is not None and not same_projection(f.crs, crs):
+        f.x, f.y, f.heading = reproject_with_headings(f.x, f.y, f.heading, f.crs, crs)
         f.z = f.z * metres_per_unit(f.crs) / metres_per_unit(crs)
-        f.notes.append(f"reprojected from {_label(f.crs)} to {_label(crs)}")
+        f.notes.append(f"reprojected from {net_crs_label(f.crs)} to {net_crs_label(crs)}")
         f.crs = crs
     return f
 
@@ -106,29 +106,29 @@ def read_fcd(path: str | os.PathLike[str], *, net: str | os.PathLike[str] | None
         InputError: missing file, not FCD XML, vehicles without id/x/y, non-numeric values, a geo FCD without
             ``crs`` or ``net``, a geographic ``crs``.
     """
-    p = _check_file(path, "FCD file", _FCD_HINT)
-    target = _world_crs(crs, str(p))
-    loc = _location(net, net_crs, str(p))
-    cols = _fcd_columns(p)
-    n = _require(cols, p)
+    p = check_input_file(path, "FCD file", FCD_HINT)
+    target = checked_world_crs(crs, str(p))
+    loc = net_location(net, net_crs, str(p))
+    cols = fcd_columns(p)
+    n = require_fcd_columns(cols, p)
     if n == 0:
         out = _empty_fcd()
-        out.attrs.update(crs=_wkt(target or (loc.crs if loc else None)), notes=["no vehicles in the file"])
+        out.attrs.update(crs=wkt_or_none(target or (loc.crs if loc else None)), notes=["no vehicles in the file"])
         return out
-    ids = _str_column(cols, "id", n)
-    time = _parse_time(cols["time"], str(p))
-    x, y = _float_column(cols, "x", n, str(p)), _float_column(cols, "y", n, str(p))
-    speed = _float_column(cols, "speed", n, str(p))
+    ids = str_column(cols, "id", n)
+    time = parse_sumo_time(cols["time"], str(p))
+    x, y = float_column(cols, "x", n, str(p)), float_column(cols, "y", n, str(p))
+    speed = float_column(cols, "speed", n, str(p))
     is_geo = _looks_geo(x, y, time, ids, speed) if geo is None else bool(geo)
-    f = _Frame(x, y, _float_column(cols, "z", n, str(p)), np.mod(_float_column(cols, "angle", n, str(p)), 360.0),
+    f = FcdFrame(x, y, float_column(cols, "z", n, str(p)), np.mod(float_column(cols, "angle", n, str(p)), 360.0),
                None, [])
     f = _to_world(f, is_geo, loc, target, p)
     out = pd.DataFrame({
         "track_id": ids, "time": time, "x": f.x, "y": f.y, "z": f.z, "speed_kmh": speed * 3.6,
-        "heading_deg": f.heading, "class": _str_column(cols, "type", n), "sumo_lane": _str_column(cols, "lane", n),
+        "heading_deg": f.heading, "class": str_column(cols, "type", n), "sumo_lane": str_column(cols, "lane", n),
         "front_bumper": np.ones(n, dtype=bool),
     })
-    out.attrs.update(crs=_wkt(f.crs), notes=f.notes)
+    out.attrs.update(crs=wkt_or_none(f.crs), notes=f.notes)
     return out
 
 

@@ -14,14 +14,14 @@ from trafficgeo.crs import crs_label, metres_per_unit, transform_xy
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_open
 from trafficgeo.io.sumo_net import (
+    FcdFrame,
     NetLocation,
-    _Frame,
-    _geodetic,
-    _location,
-    _reproject,
-    _same_projection,
-    _shift_along,
-    _world_crs,
+    checked_world_crs,
+    geodetic_of,
+    net_location,
+    reproject_with_headings,
+    same_projection,
+    shift_along,
 )
 
 _XSD = ('xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
@@ -67,20 +67,20 @@ def _front_offset(front_offset_m: ArrayLike | None, n: int, points: pd.DataFrame
     return off
 
 
-def _to_sumo(f: _Frame, geo: bool, loc: NetLocation | None) -> _Frame:
+def _to_sumo(f: FcdFrame, geo: bool, loc: NetLocation | None) -> FcdFrame:
     """World coordinates -> FCD coordinates (network, geo or plain); the inverse of :func:`_to_world`."""
     if geo and loc is not None and loc.crs is None:
         raise InputError("write_fcd: geo=True needs a projection, but the network has none (projParameter '!')")
     if geo and loc is None and f.crs is None:
         raise InputError("write_fcd: geo=True needs crs= (the projected CRS of x, y), e.g. 'EPSG:32632'")
     net_crs = loc.crs if loc is not None else None
-    if net_crs is not None and f.crs is not None and not _same_projection(f.crs, net_crs):
-        f.x, f.y, f.heading = _reproject(f.x, f.y, f.heading, f.crs, net_crs)
+    if net_crs is not None and f.crs is not None and not same_projection(f.crs, net_crs):
+        f.x, f.y, f.heading = reproject_with_headings(f.x, f.y, f.heading, f.crs, net_crs)
         f.z = f.z * metres_per_unit(f.crs) / metres_per_unit(net_crs)
         f.crs = net_crs
     if geo:
         src = net_crs if net_crs is not None else f.crs
-        f.x, f.y = transform_xy(f.x, f.y, src, _geodetic(net_crs) if net_crs is not None else
+        f.x, f.y = transform_xy(f.x, f.y, src, geodetic_of(net_crs) if net_crs is not None else
                                 pyproj.CRS.from_epsg(4326))
         if net_crs is None:
             f.z = f.z * metres_per_unit(src)
@@ -148,8 +148,8 @@ def write_fcd(path: str | os.PathLike[str], points: pd.DataFrame, *, crs: str | 
         InputError: missing or non-numeric columns, duplicate (track_id, time), geo without a CRS.
     """
     num = _points_numbers(points)
-    target = _world_crs(crs, "write_fcd")
-    loc = _location(net, net_crs, "write_fcd")
+    target = checked_world_crs(crs, "write_fcd")
+    loc = net_location(net, net_crs, "write_fcd")
     if isinstance(decimals, bool) or not isinstance(decimals, int | np.integer) or not 0 <= decimals <= 9:
         raise InputError(f"write_fcd: decimals must be an integer 0..9 (digits after the point), got {decimals!r}")
     ids = points["track_id"].astype(str).to_numpy()
@@ -164,19 +164,19 @@ def write_fcd(path: str | os.PathLike[str], points: pd.DataFrame, *, crs: str | 
     shift = _front_offset(front_offset_m, n, points)
     if np.any((shift != 0) & ~np.isfinite(num["heading_deg"])):
         raise InputError("write_fcd: front_offset_m needs heading_deg on every shifted row; fill the headings")
-    x, y = _shift_along(num["x"], num["y"], num["heading_deg"], shift / mpu)
+    x, y = shift_along(num["x"], num["y"], num["heading_deg"], shift / mpu)
     z = num.get("z", np.full(n, np.nan))
     slope = None
     if "z" in num and np.isfinite(z).any():
         o = np.lexsort((num["time"], ids))
         slope = np.empty(n)
         slope[o] = _slope_deg(ids[o], x[o], y[o], z[o], mpu)
-    f = _to_sumo(_Frame(x, y, z, np.mod(num["heading_deg"], 360.0), target, []), geo, loc)
+    f = _to_sumo(FcdFrame(x, y, z, np.mod(num["heading_deg"], 360.0), target, []), geo, loc)
     pieces = _vehicle_pieces(points, ids, f, num["speed_kmh"] / 3.6, slope, geo, decimals)
     _write_blocks(path, num["time"], order, pieces, target, loc, geo)
 
 
-def _vehicle_pieces(points: pd.DataFrame, ids: np.ndarray, f: _Frame, speed: np.ndarray, slope: np.ndarray | None,
+def _vehicle_pieces(points: pd.DataFrame, ids: np.ndarray, f: FcdFrame, speed: np.ndarray, slope: np.ndarray | None,
                     geo: bool, decimals: int) -> list[str]:
     """One ``<vehicle .../>`` line per row of ``points`` (input order)."""
     n = len(ids)

@@ -5,7 +5,8 @@ Floating car data
 SUMO's ``--fcd-output`` is ``<fcd-export>`` with one ``<timestep time=...>`` per simulation step holding one
 ``<vehicle id x y [z] angle type speed pos lane slope .../>`` per vehicle (persons and containers are ignored).
 Its position is the middle of the vehicle's **front bumper**, its ``angle`` the heading in degrees clockwise from
-(grid) north and its ``speed`` in m/s. :func:`read_fcd` returns a table with the columns :data:`FCD_COLUMNS`:
+(grid) north and its ``speed`` in m/s. :func:`~trafficgeo.io.fcd_read.read_fcd` returns a table with the columns
+:data:`~trafficgeo.io.fcd_read.FCD_COLUMNS`:
 
 * ``track_id`` (str, SUMO vehicle id), ``time`` (s), ``x, y, z`` (world CRS units; ``z`` NaN when the file has
   none), ``speed_kmh``, ``heading_deg`` ([0, 360), clockwise from the world CRS's grid north), ``class`` (SUMO
@@ -32,8 +33,9 @@ Coordinates come in three kinds:
 SUMO works in metres; ``z`` is converted to the units of ``crs`` (e.g. US survey feet) with ``x, y``. Each table
 carries ``attrs["crs"]`` (WKT of the CRS of ``x, y``, or None) and ``attrs["notes"]`` (list of str).
 
-:func:`write_fcd` is the inverse and writes what SUMO would (``speed`` in m/s; ``type`` and ``lane`` on every
-vehicle when the table has them, "" if unknown), optionally shifting footprint centres to front bumpers.
+:func:`~trafficgeo.io.fcd_write.write_fcd` is the inverse and writes what SUMO would (``speed`` in m/s; ``type``
+and ``lane`` on every vehicle when the table has them, "" if unknown), optionally shifting footprint centres to
+front bumpers.
 
 Mean data
 ---------
@@ -57,20 +59,10 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.errors import InputError
-from trafficgeo.io.fcd_parse import _parse_time
-from trafficgeo.io.fcd_read import FCD_COLUMNS, read_fcd
-from trafficgeo.io.fcd_write import write_fcd
-from trafficgeo.io.sumo_net import NetLocation, _check_file, read_net_location
+from trafficgeo.io.fcd_parse import parse_sumo_time
+from trafficgeo.io.sumo_net import check_input_file
 
-__all__ = [
-    "FCD_COLUMNS",
-    "MEANDATA_COLUMNS",
-    "NetLocation",
-    "read_fcd",
-    "read_meandata",
-    "read_net_location",
-    "write_fcd",
-]
+__all__ = ["MEANDATA_COLUMNS", "read_meandata"]
 
 MEANDATA_COLUMNS = ["interval_begin", "interval_end", "interval_id", "edge", "lane", "entered", "left", "speed_kmh",
                     "density", "occupancy"]
@@ -126,7 +118,7 @@ def read_meandata(path: str | os.PathLike[str]) -> pd.DataFrame:
     Raises:
         InputError: missing file, broken XML, not ``<meandata>``, an interval without begin/end.
     """
-    p = _check_file(path, "SUMO mean data file", _MEAN_HINT)
+    p = check_input_file(path, "SUMO mean data file", _MEAN_HINT)
     rows = _meandata_rows(p)
     table = pd.DataFrame(rows)
     if table.empty:
@@ -135,7 +127,7 @@ def read_meandata(path: str | os.PathLike[str]) -> pd.DataFrame:
     if table["interval_begin"].isna().any() or table["interval_end"].isna().any():
         raise InputError(f"{p}: an <interval> lacks begin or end; {_MEAN_HINT}")
     for c in ("interval_begin", "interval_end"):
-        table[c] = _parse_time(table[c].to_numpy(), str(p))
+        table[c] = parse_sumo_time(table[c].to_numpy(), str(p))
     table = table.drop(columns=["id"], errors="ignore")
     extra = [c for c in table.columns if c not in MEANDATA_COLUMNS and c not in ("speed",)]
     for c in [*extra, "entered", "left", "density", "occupancy", "speed"]:

@@ -40,7 +40,7 @@ class _Stop(Exception):
     """Raised inside expat handlers to stop parsing early."""
 
 
-def _check_file(path: str | os.PathLike[str], what: str, hint: str) -> Path:
+def check_input_file(path: str | os.PathLike[str], what: str, hint: str) -> Path:
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: {what} not found; {hint}")
@@ -49,7 +49,7 @@ def _check_file(path: str | os.PathLike[str], what: str, hint: str) -> Path:
 
 def read_net_location(net: str | os.PathLike[str]) -> NetLocation:
     """Read ``<location netOffset projParameter>`` at the top of a SUMO ``.net.xml`` (stops parsing there)."""
-    p = _check_file(net, "SUMO network file", "give the .net.xml the simulation used")
+    p = check_input_file(net, "SUMO network file", "give the .net.xml the simulation used")
     found: dict[str, str] = {}
     root: list[str] = []
 
@@ -97,7 +97,7 @@ def _net_crs(p: Path, proj: str) -> tuple[pyproj.CRS | None, str]:
                          "rebuild the network with netconvert --proj '<PROJ string>'") from None
 
 
-def _location(net: str | os.PathLike[str] | None, net_crs: str | pyproj.CRS | None,
+def net_location(net: str | os.PathLike[str] | None, net_crs: str | pyproj.CRS | None,
               where: str) -> NetLocation | None:
     """The network's location, its CRS replaced by ``net_crs`` when given."""
     if net is None:
@@ -107,10 +107,10 @@ def _location(net: str | os.PathLike[str] | None, net_crs: str | pyproj.CRS | No
     loc = read_net_location(net)
     if net_crs is None:
         return loc
-    return NetLocation(loc.offset, _world_crs(net_crs, f"{where}: net_crs"), loc.proj_parameter)
+    return NetLocation(loc.offset, checked_world_crs(net_crs, f"{where}: net_crs"), loc.proj_parameter)
 
 
-def _label(crs: pyproj.CRS) -> str:
+def net_crs_label(crs: pyproj.CRS) -> str:
     """:func:`crs_label`, or the PROJ string for a CRS without a name (as built from a SUMO projParameter)."""
     label = crs_label(crs)
     return " ".join(sorted(_proj_tokens(crs)))[:80] if label.startswith("unknown") else label
@@ -123,13 +123,13 @@ def _proj_tokens(crs: pyproj.CRS) -> frozenset[str]:
     return frozenset(text.split()) - {"+no_defs", "+type=crs", "+wktext"}
 
 
-def _same_projection(a: pyproj.CRS, b: pyproj.CRS) -> bool:
+def same_projection(a: pyproj.CRS, b: pyproj.CRS) -> bool:
     """Same horizontal CRS, or the same PROJ projection (SUMO's PROJ strings carry no datum name)."""
     return same_horizontal_crs(a, b) or _proj_tokens(a) == _proj_tokens(b)
 
 
 # ---------------------------------------------------------------------------------------------------- geometry
-def _reproject(x: np.ndarray, y: np.ndarray, heading: np.ndarray, src: pyproj.CRS,
+def reproject_with_headings(x: np.ndarray, y: np.ndarray, heading: np.ndarray, src: pyproj.CRS,
                dst: pyproj.CRS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Transform projected points and rotate headings (degrees clockwise from grid north) into ``dst``'s grid."""
     tx, ty = transform_xy(x, y, src, dst)
@@ -139,21 +139,21 @@ def _reproject(x: np.ndarray, y: np.ndarray, heading: np.ndarray, src: pyproj.CR
     return tx, ty, np.where(np.isfinite(heading), new, np.nan)
 
 
-def _geodetic(crs: pyproj.CRS) -> pyproj.CRS:
+def geodetic_of(crs: pyproj.CRS) -> pyproj.CRS:
     geo = crs.geodetic_crs
     if geo is None:
         raise InputError(f"CRS {crs_label(crs)} has no geodetic CRS, so longitude/latitude cannot be used with it")
     return geo
 
 
-def _shift_along(x: np.ndarray, y: np.ndarray, heading: np.ndarray,
+def shift_along(x: np.ndarray, y: np.ndarray, heading: np.ndarray,
                  distance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Move points ``distance`` (their CRS units) along ``heading`` (degrees clockwise from grid north)."""
     h = np.radians(heading)
     return x + distance * np.sin(h), y + distance * np.cos(h)
 
 
-def _world_crs(crs: str | pyproj.CRS | None, what: str) -> pyproj.CRS | None:
+def checked_world_crs(crs: str | pyproj.CRS | None, what: str) -> pyproj.CRS | None:
     parsed = parse_crs(crs)
     if parsed is not None and is_geographic(parsed):
         raise InputError(f"{what}: crs {crs_label(parsed)} is geographic; world coordinates need a projected CRS "
@@ -162,7 +162,7 @@ def _world_crs(crs: str | pyproj.CRS | None, what: str) -> pyproj.CRS | None:
 
 
 @dataclass
-class _Frame:
+class FcdFrame:
     """Working coordinates of an FCD being read or written."""
 
     x: np.ndarray
@@ -174,6 +174,6 @@ class _Frame:
 
 
 
-def _wkt(crs: pyproj.CRS | None) -> str | None:
+def wkt_or_none(crs: pyproj.CRS | None) -> str | None:
     return None if crs is None else crs.to_wkt()
 

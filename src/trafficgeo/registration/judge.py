@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trafficgeo.calibration.gcps import GCPTable
+from trafficgeo.calibration.gcp_table import GCPTable
 from trafficgeo.calibration.params import ParameterModel
 from trafficgeo.calibration.pipeline import effective_sigma
 from trafficgeo.calibration.refine import fit_camera

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from trafficgeo.calibration.gcps import ROLE_CHECK, ROLE_CONTROL, GCPTable
+from trafficgeo.calibration.gcp_table import ROLE_CHECK, ROLE_CONTROL, GCPTable
 from trafficgeo.calibration.params import ParameterModel
 from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, calibrate
 from trafficgeo.camera.model import Camera

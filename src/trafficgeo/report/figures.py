@@ -156,7 +156,7 @@ def residuals_on_frame(gcps: pd.DataFrame, image_size: tuple[int, int], image: n
     if image is not None:
         ax.imshow(image, extent=(-0.5, w - 0.5, h - 0.5, -0.5), interpolation="bilinear")
     else:
-        ax.add_patch(_rectangle((-0.5, -0.5), w, h))
+        ax.add_patch(rectangle_patch((-0.5, -0.5), w, h))
     u, v = gcps["u"].to_numpy(float), gcps["v"].to_numpy(float)
     du, dv = gcps["du"].to_numpy(float), gcps["dv"].to_numpy(float)
     status = _status(gcps)
@@ -181,7 +181,7 @@ def residuals_on_frame(gcps: pd.DataFrame, image_size: tuple[int, int], image: n
     return fig
 
 
-def _rectangle(xy: tuple[float, float], w: float, h: float) -> Any:
+def rectangle_patch(xy: tuple[float, float], w: float, h: float) -> Any:
     from matplotlib.patches import Rectangle
 
     return Rectangle(xy, w, h, facecolor="0.93", edgecolor="0.4", linewidth=1.0, zorder=0)

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from trafficgeo.report.figures import _rectangle, frame_axes, new_figure
+from trafficgeo.report.figures import frame_axes, new_figure, rectangle_patch
 
 KEPT_COLOUR = "#1a9850"  # the green of the calibration figures' inliers
 REJECTED_COLOUR = "#d73027"  # and the red of their outliers
@@ -36,7 +36,7 @@ def matches_on_frame(pixels: np.ndarray, predicted: np.ndarray, kept: np.ndarray
     if image is not None:
         ax.imshow(image, extent=(-0.5, w - 0.5, h - 0.5, -0.5), interpolation="bilinear")
     else:
-        ax.add_patch(_rectangle((-0.5, -0.5), w, h))
+        ax.add_patch(rectangle_patch((-0.5, -0.5), w, h))
     found = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     start = found + factor * (np.asarray(predicted, dtype=np.float64).reshape(-1, 2) - found)
     kept = np.asarray(kept, dtype=bool)

@@ -33,9 +33,9 @@ import shapely
 
 from trafficgeo.crs import crs_label, transform_xy
 from trafficgeo.errors import InputError
-from trafficgeo.io.sumo_net import NetLocation, _location, _same_projection
+from trafficgeo.io.sumo_net import NetLocation, net_location, same_projection
 from trafficgeo.site.lines import CountLine
-from trafficgeo.traffic.counts import _segment_crossings, counted_groups
+from trafficgeo.traffic.counts import counted_groups, segment_crossings
 from trafficgeo.traffic.validation import ObservedRun
 
 __all__ = ["MAX_DISTANCE_M", "LaneMapping", "MappingError", "SumoLaneCrossing", "map_observations",
@@ -116,7 +116,7 @@ def _to_net(x: np.ndarray, y: np.ndarray, run_crs: pyproj.CRS | None, loc: NetLo
                          f"{'no projection' if loc.crs is None else 'a projection'}; give net_crs (the CRS of the "
                          "network's coordinates) or rebuild the network with netconvert --proj",
                          parameters=("net", "net_crs"))
-    if run_crs is not None and loc.crs is not None and not _same_projection(run_crs, loc.crs):
+    if run_crs is not None and loc.crs is not None and not same_projection(run_crs, loc.crs):
         x, y = transform_xy(x, y, run_crs, loc.crs)
     return np.asarray(x, dtype=np.float64) + loc.offset[0], np.asarray(y, dtype=np.float64) + loc.offset[1]
 
@@ -132,7 +132,7 @@ def net_lane_crossings(net: str | os.PathLike[str], lines: list[CountLine], run_
     network's location, the length (m) of each of its edges and the bounding box of its lanes (xmin, ymin, xmax,
     ymax in network coordinates)."""
     net = Path(net)
-    loc = _location(net, net_crs, "net")
+    loc = net_location(net, net_crs, "net")
     sumo_net = _sumolib_net(net)
     segs, owners = [], []
     lengths: dict[str, float] = {}
@@ -160,7 +160,7 @@ def net_lane_crossings(net: str | os.PathLike[str], lines: list[CountLine], run_
         coords = np.asarray(_geometry_to_net(line.geometry, run_crs, loc, net).coords, dtype=np.float64)[:, :2]
         seen: set[tuple[str, int]] = set()
         for k in range(len(coords) - 1):
-            s, sign = _segment_crossings(p, q, coords[k], coords[k + 1])
+            s, sign = segment_crossings(p, q, coords[k], coords[k + 1])
             for i in np.flatnonzero(np.isfinite(s)):
                 edge, lane, speed = owners[i]
                 if (lane, int(sign[i])) in seen:

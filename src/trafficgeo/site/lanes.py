@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 import pyproj
 import shapely
+from numpy.typing import ArrayLike
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
@@ -49,7 +50,7 @@ class Lanes:
         if self.bearings is not None and len(self.bearings) != len(self.names):
             raise ValueError("Lanes needs one bearing per lane (NaN where unknown)")
 
-    def assign(self, x: object, y: object, heading_deg: object = None) -> np.ndarray:
+    def assign(self, x: ArrayLike, y: ArrayLike, heading_deg: ArrayLike = None) -> np.ndarray:
         """The lane name of each point (N,) object array; ``""`` outside every lane or for NaN points.
 
         With ``heading_deg`` (N,) (deg clockwise from grid north, NaN where not moving) and lane bearings, a point in
@@ -82,7 +83,7 @@ class Lanes:
             best[better] = d[better]
         return out
 
-    def _contains(self, x: object, y: object) -> np.ndarray:
+    def _contains(self, x: ArrayLike, y: ArrayLike) -> np.ndarray:
         """The lane containing each point (``""`` outside every lane or for NaN points)."""
         xa = np.asarray(x, dtype=np.float64).reshape(-1)
         ya = np.asarray(y, dtype=np.float64).reshape(-1)
@@ -98,7 +99,7 @@ class Lanes:
         return out
 
 
-def angle_between(a_deg: object, b_deg: object) -> np.ndarray:
+def angle_between(a_deg: ArrayLike, b_deg: ArrayLike) -> np.ndarray:
     """Absolute difference (deg, in [0, 180]) of directions in degrees; NaN where either is NaN."""
     d = np.abs(np.asarray(a_deg, dtype=np.float64) - np.asarray(b_deg, dtype=np.float64)) % 360.0
     return np.minimum(d, 360.0 - d)

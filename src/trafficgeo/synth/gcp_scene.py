@@ -50,8 +50,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from trafficgeo.calibration.gcps import GCPTable
+from trafficgeo.calibration.gcp_table import GCPTable
 from trafficgeo.camera.distortion import as_dist, max_monotonic_radius
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import is_geographic, metres_per_unit, parse_crs
@@ -121,7 +122,7 @@ class RoadSurface:
         a = np.radians(self.azimuth_deg)
         return np.array([np.cos(a), -np.sin(a)])
 
-    def station_offset(self, x: object, y: object) -> tuple[np.ndarray, np.ndarray]:
+    def station_offset(self, x: ArrayLike, y: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Station along the axis and lateral offset (right positive) of world points, relative to ``origin``."""
         dx = np.asarray(x, dtype=np.float64) - self.origin[0]
         dy = np.asarray(y, dtype=np.float64) - self.origin[1]
@@ -144,12 +145,12 @@ class RoadSurface:
             dz = dz - s * s / (2.0 * self.crest_radius)
         return self.origin[2] + dz
 
-    def z(self, x: object, y: object) -> np.ndarray:
+    def z(self, x: ArrayLike, y: ArrayLike) -> np.ndarray:
         """Road surface height at world ``(x, y)`` (arrays broadcast together)."""
         s, o = self.station_offset(x, y)
         return self._z_local(s, o)
 
-    def sampled_dem(self, centre_xy: object, half_width: float, cell: float) -> DEMSurface:
+    def sampled_dem(self, centre_xy: ArrayLike, half_width: float, cell: float) -> DEMSurface:
         """The road surface sampled at the centres of a square grid of ``cell``-sized cells reaching
         ``half_width`` (world units) either side of ``centre_xy``: a reference DEM with the exact heights."""
         n = round(2 * half_width / cell)
@@ -159,7 +160,7 @@ class RoadSurface:
         X, Y = np.meshgrid(x, y)
         return DEMSurface(self.z(X, Y), left, top, cell, cell)
 
-    def points(self, s: object, offset: object) -> np.ndarray:
+    def points(self, s: ArrayLike, offset: ArrayLike) -> np.ndarray:
         """World points (N, 3) on the surface at stations ``s`` and lateral offsets ``offset`` (right positive)."""
         ss, oo = np.broadcast_arrays(np.asarray(s, dtype=np.float64), np.asarray(offset, dtype=np.float64))
         ss, oo = ss.reshape(-1), oo.reshape(-1)
@@ -178,7 +179,7 @@ class RoadSurface:
             y = self.origin[1] + R * n[1] + (R - oo) * uy
         return np.stack([x, y, self._z_local(ss, oo)], axis=-1)
 
-    def heading_at(self, s: object) -> np.ndarray:
+    def heading_at(self, s: ArrayLike) -> np.ndarray:
         """Azimuth (deg clockwise from north) of the axis at stations ``s``."""
         ss = np.asarray(s, dtype=np.float64)
         turn = np.degrees(ss / self.curve_radius) if self.curve_radius else np.zeros_like(ss)
@@ -276,7 +277,7 @@ def make_gcp_scene(
     crest_radius: float = 0.0,
     camera_height: float = 8.0,
     focal_px: float | None = None,
-    dist: object | None = None,
+    dist: ArrayLike | None = None,
     heading_deg: float | None = None,
     tilt_deg: float | None = None,
     roll_deg: float | None = None,

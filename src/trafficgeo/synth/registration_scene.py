@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 from affine import Affine
 
-from trafficgeo.calibration.gcps import GCPTable
+from trafficgeo.calibration.gcp_table import GCPTable
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import parse_crs
 from trafficgeo.geo.raster import GeoRaster

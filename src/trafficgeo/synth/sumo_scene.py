@@ -32,7 +32,7 @@ from trafficgeo.synth.gcp_scene import RoadSurface
 
 __all__ = ["VEHICLE_CLASSES", "Demand", "RoadSpec", "VehicleClass"]
 
-_MARGIN_M = 40.0  # m of SUMO edge beyond each end of the road (insertion and exit zones, not in the trajectories)
+EDGE_MARGIN_M = 40.0  # m of SUMO edge beyond each end of the road (insertion and exit zones, not in the trajectories)
 
 
 # ---------------------------------------------------------------------------------------------------- vehicles
@@ -71,7 +71,7 @@ VEHICLE_CLASSES: dict[str, VehicleClass] = {
 
 
 # ---------------------------------------------------------------------------------------------------- inputs
-def _finite(what: str, value: object, fix: str) -> float:
+def finite_number(what: str, value: object, fix: str) -> float:
     try:
         v = float(value)  # type: ignore[arg-type]
     except (TypeError, ValueError):
@@ -81,8 +81,8 @@ def _finite(what: str, value: object, fix: str) -> float:
     return v
 
 
-def _positive(what: str, value: object, fix: str) -> float:
-    v = _finite(what, value, fix)
+def positive_number(what: str, value: object, fix: str) -> float:
+    v = finite_number(what, value, fix)
     if v <= 0:
         raise InputError(f"{what} must be > 0, got {value!r}; {fix}")
     return v
@@ -117,22 +117,24 @@ class RoadSpec:
             raise InputError(f"RoadSpec.origin must be 3 finite numbers (x, y, z in metres), got {self.origin!r}")
         object.__setattr__(self, "origin", origin)
         object.__setattr__(self, "azimuth_deg",
-                           _finite("RoadSpec.azimuth_deg", self.azimuth_deg, "give degrees clockwise from north"))
-        object.__setattr__(self, "length_m", _positive("RoadSpec.length_m", self.length_m, "give metres, e.g. 400"))
+                           finite_number("RoadSpec.azimuth_deg", self.azimuth_deg, "give degrees clockwise from north"))
+        object.__setattr__(self, "length_m",
+                           positive_number("RoadSpec.length_m", self.length_m, "give metres, e.g. 400"))
         lanes = self.lanes
         if isinstance(lanes, bool) or not isinstance(lanes, int | np.integer) or lanes < 1:
             raise InputError(f"RoadSpec.lanes must be an integer >= 1 (lanes per direction), got {lanes!r}")
         object.__setattr__(self, "lanes", int(lanes))
         object.__setattr__(self, "two_way", bool(self.two_way))
         object.__setattr__(self, "lane_width",
-                           _positive("RoadSpec.lane_width", self.lane_width, "give metres, e.g. 3.5"))
+                           positive_number("RoadSpec.lane_width", self.lane_width, "give metres, e.g. 3.5"))
         object.__setattr__(self, "speed_limit_kmh",
-                           _positive("RoadSpec.speed_limit_kmh", self.speed_limit_kmh, "give km/h, e.g. 50"))
-        radius = _finite("RoadSpec.curve_radius", self.curve_radius, "give metres (> 0 right, < 0 left, 0 straight)")
-        if radius != 0.0 and abs(radius) < 2.0 * (self.lanes * self.lane_width + _MARGIN_M / 4):
+                           positive_number("RoadSpec.speed_limit_kmh", self.speed_limit_kmh, "give km/h, e.g. 50"))
+        radius = finite_number("RoadSpec.curve_radius", self.curve_radius,
+                               "give metres (> 0 right, < 0 left, 0 straight)")
+        if radius != 0.0 and abs(radius) < 2.0 * (self.lanes * self.lane_width + EDGE_MARGIN_M / 4):
             raise InputError(f"RoadSpec.curve_radius {radius:g} m is too tight for {self.lanes} lanes per direction; "
                              "give at least 50 m")
-        if radius != 0.0 and (0.5 * self.length_m + _MARGIN_M) / abs(radius) > 0.9 * math.pi:
+        if radius != 0.0 and (0.5 * self.length_m + EDGE_MARGIN_M) / abs(radius) > 0.9 * math.pi:
             raise InputError(f"RoadSpec.curve_radius {radius:g} m bends a {self.length_m:g} m road (plus margins) "
                              "by more than 160 deg; use a larger radius or a shorter road")
         object.__setattr__(self, "curve_radius", radius)
@@ -199,7 +201,8 @@ class Demand:
     mix: dict[str, float] = field(default_factory=lambda: {"car": 0.8, "van": 0.1, "truck": 0.07, "bus": 0.03})
 
     def __post_init__(self) -> None:
-        q = _finite("Demand.veh_per_hour_per_lane", self.veh_per_hour_per_lane, "give vehicles per hour, e.g. 600")
+        q = finite_number("Demand.veh_per_hour_per_lane", self.veh_per_hour_per_lane,
+                          "give vehicles per hour, e.g. 600")
         if q < 0:
             raise InputError(f"Demand.veh_per_hour_per_lane must be >= 0, got {self.veh_per_hour_per_lane!r}; "
                              "give vehicles per hour, e.g. 600")
@@ -211,7 +214,7 @@ class Demand:
         for name, share in self.mix.items():
             if name not in VEHICLE_CLASSES:
                 raise InputError(f"Demand.mix: unknown vehicle class {name!r}; use one of {sorted(VEHICLE_CLASSES)}")
-            v = _finite(f"Demand.mix[{name!r}]", share, "give a share between 0 and 1")
+            v = finite_number(f"Demand.mix[{name!r}]", share, "give a share between 0 and 1")
             if v < 0:
                 raise InputError(f"Demand.mix[{name!r}] must be >= 0, got {share!r}; give a share between 0 and 1")
             mix[str(name)] = v

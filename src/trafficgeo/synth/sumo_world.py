@@ -8,7 +8,7 @@ The road, its lanes, the demand and the vehicle classes (and their conventions) 
 SUMO network and georeferencing
 -------------------------------
 One SUMO edge per direction (ids ``d1``, ``d2``), ``lanes`` lanes of ``lane_width`` each, speed = limit, between
-two dead-end nodes. The edges run 40 m (``_MARGIN_M``) beyond each end of the road so that vehicles are inserted
+two dead-end nodes. The edges run 40 m (``EDGE_MARGIN_M``) beyond each end of the road so that vehicles are inserted
 at their desired speed before they reach the road and leave it without meeting the dead-end geometry; trajectory
 points outside the road span are dropped.
 
@@ -63,7 +63,7 @@ from trafficgeo.simulation.network import copy_without_sumo_header as _copy_with
 from trafficgeo.simulation.network import proj_parameter
 from trafficgeo.simulation.network import sumo_number as _num
 from trafficgeo.simulation.tools import run_sumo_program, sumo_binary
-from trafficgeo.synth.sumo_scene import _MARGIN_M, VEHICLE_CLASSES, Demand, RoadSpec, _finite, _positive
+from trafficgeo.synth.sumo_scene import EDGE_MARGIN_M, VEHICLE_CLASSES, Demand, RoadSpec, finite_number, positive_number
 
 __all__ = [
     "SumoRun",
@@ -149,7 +149,7 @@ def _axis_xy(road: RoadSpec, stations: np.ndarray) -> np.ndarray:
 
 
 def _nodes_xml(road: RoadSpec) -> str:
-    half = 0.5 * road.length_m + _MARGIN_M
+    half = 0.5 * road.length_m + EDGE_MARGIN_M
     a, b = _axis_xy(road, np.array([-half, half]))
     ox, oy, _ = road.origin
     pts = _axis_xy(road, np.linspace(-half, half, 201))
@@ -169,7 +169,7 @@ def _edges_xml(road: RoadSpec) -> str:
     ends = {1: ("A", "B"), 2: ("B", "A")}
     shape = ""
     if road.curve_radius != 0.0:  # the axis as a polyline (2 m chords: < 1 cm from the arc for R >= 50 m)
-        half = 0.5 * road.length_m + _MARGIN_M
+        half = 0.5 * road.length_m + EDGE_MARGIN_M
         pts = _axis_xy(road, np.linspace(-half, half, int(np.ceil(2 * half / 2.0)) + 1))
         shape = " ".join(f"{_num(x)},{_num(y)}" for x, y in pts)
     rows = []
@@ -242,8 +242,8 @@ def read_fcd(path: str | os.PathLike[str], road: RoadSpec, net_path: str | os.Pa
     for what, p in (("FCD file", path), ("network file", net_path)):
         if not p.is_file():
             raise InputError(f"{what} {p} does not exist; give the file written by run_sumo_world")
-    from trafficgeo.io.sumo import read_fcd as read_sumo_fcd
-    from trafficgeo.io.sumo import read_net_location
+    from trafficgeo.io.fcd_read import read_fcd as read_sumo_fcd
+    from trafficgeo.io.sumo_net import read_net_location
 
     off_x, off_y = read_net_location(net_path).offset
     ox, oy, _ = road.origin
@@ -305,9 +305,9 @@ def read_fcd(path: str | os.PathLike[str], road: RoadSpec, net_path: str | os.Pa
 
 # ---------------------------------------------------------------------------------------------------- run
 def _check_run_options(duration_s: float, step_s: float, warmup_s: float, seed: int) -> tuple[float, float, float]:
-    duration = _positive("duration_s", duration_s, "give seconds, e.g. 60")
-    step = _positive("step_s", step_s, "give seconds, e.g. 0.04 for 25 fps")
-    warmup = _finite("warmup_s", warmup_s, "give seconds, e.g. 60")
+    duration = positive_number("duration_s", duration_s, "give seconds, e.g. 60")
+    step = positive_number("step_s", step_s, "give seconds, e.g. 0.04 for 25 fps")
+    warmup = finite_number("warmup_s", warmup_s, "give seconds, e.g. 60")
     if warmup < 0:
         raise InputError(f"warmup_s must be >= 0, got {warmup_s!r}; give seconds, e.g. 60")
     for what, v in (("step_s", step), ("warmup_s", warmup), ("duration_s", duration)):

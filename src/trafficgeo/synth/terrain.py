@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 import pyproj
+from numpy.typing import ArrayLike
 
 from trafficgeo.geo.pointcloud import PointCloud
 from trafficgeo.synth.gcp_scene import RoadSurface
 
 
-def road_point_cloud(road: RoadSurface, centre: object, half_size: float, *, density: float = 4.0,
+def road_point_cloud(road: RoadSurface, centre: ArrayLike, half_size: float, *, density: float = 4.0,
                      noise: float = 0.02, n_trees: int = 40, n_poles: int = 10, seed: int = 0,
                      crs: str | pyproj.CRS | None = None) -> PointCloud:
     """A point cloud over the square ``centre +- half_size`` (metres) with ``density`` ground points per m^2.

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 # Materials (index into MATERIAL_RGB); BODY takes the vehicle's colour.
 BODY, GLASS, TYRE, WELL, TRIM, TAIL_LAMP, HEAD_LAMP, PLATE, HUB, CARGO, RIDER = range(11)
@@ -62,7 +63,7 @@ class _Builder:
         self.n_groups += 1
         return self.n_groups - 1
 
-    def add(self, poly: object, material: int, *, inside: object = None, normal: object = None,
+    def add(self, poly: ArrayLike, material: int, *, inside: ArrayLike = None, normal: ArrayLike = None,
             group: int | None = None, layer: int = 0) -> int:
         """One convex polygon (k, 3); its normal is ``normal`` or Newell's, turned away from the point ``inside``."""
         p = np.asarray(poly, dtype=np.float64)
@@ -100,7 +101,7 @@ class _Builder:
         return Mesh(*arrays)
 
     # ------------------------------------------------------------------ parts
-    def loft(self, x: object, section: object, materials: object, *, caps: tuple[bool, bool] = (True, True),
+    def loft(self, x: ArrayLike, section: ArrayLike, materials: object, *, caps: tuple[bool, bool] = (True, True),
              skip_top: object = ()) -> dict[str, object]:
         """A solid lofted along ``x`` (S,) through cross-sections ``section`` (S, P, 2) of (y, z) points, each an
         open polyline from the left bottom over the top to the right bottom (convex with the bottom chord).
@@ -137,7 +138,7 @@ class _Builder:
                 out["rear" if sign < 0 else "front"] = self.add(pts[k], int(mats[k, 0]), normal=[sign, 0.0, 0.0])
         return out
 
-    def decal(self, parent: int, poly2d: object, material: int, layer: int = 1) -> int:
+    def decal(self, parent: int, poly2d: ArrayLike, material: int, layer: int = 1) -> int:
         """A flat polygon on face ``parent`` (an end cap at constant x, or a side at constant y), given as
         (k, 2) in-plane points: (y, z) on an end cap, (x, z) on a side."""
         n = self.normals[parent]
@@ -403,7 +404,7 @@ def vehicle_mesh(kind: str, length: float, width: float, height: float) -> Mesh:
     return _BUILDERS[kind_name(kind)](float(length), float(width), float(height))
 
 
-def place(mesh: Mesh, centre: object, heading_deg: object) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def place(mesh: Mesh, centre: ArrayLike, heading_deg: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World vertices (N, V, 3), normals (N, F, 3) and group centres (N, G, 3) of ``mesh`` placed at footprint
     centres ``centre`` (N, 3) with ``heading_deg`` (N,) clockwise from north (as ``cuboid_corners``)."""
     c = np.asarray(centre, dtype=np.float64).reshape(-1, 3)

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+from numpy.typing import ArrayLike
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.cuboids import Cuboids, cuboid_boxes, free_edges, units_per_metre
@@ -40,7 +41,7 @@ class _SizePrior:
             return np.where(sigma > 0, (theta[1:] - [self.width_m, self.height_m]) / sigma, 0.0)
 
 
-def estimate_length(camera: Camera, centres: object, heading_deg: object, boxes: object, width_m: float,
+def estimate_length(camera: Camera, centres: ArrayLike, heading_deg: ArrayLike, boxes: ArrayLike, width_m: float,
                     height_m: float, *, length0_m: float = 4.5, width_sigma_m: float = 0.1,
                     height_sigma_m: float = 0.2, pixel_sigma: float = 1.0, max_std_m: float = 0.5,
                     border_px: float = 2.0, use_top: bool = True) -> tuple[float, float]:
@@ -89,7 +90,7 @@ def estimate_length(camera: Camera, centres: object, heading_deg: object, boxes:
     return _fit_length(predict, obs, free, prior, pixel_sigma, max_std_m, nuisance=0)
 
 
-def estimate_length_refit(camera: Camera, surface: Surface, heading_deg: object, boxes: object, width_m: float,
+def estimate_length_refit(camera: Camera, surface: Surface, heading_deg: ArrayLike, boxes: ArrayLike, width_m: float,
                           height_m: float, *, length0_m: float = 4.5, width_sigma_m: float = 0.1,
                           height_sigma_m: float = 0.2, pixel_sigma: float = 1.0, max_std_m: float = 0.5,
                           border_px: float = 2.0, use_top: bool = True,

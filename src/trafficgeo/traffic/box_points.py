@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.cuboids import Cuboids, cuboid_corners, free_edges, units_per_metre
@@ -172,7 +173,7 @@ def _edge_rms(pred: np.ndarray, obs: np.ndarray, free: np.ndarray) -> np.ndarray
         return np.sqrt(d2.sum(axis=1) / free.sum(axis=1))
 
 
-def box_ground_points(camera: Camera, surface: Surface, boxes: object, heading_deg: object, dims: object, *,
+def box_ground_points(camera: Camera, surface: Surface, boxes: ArrayLike, heading_deg: ArrayLike, dims: ArrayLike, *,
                       iterations: int = 10, tol_px: float = 1e-3, border_px: float = 2.0) -> BoxGroundPoints:
     """Footprint centres of vehicles from their image boxes, modelling each vehicle as a level cuboid.
 

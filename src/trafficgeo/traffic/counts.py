@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike
 
 from trafficgeo.errors import InputError
 from trafficgeo.site.lanes import Lanes
@@ -27,7 +28,7 @@ MIN_LATERAL_M = 1.75  # m along the line: crossings farther apart than this may 
 DEFAULT_SPEED_MPS = 15.0  # m/s assumed for the spacing test when neither crossing has a speed
 
 
-def _segment_crossings(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def segment_crossings(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Where track segments p->q (M, 2) cross the line segment a->b (2,): the fraction along p->q (NaN if they do
     not cross) and the sign of the crossing (+1 left to right of a->b).
 
@@ -68,7 +69,7 @@ def find_crossings(points: pd.DataFrame, lines: list[CountLine], lanes: Lanes | 
         best_s = np.full(i0.size, np.nan)
         best_sign = np.zeros(i0.size, dtype=np.int64)
         for k in range(len(coords) - 1):
-            s, sign = _segment_crossings(p, q, coords[k], coords[k + 1])
+            s, sign = segment_crossings(p, q, coords[k], coords[k + 1])
             new = np.isfinite(s) & ~np.isfinite(best_s)
             best_s[new], best_sign[new] = s[new], sign[new]
         hit = np.flatnonzero(np.isfinite(best_s))
@@ -189,7 +190,7 @@ def period_counts(crossings: pd.DataFrame, start: float, end: float) -> pd.DataF
 MIN_FLOW_SHARE = 0.5  # an interval's flow (veh/h) is given only when at least this share of it was observed
 
 
-def flow_rule(observed_s: object, interval_s: float) -> np.ndarray:
+def flow_rule(observed_s: ArrayLike, interval_s: float) -> np.ndarray:
     """Whether a flow (veh/h) may be extrapolated from ``observed_s`` s of an interval of ``interval_s`` s: only
     when at least :data:`MIN_FLOW_SHARE` of the interval was observed (a count over a few seconds, scaled to an
     hour, says little: 3 vehicles in 6.8 s read 1588 veh/h)."""

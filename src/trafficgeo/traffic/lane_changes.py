@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 @dataclass(frozen=True)
@@ -16,7 +17,7 @@ class LaneVisit:
     end: float
 
 
-def lane_visits(time: object, lanes: object, *, min_dwell_s: float = 1.0) -> list[LaneVisit]:
+def lane_visits(time: ArrayLike, lanes: ArrayLike, *, min_dwell_s: float = 1.0) -> list[LaneVisit]:
     """The lanes a track drove in, in order, ignoring points outside every lane and stays shorter than
     ``min_dwell_s`` (jitter across a lane line is not a lane change). ``time`` (N,) s increasing."""
     t = np.asarray(time, dtype=np.float64).reshape(-1)

@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from trafficgeo.errors import InputError
 from trafficgeo.traffic._kalman import kalman_rts
@@ -44,7 +45,7 @@ class SmoothedTrack:
     outlier: np.ndarray
 
 
-def _measurement_covariance(sigma: object, n: int) -> np.ndarray:
+def _measurement_covariance(sigma: ArrayLike, n: int) -> np.ndarray:
     """(N, 2, 2) covariances from a scalar or (N,) sigma (m) or (N, 2, 2) covariances (m^2)."""
     arr = np.asarray(sigma, dtype=np.float64)
     if arr.ndim == 3:
@@ -59,7 +60,7 @@ def _measurement_covariance(sigma: object, n: int) -> np.ndarray:
     return s[:, None, None] ** 2 * np.eye(2)[None]
 
 
-def smooth_track(time: object, xy: object, sigma: object = 0.3, *, accel_sigma: float = 1.5,
+def smooth_track(time: ArrayLike, xy: ArrayLike, sigma: ArrayLike = 0.3, *, accel_sigma: float = 1.5,
                  gate: float = CHI2_2DOF_999) -> SmoothedTrack:
     """Kalman filter + RTS smoother for one track: ``time`` (N,) s strictly increasing, ``xy`` (N, 2) metres,
     ``sigma`` m (scalar or (N,)) or covariance m^2 (N, 2, 2)."""

@@ -102,7 +102,7 @@ def simulated_points(fcd: str | Path, crs: pyproj.CRS | None, *, net: str | Path
     types), times shifted to observed time."""
     from trafficgeo.crs import metres_per_unit
     from trafficgeo.geo.cuboids import dimensions_for
-    from trafficgeo.io.sumo import read_fcd
+    from trafficgeo.io.fcd_read import read_fcd
 
     pts = read_fcd(fcd, net=net, crs=crs, net_crs=net_crs)
     half = 0.5 * dimensions_for(pts["class"].to_numpy())[:, 0] / metres_per_unit(crs)
@@ -205,8 +205,8 @@ def export_fcd(run: str | Path, output: str | Path, *, net: str | Path | None = 
     run's CRS, or in the coordinates of the SUMO network ``net`` (``net_crs`` when its PROJ string is not enough),
     or lon/lat with ``geo`` (like ``sumo --fcd-output.geo``). Returns the number of points written."""
     from trafficgeo.geo.cuboids import dimensions_for
+    from trafficgeo.io.fcd_write import write_fcd
     from trafficgeo.io.run_manifest import check_writable_file
-    from trafficgeo.io.sumo import write_fcd
     from trafficgeo.traffic.run_folder import RunFolder
 
     if Path(output).suffix.lower() != ".xml":

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from trafficgeo.calibration import CalibrationOptions, CalibrationReport, GCPTable
-from trafficgeo.calibration.gcps import ROLE_CONTROL
+from trafficgeo.calibration.gcp_table import ROLE_CONTROL
 from trafficgeo.calibration.run import CalibrationRun, run_calibration
 from trafficgeo.errors import CalibrationError, InputError
 from trafficgeo.geo.surface import ConstantSurface, PlaneSurface

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from trafficgeo.calibration import CalibrationOptions, GCPTable, read_gcps
-from trafficgeo.calibration.gcps import ROLE_CHECK, ROLE_CONTROL, ROLES
+from trafficgeo.calibration.gcp_table import ROLE_CHECK, ROLE_CONTROL, ROLES
 from trafficgeo.calibration.pipeline import required_points
 from trafficgeo.calibration.run import CalibrationRun, calibrated_camera
 from trafficgeo.crs import crs_label

@@ -15,10 +15,11 @@ from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 if TYPE_CHECKING:
     from trafficgeo.video.detectors.backends import BackendChoice
-    from trafficgeo.video.detectors.tiling import TilePlan
+    from trafficgeo.video.detectors.tile_plan import TilePlan
 
 # Tracking and the rest of the per-frame work (ms per detection frame): ByteTrack on the learned detector's
 # detections of NGSIM seq2 (24 a frame, 2 x 2 tiles) took 1.6 ms a frame on average, 6.1 ms at the 95th percentile
@@ -77,7 +78,7 @@ def duration_text(seconds: float) -> str:
     return f"{s // 3600} h {(s % 3600) // 60} min"
 
 
-def plan_passes(plan: TilePlan | None, probe_input_hw: tuple[int, int], tile_share: object = None
+def plan_passes(plan: TilePlan | None, probe_input_hw: tuple[int, int], tile_share: ArrayLike = None
                 ) -> tuple[int, float]:
     """Detector passes per detection frame of a tile ``plan`` (None: the full frame only) and the same in passes of
     the probe's input size (``probe_input_hw``, (h, w) px), counted by input pixels; ``tile_share`` (K,): the share
@@ -93,7 +94,7 @@ def plan_passes(plan: TilePlan | None, probe_input_hw: tuple[int, int], tile_sha
 
 def estimate_cost(choice: BackendChoice, plan: TilePlan | None, *, every: int, video_s: float, fps: float,
                   decode_ms: float, track_ms: float = TRACK_MS_PER_FRAME, detect_ms: float | None = None,
-                  tile_share: object = None) -> RunCost:
+                  tile_share: ArrayLike = None) -> RunCost:
     """The run's cost: detection frames = ceil(``video_s`` x ``fps`` / ``every``), each costing the plan's passes
     (:func:`plan_passes`, each tile weighted by its ``tile_share`` under a tile schedule) x the probe's time per
     pass, plus the rest of the detection (``detect_ms``, a whole detection's measured time with every tile, minus

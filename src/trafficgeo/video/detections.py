@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from trafficgeo.errors import InputError
 
@@ -64,7 +65,7 @@ class Detections:
         return cls(np.concatenate([p.boxes for p in parts]), np.concatenate([p.scores for p in parts]),
                    np.concatenate([p.classes for p in parts]))
 
-    def select(self, which: object) -> Detections:
+    def select(self, which: ArrayLike) -> Detections:
         """The detections picked by a boolean mask (N,) or an index array."""
         idx = np.asarray(which)
         return Detections(self.boxes[idx], self.scores[idx], self.classes[idx])
@@ -75,7 +76,7 @@ class Detections:
         return np.column_stack([0.5 * (self.boxes[:, 0] + self.boxes[:, 2]), self.boxes[:, 3]])
 
 
-def box_iou(a: object, b: object) -> np.ndarray:
+def box_iou(a: ArrayLike, b: ArrayLike) -> np.ndarray:
     """IoU of boxes ``x1, y1, x2, y2`` (px) in arrays (..., 4) that broadcast against each other: matching rows
     with ``box_iou(a, b)``, every pair with ``box_iou(a[:, None], b[None, :])`` -> (N, M)."""
     a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)

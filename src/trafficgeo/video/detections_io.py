@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike
 
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import write_csv_atomic
@@ -53,7 +54,7 @@ def _empty() -> pd.DataFrame:
                          "class": np.zeros(0, dtype=object)})
 
 
-def _numbers(values: object, name: str, where: str, first_row: int = 2) -> np.ndarray:
+def _numbers(values: ArrayLike, name: str, where: str, first_row: int = 2) -> np.ndarray:
     """Finite floats or an InputError naming the first bad row (file rows counted from ``first_row``)."""
     s = pd.to_numeric(pd.Series(values), errors="coerce")
     arr = s.to_numpy(dtype=np.float64)
@@ -65,7 +66,7 @@ def _numbers(values: object, name: str, where: str, first_row: int = 2) -> np.nd
     return arr
 
 
-def _frames(values: object, where: str, minimum: int, first_row: int = 2) -> np.ndarray:
+def _frames(values: ArrayLike, where: str, minimum: int, first_row: int = 2) -> np.ndarray:
     f = _numbers(values, "frame", where, first_row)
     bad = (f != np.round(f)) | (f < minimum)
     if bad.any():

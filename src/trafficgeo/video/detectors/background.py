@@ -16,11 +16,11 @@ from trafficgeo.errors import InputError
 from trafficgeo.groups import group_pairs
 from trafficgeo.video.detections import Detections, check_image, check_roi
 from trafficgeo.video.detectors.blobs import (
-    _Blobs,
-    _tight_part,
-    _union_boxes,
+    Blobs,
     merge_candidates,
     split_mask,
+    tight_part,
+    union_boxes,
 )
 from trafficgeo.video.detectors.sizes import SizeRules, blob_ground_size, classify_sizes
 
@@ -344,7 +344,7 @@ class BackgroundDetector:
             return Detections.empty()
         s = stats[keep]
         boxes = np.column_stack([s[:, 0], s[:, 1], s[:, 0] + s[:, 2] - 1, s[:, 1] + s[:, 3] - 1]).astype(np.float64)
-        blobs = _Blobs(boxes, s[:, cv2.CC_STAT_AREA].astype(np.float64), [[int(k)] for k in keep])
+        blobs = Blobs(boxes, s[:, cv2.CC_STAT_AREA].astype(np.float64), [[int(k)] for k in keep])
         if self.merge and len(keep) > 1:
             blobs = self._merge(blobs)
         if self.split:
@@ -382,7 +382,7 @@ class BackgroundDetector:
         return (np.array([o[0] for o in out], dtype=object), np.array([o[1] for o in out], dtype=np.float64),
                 np.array([o[2] for o in out], dtype=bool), np.array([o[3] for o in out], dtype=np.float64))
 
-    def _merge(self, blobs: _Blobs) -> _Blobs:
+    def _merge(self, blobs: Blobs) -> Blobs:
         """Merge the parts of one vehicle (step 5 of the class docstring)."""
         pairs = merge_candidates(blobs.boxes)
         if pairs.size == 0:
@@ -399,10 +399,10 @@ class BackgroundDetector:
         groups = group_pairs(len(blobs.areas), pairs[ok])
         if len(groups) == len(blobs.areas):
             return blobs
-        return _Blobs(_union_boxes(blobs.boxes, groups), np.array([blobs.areas[g].sum() for g in groups]),
+        return Blobs(union_boxes(blobs.boxes, groups), np.array([blobs.areas[g].sum() for g in groups]),
                       [[lab for k in g for lab in blobs.labels[k]] for g in groups])
 
-    def _split(self, blobs: _Blobs, labels: np.ndarray) -> _Blobs:
+    def _split(self, blobs: Blobs, labels: np.ndarray) -> Blobs:
         """Split blobs of merged vehicles (:func:`split_mask`, at most 3 levels): any single-component blob with a
         deep notch; with a camera, also at a density valley when wider on the ground than ``rules.split_lanes``
         lanes. Blobs touching the left or right frame border and blobs made by merging are left whole."""
@@ -432,7 +432,7 @@ class BackgroundDetector:
                 parts = split_mask(crop, defect_ratio=ratio, valley_ratio=rules.valley_ratio if is_wide else None)
                 if parts is None:
                     continue
-                new = [_tight_part(p, x1, y1) for p in parts]
+                new = [tight_part(p, x1, y1) for p in parts]
                 boxes[i], areas[i], masks[i] = new[0]
                 boxes.append(new[1][0])
                 areas.append(new[1][1])
@@ -441,10 +441,10 @@ class BackgroundDetector:
                 nxt += [i, len(boxes) - 1]
             todo = nxt
         keep = [i for i in range(len(boxes)) if areas[i] >= self._min_area]
-        return _Blobs(np.array([boxes[i] for i in keep], dtype=np.float64).reshape(-1, 4),
+        return Blobs(np.array([boxes[i] for i in keep], dtype=np.float64).reshape(-1, 4),
                       np.array([areas[i] for i in keep], dtype=np.float64), [ids[i] for i in keep])
 
-    def _metric(self, blobs: _Blobs) -> tuple[_Blobs, np.ndarray]:
+    def _metric(self, blobs: Blobs) -> tuple[Blobs, np.ndarray]:
         """The size filter and the classes (step 6 of the class docstring)."""
         sw, sh = self._small
         classes, length, single, width = self._measure(blobs.boxes)
@@ -464,6 +464,6 @@ class BackgroundDetector:
         sparse = (classes == "truck") & (blobs.areas < self.rules.truck_min_fill * box_area)
         classes[~single | sparse] = ""
         keep = np.flatnonzero(single | merged | cut)
-        return _Blobs(blobs.boxes[keep], blobs.areas[keep], [blobs.labels[i] for i in keep]), classes[keep]
+        return Blobs(blobs.boxes[keep], blobs.areas[keep], [blobs.labels[i] for i in keep]), classes[keep]
 
 

@@ -11,7 +11,7 @@ import numpy as np
 
 
 # ---------------------------------------------------------------------------------------------------- blobs
-def _union_boxes(boxes: np.ndarray, groups: list[list[int]]) -> np.ndarray:
+def union_boxes(boxes: np.ndarray, groups: list[list[int]]) -> np.ndarray:
     return np.array([[boxes[g, 0].min(), boxes[g, 1].min(), boxes[g, 2].max(), boxes[g, 3].max()] for g in groups],
                     dtype=np.float64).reshape(-1, 4)
 
@@ -108,7 +108,7 @@ def _notch_cut(mask: np.ndarray, min_depth: float) -> tuple[tuple[float, float],
     return (float(f1[0]), float(f1[1])), (float(-edge[1]), float(edge[0]))
 
 
-def _tight_part(mask: np.ndarray, x0: int, y0: int) -> tuple[np.ndarray, float, np.ndarray]:
+def tight_part(mask: np.ndarray, x0: int, y0: int) -> tuple[np.ndarray, float, np.ndarray]:
     """Inclusive pixel box (x1, y1, x2, y2) of a non-empty bool mask's foreground offset by (x0, y0), its pixel
     count and the mask cropped to the box."""
     cols = np.flatnonzero(mask.any(axis=0))
@@ -119,7 +119,7 @@ def _tight_part(mask: np.ndarray, x0: int, y0: int) -> tuple[np.ndarray, float, 
 
 
 @dataclass
-class _Blobs:
+class Blobs:
     """Blobs in the small (detection-scale) image: inclusive integer pixel boxes, pixel counts, label ids."""
 
     boxes: np.ndarray  # (N, 4) x1, y1, x2, y2 inclusive, small-image px

@@ -44,7 +44,8 @@ def check_detector(spec: str, detector_format: str | None = None) -> str:
     if kind == "onnx":
         OnnxDetector(str(spec).strip(), format=fmt, threads=1)
     elif kind == "nanodet":
-        from trafficgeo.video.detectors.learned import BUILTIN, builtin_model_path
+        from trafficgeo.video.detectors.builtin import builtin_model_path
+        from trafficgeo.video.detectors.learned import BUILTIN
 
         builtin_model_path(BUILTIN)
     return kind

@@ -20,7 +20,9 @@ from trafficgeo.video.detectors.builtin import builtin_model, builtin_model_path
 from trafficgeo.video.detectors.onnx import OnnxDetector
 from trafficgeo.video.detectors.sizes import SizeRules, blob_ground_size, classify_sizes
 from trafficgeo.video.detectors.tile_bands import plan_bands
-from trafficgeo.video.detectors.tiling import TiledDetector, TilePlan, line_reach, plan_tiles
+from trafficgeo.video.detectors.tile_plan import TilePlan
+from trafficgeo.video.detectors.tiled import TiledDetector
+from trafficgeo.video.detectors.tiling import line_reach, plan_tiles
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Sequence

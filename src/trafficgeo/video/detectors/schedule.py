@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from trafficgeo.errors import InputError
-from trafficgeo.video.detectors.tile_plan import _contains
+from trafficgeo.video.detectors.tile_plan import tiles_holding
 
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera
@@ -79,7 +79,7 @@ def tile_dwell_m(plan: TilePlan, camera: Camera) -> np.ndarray:
         return out
     idx = np.flatnonzero(need)
     boxes = vehicle_boxes(camera, s.xyz[idx], s.heading_deg[idx], plan.vehicle_m)
-    held = _contains(plan.tiles, boxes, plan.frame_shape, plan.cut_margin_px)  # (K, N)
+    held = tiles_holding(plan.tiles, boxes, plan.frame_shape, plan.cut_margin_px)  # (K, N)
     held &= (plan.size_px[idx][None, :] * plan.tile_scales[:, None]) >= plan.min_size_px
     xy = s.xyz[idx, :2] * plan.unit_m
     for t in range(k):
@@ -175,7 +175,7 @@ class TileSchedule:
         if not len(b) or not len(self.plan.tiles):
             return
         tiles = self.plan.tiles
-        whole = _contains(tiles, b, self.plan.frame_shape, self.plan.cut_margin_px)  # (K, N)
+        whole = tiles_holding(tiles, b, self.plan.frame_shape, self.plan.cut_margin_px)  # (K, N)
         scale = np.where(whole, self.plan.tile_scales[:, None], -np.inf)
         has = whole.any(axis=0)
         self.forced[np.argmax(scale[:, has], axis=0)] = True

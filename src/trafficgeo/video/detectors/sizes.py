@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from trafficgeo.errors import InputError
 from trafficgeo.geo.surface import OK
@@ -93,7 +94,7 @@ class BlobSizes:
     b: np.ndarray
     distance_m: np.ndarray
 
-    def length(self, height_m: object) -> np.ndarray:
+    def length(self, height_m: ArrayLike) -> np.ndarray:
         """Ground length (m) for vehicle heights (m) broadcast against the blobs."""
         return self.a_m + self.b * np.asarray(height_m, dtype=np.float64)
 

@@ -31,17 +31,9 @@ import numpy as np
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
+from trafficgeo.video.detectors.tile_plan import REFERENCE_CAR_M, TilePlan, clip_boxes
 from trafficgeo.video.detectors.tiled import CUT_MARGIN_PX
-from trafficgeo.video.detectors.tiling import (
-    LARGE_VEHICLE_M,
-    REFERENCE_CAR_M,
-    Road,
-    TilePlan,
-    _clip_boxes,
-    finish_plan,
-    road_view,
-    vehicle_boxes,
-)
+from trafficgeo.video.detectors.tiling import LARGE_VEHICLE_M, Road, finish_plan, road_view, vehicle_boxes
 
 __all__ = ["PASS_COST_PX", "input_hw_for", "plan_bands"]
 
@@ -156,8 +148,8 @@ def plan_bands(camera: Camera, surface: Surface, road: Road, frame_shape: tuple[
     if idx.size:
         zoom = np.minimum(min_size_px / size[idx], max_upscale)
         samples = view.samples
-        hold = _clip_boxes(vehicle_boxes(camera, samples.xyz[idx], samples.heading_deg[idx], large_vehicle_m), (h, w))
-        hold = np.where(np.isfinite(hold).all(axis=1)[:, None], hold, _clip_boxes(view.car_box[idx], (h, w)))
+        hold = clip_boxes(vehicle_boxes(camera, samples.xyz[idx], samples.heading_deg[idx], large_vehicle_m), (h, w))
+        hold = np.where(np.isfinite(hold).all(axis=1)[:, None], hold, clip_boxes(view.car_box[idx], (h, w)))
         best_cost, best_rects = np.inf, []
         for ratio in ratios:
             rects = []

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from trafficgeo.errors import InputError
 from trafficgeo.video.detectors.tiled import CUT_MARGIN_PX
@@ -23,7 +24,7 @@ __all__ = ["LINE_SHORT_SHARE", "REFERENCE_CAR_M", "LineReach", "RegionReach", "T
 REFERENCE_CAR_M = (4.4, 1.8, 1.5)  # length, width, height (m): the small vehicle that must be detectable
 
 
-def box_size_px(boxes: object) -> np.ndarray:
+def box_size_px(boxes: ArrayLike) -> np.ndarray:
     """The size (px) of boxes (N, 4) ``x1, y1, x2, y2``: their shorter side (see the module docstring)."""
     b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
     return np.minimum(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])
@@ -177,15 +178,15 @@ class TilePlan:
         t = self.tiles.astype(np.int64)
         return int(np.sum((t[:, 2] - t[:, 0]) * (t[:, 3] - t[:, 1])))
 
-    def input_size_px(self, boxes: object) -> np.ndarray:
+    def input_size_px(self, boxes: ArrayLike) -> np.ndarray:
         """The largest size (shorter side, px) boxes (N, 4) (full-frame px) have in the detector input over the full
         frame and the tiles holding them whole (the part of a box inside the frame)."""
         raw = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-        b = _clip_boxes(raw, self.frame_shape)
+        b = clip_boxes(raw, self.frame_shape)
         size = box_size_px(raw)
         best = size * self.full_scale
         if len(self.tiles):
-            inside = _contains(self.tiles, b, self.frame_shape, self.cut_margin_px)  # (K, N)
+            inside = tiles_holding(self.tiles, b, self.frame_shape, self.cut_margin_px)  # (K, N)
             scaled = np.where(inside, size[None, :] * self.tile_scales[:, None], -np.inf)
             best = np.maximum(best, scaled.max(axis=0))
         return best
@@ -260,7 +261,7 @@ class TilePlan:
         tiled = np.isfinite(self.size_px) & ~full & (self.best_input_px > self.size_px * self.full_scale)
         if self.samples is None or not tiled.any():
             return None
-        d = _horizontal_distance_m(self.samples.xyz[tiled], self.camera_xy, self.unit_m)
+        d = horizontal_distance_m(self.samples.xyz[tiled], self.camera_xy, self.unit_m)
         return float(d.min()), float(d.max())
 
     def to_dict(self) -> dict[str, object]:
@@ -290,11 +291,11 @@ class TilePlan:
         }
 
 
-def _horizontal_distance_m(xyz: np.ndarray, camera_xy: np.ndarray, mpu: float) -> np.ndarray:
+def horizontal_distance_m(xyz: np.ndarray, camera_xy: np.ndarray, mpu: float) -> np.ndarray:
     return np.hypot(xyz[:, 0] - camera_xy[0], xyz[:, 1] - camera_xy[1]) * mpu
 
 
-def _clip_boxes(boxes: np.ndarray, frame_shape: tuple[int, int]) -> np.ndarray:
+def clip_boxes(boxes: np.ndarray, frame_shape: tuple[int, int]) -> np.ndarray:
     h, w = frame_shape
     out = boxes.copy()
     out[:, [0, 2]] = np.clip(out[:, [0, 2]], -0.5, w - 0.5)
@@ -302,7 +303,7 @@ def _clip_boxes(boxes: np.ndarray, frame_shape: tuple[int, int]) -> np.ndarray:
     return out
 
 
-def _contains(tiles: np.ndarray, boxes: np.ndarray, frame_shape: tuple[int, int], margin_px: float = CUT_MARGIN_PX
+def tiles_holding(tiles: np.ndarray, boxes: np.ndarray, frame_shape: tuple[int, int], margin_px: float = CUT_MARGIN_PX
               ) -> np.ndarray:
     """(K, N) whether tile k (x0, y0, x1, y1 pixel indices) holds box n (pixel-centre convention, clipped to the
     frame) whole: inside it, and more than ``margin_px`` from every tile edge that is not a frame edge (what
@@ -319,7 +320,7 @@ def _contains(tiles: np.ndarray, boxes: np.ndarray, frame_shape: tuple[int, int]
                 & np.all(b[..., 2:] < edge[..., 2:] - hi_pad, axis=-1))
 
 
-def _regions(samples: RoadSamples, seen: np.ndarray, full_ok: np.ndarray, reached: np.ndarray, dist_m: np.ndarray,
+def region_reaches(samples: RoadSamples, seen: np.ndarray, full_ok: np.ndarray, reached: np.ndarray, dist_m: np.ndarray,
              unit: str) -> tuple[RegionReach, ...]:
     out = []
     for name in dict.fromkeys(samples.region.tolist()):

@@ -1,5 +1,5 @@
 """The tiled detector of :mod:`trafficgeo.video.detectors.tiling`: a base detector run on the full frame and on
-each tile of a :class:`~trafficgeo.video.detectors.tiling.TilePlan`, its tile boxes shifted to the frame, those cut
+each tile of a :class:`~trafficgeo.video.detectors.tile_plan.TilePlan`, its tile boxes shifted to the frame, those cut
 by a tile's inner edge dropped, and everything merged. Pixels follow :mod:`trafficgeo.video.detections`: a tile
 ``(x0, y0, x1, y1)`` is the crop ``image[y0:y1, x0:x1]``, a box at ``x`` in the crop is at ``x + x0`` in the frame."""
 
@@ -15,7 +15,7 @@ from trafficgeo.video.detections import Detections, check_image, check_roi, in_r
 
 if TYPE_CHECKING:
     from trafficgeo.video.detectors.schedule import TileSchedule
-    from trafficgeo.video.detectors.tiling import TilePlan
+    from trafficgeo.video.detectors.tile_plan import TilePlan
 
 CUT_MARGIN_PX = 2.0  # a tile box this near (px) to a tile edge inside the frame is of a vehicle the tile cuts
 

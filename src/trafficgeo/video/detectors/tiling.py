@@ -19,8 +19,8 @@ big a vehicle is at each point of the road, so the tiles can be planned once per
   :data:`LINE_BAND_ACROSS_M` to each side, so vehicles are tracked before and after it), so that the simplest run
   (counting lines only) still tiles the far lines. :func:`line_reach` tells, per counting line, how large a car
   crossing it is in the detector input with a plan (the plan's line warnings).
-* :class:`~trafficgeo.video.detectors.tile_plan.TilePlan` (re-exported here) holds a plan and what it reaches per lane.
-* :class:`~trafficgeo.video.detectors.tiled.TiledDetector` (re-exported here) - a
+* :class:`~trafficgeo.video.detectors.tile_plan.TilePlan` holds a plan and what it reaches per lane.
+* :class:`~trafficgeo.video.detectors.tiled.TiledDetector` - a
   :class:`~trafficgeo.video.detections.Detector` running a base detector on the full frame and on every tile crop,
   dropping tile boxes cut by a tile's inner edge and merging everything.
 
@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import shapely
+from numpy.typing import ArrayLike
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
@@ -50,20 +51,18 @@ from trafficgeo.video.detections import check_roi
 from trafficgeo.video.detectors.tile_plan import (
     REFERENCE_CAR_M,
     LineReach,
-    RegionReach,
     TilePlan,
-    _clip_boxes,
-    _contains,
-    _horizontal_distance_m,
-    _regions,
     box_size_px,
+    clip_boxes,
+    horizontal_distance_m,
+    region_reaches,
+    tiles_holding,
 )
-from trafficgeo.video.detectors.tiled import CUT_MARGIN_PX, TiledDetector, cut_by_tile, merge_boxes
+from trafficgeo.video.detectors.tiled import CUT_MARGIN_PX
 
-__all__ = ["LARGE_VEHICLE_M", "LINE_BAND_ACROSS_M", "LINE_BAND_ALONG_M", "REFERENCE_CAR_M", "LineReach", "RegionReach",
-           "RoadSamples", "RoadView", "TilePlan", "TiledDetector", "box_size_px", "cut_by_tile", "finish_plan",
-           "lane_samples", "line_reach", "line_samples", "merge_boxes", "plan_tiles", "road_view", "roi_samples",
-           "vehicle_boxes", "vehicle_size_px"]
+__all__ = ["LARGE_VEHICLE_M", "LINE_BAND_ACROSS_M", "LINE_BAND_ALONG_M", "RoadSamples", "RoadView", "finish_plan",
+           "lane_samples", "line_reach", "line_samples", "plan_tiles", "road_view", "roi_samples", "vehicle_boxes",
+           "vehicle_size_px"]
 
 LARGE_VEHICLE_M = VEHICLE_DIMENSIONS["truck"]  # the vehicle that must lie whole in a tile (its extent = overlap)
 UNKNOWN_HEADINGS_DEG = (0.0, 45.0, 90.0, 135.0)  # tried where the direction of travel is unknown (ROI)
@@ -79,7 +78,7 @@ def _mpu(camera: Camera) -> float:
 
 
 
-def _boxes_per_heading(camera: Camera, xyz: object, heading_deg: object, dims_m: Sequence[float]) -> np.ndarray:
+def _boxes_per_heading(camera: Camera, xyz: ArrayLike, heading_deg: ArrayLike, dims_m: Sequence[float]) -> np.ndarray:
     """(N, K, 4) image boxes of the cuboids at K headings each: the given one, or :data:`UNKNOWN_HEADINGS_DEG`
     where it is NaN (K = 1 when no heading is unknown)."""
     pts = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
@@ -93,7 +92,7 @@ def _boxes_per_heading(camera: Camera, xyz: object, heading_deg: object, dims_m:
     return cuboid_boxes(camera, np.repeat(pts, k, axis=0), grid.reshape(-1), length, width, height).reshape(n, k, 4)
 
 
-def vehicle_boxes(camera: Camera, xyz: object, heading_deg: object, dims_m: Sequence[float] = REFERENCE_CAR_M,
+def vehicle_boxes(camera: Camera, xyz: ArrayLike, heading_deg: ArrayLike, dims_m: Sequence[float] = REFERENCE_CAR_M,
                   ) -> np.ndarray:
     """Image boxes (N, 4) (full-frame px, unclipped) of level cuboids ``dims_m`` = (length, width, height) in
     metres standing with their footprint centre at ground points ``xyz`` (N, 3; CRS units), heading
@@ -103,7 +102,7 @@ def vehicle_boxes(camera: Camera, xyz: object, heading_deg: object, dims_m: Sequ
     return np.concatenate([boxes[:, :, :2].min(axis=1), boxes[:, :, 2:].max(axis=1)], axis=1)
 
 
-def vehicle_size_px(camera: Camera, xyz: object, heading_deg: object,
+def vehicle_size_px(camera: Camera, xyz: ArrayLike, heading_deg: ArrayLike,
                     dims_m: Sequence[float] = REFERENCE_CAR_M) -> np.ndarray:
     """Size (px, the shorter side of the projected box; see the module docstring) of a vehicle ``dims_m`` (m) at
     ground points ``xyz`` (N, 3; CRS units) heading ``heading_deg`` (N,) (deg clockwise from grid north). Where the
@@ -249,7 +248,7 @@ def line_reach(plan: TilePlan, camera: Camera, surface: Surface, lines: Sequence
             continue
         short = seen & (best < plan.min_size_px)
         pick = short if short.any() else seen
-        dist = _horizontal_distance_m(xyz[pick], camera.position[:2], mpu)
+        dist = horizontal_distance_m(xyz[pick], camera.position[:2], mpu)
         out.append(LineReach(line.name, float(seen.mean()), float(short.sum() / seen.sum()),
                              (float(best[pick].min()), float(best[pick].max())),
                              (float(dist.min()), float(dist.max()))))
@@ -312,7 +311,7 @@ def roi_samples(camera: Camera, surface: Surface, roi: np.ndarray, *, step_px: i
 def _tile_origins(box: np.ndarray, others: np.ndarray, side: int, frame_shape: tuple[int, int], candidates: int,
                   margin_px: float = CUT_MARGIN_PX) -> tuple[np.ndarray, np.ndarray]:
     """Candidate origins (x0s, y0s) of a tile of ``side`` px inside the frame holding ``box`` whole (as
-    :func:`_contains` has it): evenly spread over the feasible range, the frame's edges, and those putting a tile
+    :func:`tiles_holding` has it): evenly spread over the feasible range, the frame's edges, and those putting a tile
     edge just beyond an edge of one of the ``others`` boxes (M, 4) (at most ``candidates`` of those, by quantile).
     A box that fits nowhere gets the tile centred on it."""
     h, w = frame_shape
@@ -388,10 +387,10 @@ def plan_tiles(camera: Camera, surface: Surface, road: Road, frame_shape: tuple[
     tiles: list[tuple[int, int, int, int]] = []
     if idx.size:
         side_req = np.clip(size[idx] * s_in / min_size_px, t_min, t_max)  # largest tile side serving each point
-        big = _clip_boxes(vehicle_boxes(camera, samples.xyz[idx], samples.heading_deg[idx], large_vehicle_m), (h, w))
+        big = clip_boxes(vehicle_boxes(camera, samples.xyz[idx], samples.heading_deg[idx], large_vehicle_m), (h, w))
         room = np.floor(side_req) - 2.0 * CUT_MARGIN_PX - 1.0
         fits = (big[:, 2] - big[:, 0] <= room) & (big[:, 3] - big[:, 1] <= room)
-        hold = np.where(fits[:, None], big, _clip_boxes(car_box[idx], (h, w)))  # what a serving tile must hold whole
+        hold = np.where(fits[:, None], big, clip_boxes(car_box[idx], (h, w)))  # what a serving tile must hold whole
         # A point needing a tile of side T "costs" about area / T^2 tiles: serving the far, costly points first
         # keeps the small tiles few (plain area favours tiles that only graze the far road).
         weight = samples.area_m2[idx] / side_req ** 2
@@ -403,7 +402,7 @@ def plan_tiles(camera: Camera, surface: Surface, road: Road, frame_shape: tuple[
             xs, ys = _tile_origins(hold[seed], hold[rest], side, (h, w), candidates)
             X0, Y0 = (a.reshape(-1) for a in np.meshgrid(xs, ys))
             cand = np.column_stack([X0, Y0, X0 + side, Y0 + side])
-            ok = _contains(cand, hold[rest], (h, w)) & (side <= side_req[rest] + 1e-9)[None, :]
+            ok = tiles_holding(cand, hold[rest], (h, w)) & (side <= side_req[rest] + 1e-9)[None, :]
             best = int(np.argmax(ok.astype(np.float64) @ weight[rest]))
             served = rest[ok[best]]
             open_[served] = False
@@ -453,7 +452,7 @@ def road_view(camera: Camera, surface: Surface, road: Road, frame_shape: tuple[i
         samples, unit, source = roi_samples(camera, surface, road, step_px=roi_step_px), "m2", "roi"
     else:
         samples, unit, source = line_samples(list(road), surface, step_m=step_m, metres_per_unit_=mpu), "m", "lines"
-    dist_m = _horizontal_distance_m(samples.xyz, camera.position[:2], mpu)
+    dist_m = horizontal_distance_m(samples.xyz, camera.position[:2], mpu)
     seen = world_to_pixels(camera, samples.xyz, surface).ok
     if max_distance_m is not None:
         seen &= dist_m <= float(max_distance_m)
@@ -480,7 +479,7 @@ def finish_plan(camera: Camera, view: RoadView, tiles: np.ndarray, *, input_size
     if view.seen.any():
         best[view.seen] = plan.input_size_px(view.car_box[view.seen])
     object.__setattr__(plan, "best_input_px", best)
-    object.__setattr__(plan, "regions", _regions(view.samples, view.seen,
+    object.__setattr__(plan, "regions", region_reaches(view.samples, view.seen,
                                                  view.size_px * plan.full_scale >= min_size_px,
                                                  best >= min_size_px, view.dist_m, view.unit))
     return plan
