@@ -20,7 +20,7 @@ from scipy import stats
 import trafficgeo as tg
 from trafficgeo.report import simulation_figures as SF
 from trafficgeo.report.html import build_page
-from trafficgeo.simulation.loop import SIMULATION_RECORD
+from trafficgeo.traffic.run_records import SIMULATION_RECORD
 
 STATIONS = (-100.0, 100.0)  # two counting lines 200 m apart
 LANES = ("d1_1", "d1_2", "d2_1", "d2_2")  # 2 lanes per direction (RoadSpec's default)
@@ -169,7 +169,8 @@ def test_a_record_not_from_sumo_validate_is_one_line_error(loop: dict, tmp_path:
     (run / SIMULATION_RECORD).write_text(json.dumps({"format": "something else"}))
     files = json.loads((run / COMPARE_MANIFEST).read_text())["files"]
     publish_outputs(run, list(files), command="sumo-validate", name=COMPARE_MANIFEST)
-    with pytest.raises(InputError, match=r"compare_simulation.json: not a record written by 'trafficgeo "
-                       r"sumo-validate'; run it again$") as info:
+    with pytest.raises(InputError, match=r"compare_simulation.json: not a compare_simulation.json written by "
+                       r"trafficgeo \('format' is not trafficgeo-sumo-validation/1\); run 'trafficgeo sumo-validate' "
+                       r"again to write it$") as info:
         build_page(run, dpi=40)
     assert "\n" not in str(info.value)

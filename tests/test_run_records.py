@@ -27,6 +27,7 @@ from trafficgeo.traffic.run_records import (
     ProcessRecord,
     ProcessSettings,
     RunSummary,
+    SimulationRecord,
     TravelTimeSummary,
     VideoRead,
 )
@@ -60,16 +61,32 @@ def _compare() -> CompareSummary:
         TravelTimeSummary("A", "B", 0, nan, nan, nan, 3, 14.2, 14.0, 15.1, nan, nan, nan), "EPSG:2949 (MTM 7)")
 
 
-# how each record is written, published and read back
+def _simulation() -> SimulationRecord:
+    return SimulationRecord(scenario="/data/scenario", net="/data/scenario/road.net.xml", net_crs=None,
+                            interval_s=60.0, begin_s=0.0, end_s=600.0, time_offset_s=-3.5, step_s=0.5, seed=7,
+                            vehicles=212, build_s=float("nan"), run_s=4.25, counts=48, share_geh_below_5=0.875,
+                            mean_geh=1.9, target_share=0.85, target_met=True, max_abs_speed_difference_kmh=6.1,
+                            travel_time_difference_s=float("nan"), unobserved=("line B direction -1",),
+                            warnings=("a warning",))
+
+
+def _write_simulation(folder: RunFolder, record: SimulationRecord) -> Path:
+    publish_outputs(folder.path, [], command="compare-sumo", name=COMPARE_MANIFEST)  # the comparison it goes beside
+    return folder.write_simulation_record(record)
+
+
+# how each record is written, published (by which command) and read back
 WRITE = {"summary": (RunFolder.write_summary, "run.json", RunFolder.summary, _summary),
          "process": (RunFolder.write_process, "run.json", RunFolder.process, _process),
-         "compare": (RunFolder.write_compare_summary, COMPARE_MANIFEST, RunFolder.compare_summary, _compare)}
+         "compare": (RunFolder.write_compare_summary, COMPARE_MANIFEST, RunFolder.compare_summary, _compare),
+         "simulation": (_write_simulation, COMPARE_MANIFEST, RunFolder.simulation_record, _simulation)}
+COMMAND = {"simulation": "sumo-validate"}  # the others: any
 
 
 def _written(folder: Path, kind: str, record) -> Path:
     write, manifest, _, _ = WRITE[kind]
     path = write(RunFolder(folder), record)
-    publish_outputs(folder, [path.name], command="test", name=manifest)
+    publish_outputs(folder, [path.name], command=COMMAND.get(kind, "test"), name=manifest)
     return path
 
 
@@ -82,7 +99,8 @@ def test_a_record_reads_back_equal_to_what_was_written(kind: str, tmp_path: Path
     assert json.loads(path.read_text()) == to_json_safe(record.to_dict())  # the file is the record's document
     changed = {"summary": lambda r: replace(r, crossings=r.crossings[:1]),
                "process": lambda r: replace(r, read=replace(r.read, frames=99)),
-               "compare": lambda r: replace(r, travel_times=None)}[kind](record)
+               "compare": lambda r: replace(r, travel_times=None),
+               "simulation": lambda r: replace(r, unobserved=())}[kind](record)
     assert back != changed  # equality looks at every part
 
 
@@ -119,6 +137,11 @@ DAMAGED = [
     ("compare", "compare_summary.json", {"counts": {"rows": 2}}, "key 'counts.share_geh_below_5' is missing"),
     ("compare", "compare_summary.json", {"travel_times": {"from_line": "A"}}, "key 'travel_times.to_line' is"),
     ("compare", "compare_summary.json", {"counts": [1]}, "'counts' is not an object"),
+    ("simulation", "compare_simulation.json", {"format": "something else"},
+     "('format' is not trafficgeo-sumo-validation/1); run 'trafficgeo sumo-validate' again"),
+    ("simulation", "compare_simulation.json", {"counts": 4.5}, "'counts' is not a whole number"),
+    ("simulation", "compare_simulation.json", {"unobserved": [1]}, "'unobserved' is not a list of text"),
+    ("simulation", "compare_simulation.json", {"target_met": "yes"}, "'target_met' is not true or false"),
 ]
 
 
@@ -133,7 +156,7 @@ def test_a_damaged_or_foreign_file_is_refused_naming_it(kind: str, name: str, co
     else:
         text = content
     path.write_text(text)
-    publish_outputs(folder, [name], command="test", name=WRITE[kind][1])  # the manifest is fine: the reader refuses
+    publish_outputs(folder, [name], command=COMMAND.get(kind, "test"), name=WRITE[kind][1])  # the reader refuses
     with pytest.raises(InputError) as err:
         WRITE[kind][2](RunFolder(folder))
     message = str(err.value)
@@ -199,6 +222,42 @@ def test_a_comparison_summary_reads_back_typed(reference_run: dict) -> None:
     assert (tt.from_line, tt.to_line, tt.observed_n, tt.simulated_n) == ("across", "second", 0, 3)
     assert math.isnan(tt.observed_mean_s) and tt.simulated_mean_s > 0  # null in the file, NaN in memory
     assert back.crs.startswith("EPSG:2240")
+    # its tables read back through the folder, text columns as text; no simulation record for a plain comparison
+    run = RunFolder(folder)
+    counts = run.comparison_table("compare_counts.csv")
+    assert counts[["line", "lane", "direction", "observed", "simulated"]].astype(str).values.tolist() == \
+        comparison.counts[["line", "lane", "direction", "observed", "simulated"]].astype(str).values.tolist()
+    np.testing.assert_allclose(counts["geh"], comparison.counts["geh"], atol=1e-4)  # written with 4 decimals
+    assert run.comparison.command == "compare-sumo" and run.simulation_record() is None
+    with pytest.raises(InputError, match="not a table of a comparison"):
+        run.comparison_table("counts.csv")
+
+
+def test_a_simulation_record_joins_the_comparison_and_a_new_comparison_drops_it(reference_run: dict,
+                                                                                 tmp_path: Path) -> None:
+    import shutil
+
+    from trafficgeo.traffic.validation import compare_with_simulation, read_observed_run, write_comparison
+
+    folder = tmp_path / "run"
+    shutil.copytree(reference_run["folder"], folder)
+    observed = read_observed_run(folder)
+    comparison = compare_with_simulation(observed, RunFolder(folder).trajectories(), lines=[reference_run["line"]])
+    written = write_comparison(folder, comparison, observed.crs)
+    assert RunFolder(folder).comparison_table("compare_speeds.csv") is not None
+    path = RunFolder(folder).write_simulation_record(_simulation())
+    run = RunFolder(folder)
+    assert run.comparison.command == "sumo-validate"
+    assert set(run.comparison.files) == {p.name for p in written} | {path.name}
+    assert run.simulation_record() == _simulation() and run.compare_summary() is not None
+    assert json.loads(path.read_text())["build_s"] is None  # NaN in memory: null in the file
+    write_comparison(folder, comparison, observed.crs)  # compare-sumo again: the record is no longer its part
+    run = RunFolder(folder)
+    assert run.comparison.command == "compare-sumo" and run.simulation_record() is None and path.is_file()
+    (folder / COMPARE_MANIFEST).unlink()  # the tables left without their manifest are not read
+    assert (folder / "compare_counts.csv").is_file()
+    assert RunFolder(folder).comparison_table("compare_counts.csv") is None
+    assert RunFolder(folder).simulation_record() is None and RunFolder(folder).compare_summary() is None
 
 
 def test_process_json_of_the_pipeline_writer_reads_back_typed(tmp_path: Path) -> None:
@@ -217,3 +276,27 @@ def test_process_json_of_the_pipeline_writer_reads_back_typed(tmp_path: Path) ->
         "clip.mp4", "camera.json", 3.25, 120, 96)
     assert info.tiling == {"tiles": [], "warnings": ["far line"]}
     assert info.to_dict() == json.loads((tmp_path / "process.json").read_text())
+
+
+def test_a_table_is_written_only_under_its_schema(reference_run: dict, tmp_path: Path) -> None:
+    tracks = RunFolder(reference_run["folder"]).trajectories()
+    folder = RunFolder(tmp_path / "run")
+    with pytest.raises(InputError, match=r"tracks\.csv: columns \[.*'track_id'.*\] missing"):
+        folder.write_table("tracks.csv", tracks[["frame", "time"]])
+    with pytest.raises(ValueError, match="not a table of a run folder"):
+        folder.write_table("notes.csv", tracks)
+    assert not (tmp_path / "run" / "tracks.csv").exists()
+    path = folder.write_table("trajectories.csv", tracks, float_format="%.6f")
+    publish_outputs(folder.path, [path.name], command="test")
+    back = RunFolder(folder.path).trajectories()
+    assert back["track_id"].tolist() == tracks["track_id"].tolist()
+    np.testing.assert_allclose(back["x"], tracks["x"], atol=1e-6)
+
+
+def test_the_video_room_writes_its_two_tables_under_the_run_schema() -> None:
+    """detections.csv and tracks.csv are written by video.pipeline as it finishes (it sits beside traffic, so it
+    cannot use RunFolder): their columns are the run folder's schema, in order."""
+    from trafficgeo.traffic.run_folder import DETECTIONS, TRACKS
+    from trafficgeo.video.pipeline import DETECTION_COLUMNS, TRACK_COLUMNS
+
+    assert DETECTION_COLUMNS == DETECTIONS.names and TRACK_COLUMNS == TRACKS.names

@@ -216,7 +216,6 @@ def stitch(chunks: Sequence[PathLike], camera: CalibratedCamera | Camera | PathL
     """Join the tracks of the runs of overlapping time chunks of one video (``process_video`` with ``start_s`` /
     ``end_s``, e.g. on several machines; folders in any order) and analyse them into the run folder ``out_dir``
     (``trafficgeo stitch``). ``notice(line)`` gets a warning per gap or unequal overlap between chunks."""
-    from trafficgeo.io.atomic import write_csv_atomic
     from trafficgeo.io.run_manifest import check_writable_folder
     from trafficgeo.video.stitch import plan_chunks, stitch_tracks
 
@@ -246,8 +245,8 @@ def stitch(chunks: Sequence[PathLike], camera: CalibratedCamera | Camera | PathL
     result = analyze(tracks_from_table(joined), site, interval_s=interval_s)
     folder = RunFolder(out)
     written = folder.write_traffic(result, site.camera.camera, publish=False)
-    write_csv_atomic(out / "tracks.csv", joined, float_format="%.3f")
-    folder.publish([*written, "tracks.csv"], command="stitch")
+    written.append(folder.write_table("tracks.csv", joined))
+    folder.publish(written, command="stitch")
     return result
 
 

@@ -41,7 +41,7 @@ from trafficgeo.report.refine_section import refinement_section
 from trafficgeo.report.render import render_page
 from trafficgeo.report.sections import accuracy_section, calibration_sections
 from trafficgeo.report.simulation_section import simulation_section
-from trafficgeo.report.traffic_sections import read_table, traffic_section
+from trafficgeo.report.traffic_sections import comparison_table, traffic_section
 
 __all__ = ["ReportInputs", "ReportPage", "TrafficRun", "build_page", "build_report", "find_inputs", "read_background",
            "write_report_html"]
@@ -100,7 +100,7 @@ def build_page(run_dir: str | Path, *, camera: str | Path | None = None,
                "folder or its sub-folders: run 'trafficgeo analyze' or 'process' with --out in it")
     for k, run in enumerate(inputs.traffic):
         sections.append(traffic_section(b, run, k + 1))
-        compare = read_table(run.folder / "compare_counts.csv") if run.compare and run.simulation else None
+        compare = comparison_table(run, "compare_counts.csv") if run.simulation is not None else None
         if compare is not None and len(compare):
             sections.append(simulation_section(b, run, k + 1, compare))
     left = list(dict.fromkeys(b.left_out))

@@ -11,10 +11,11 @@ from pathlib import Path
 from typing import Any
 
 from trafficgeo.calibration.report import REPORT_FORMAT, CalibrationReport
+from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.errors import InputError
-from trafficgeo.io.run_manifest import COMPARE_MANIFEST, MANIFEST, RunIncompleteError, RunManifest, verify_outputs
+from trafficgeo.io.run_manifest import MANIFEST, RunIncompleteError
 from trafficgeo.traffic.run_folder import RunFolder
-from trafficgeo.traffic.run_records import CompareSummary, ProcessRecord, RunSummary
+from trafficgeo.traffic.run_records import CompareSummary, ProcessRecord, RunSummary, SimulationRecord
 
 CAMERA_NAMES = ("camera.json",)
 REPORT_NAMES = ("report.json", "calibration_report.json", "calibration.json")
@@ -37,7 +38,7 @@ class TrafficRun:
     process: ProcessRecord | None = None
     compare: bool = False  # compare-sumo results are in the folder and match their manifest
     compare_problem: str | None = None  # why compare-sumo results in the folder are not used
-    simulation: dict[str, Any] | None = None  # sumo-validate's record: the comparison is of a trafficgeo scenario
+    simulation: SimulationRecord | None = None  # sumo-validate's record: the comparison is of a trafficgeo scenario
     compare_summary: CompareSummary | None = None  # compare-sumo's compare_summary.json, when compare
     run_folder: RunFolder | None = field(default=None, repr=False, compare=False)  # the checked folder, if read
 
@@ -98,19 +99,6 @@ def _given_file(path: str | Path | None, option: str, hint: str) -> Path | None:
     return p
 
 
-def read_json(path: Path) -> Any:
-    """The JSON document in ``path``.
-
-    Raises:
-        InputError: the file cannot be read or is not JSON.
-    """
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: not readable JSON ({' '.join(str(exc).split())}); write it again with "
-                         "trafficgeo") from None
-
-
 def _resolve(text: Any, bases: list[Path]) -> Path | None:
     """A path named in a JSON file: as given (absolute or from the working folder), else from ``bases`` (a
     ``process`` run stores its paths as typed, relative to the folder it ran in)."""
@@ -138,28 +126,17 @@ def _traffic_runs(dirs: list[Path]) -> tuple[TrafficRun, ...]:
             compare, problem, simulation, compared = False, None, None, None
             if (d / "compare_counts.csv").is_file():
                 try:
-                    found = verify_outputs(d, ("compare_counts.csv",), name=COMPARE_MANIFEST)
-                    compare = found.has("compare_counts.csv")
-                    simulation = _simulation_record(d, found)
-                    compared = run.compare_summary()
+                    found = run.comparison
                 except RunIncompleteError:
+                    found = None
+                compare = found is not None and found.has("compare_counts.csv")
+                if compare:
+                    simulation, compared = run.simulation_record(), run.compare_summary()
+                else:
                     problem = ("compare-sumo results incomplete or from an earlier run of this folder; run "
                                "'trafficgeo compare-sumo' again")
             runs.append(TrafficRun(d, summary, process, compare, problem, simulation, compared, run))
     return tuple(runs)
-
-
-def _simulation_record(d: Path, manifest: RunManifest) -> dict[str, Any] | None:
-    """``sumo-validate``'s record of the scenario it simulated, when the folder's comparison is from it (the
-    comparison manifest lists the record); None for a plain ``compare-sumo`` comparison."""
-    from trafficgeo.simulation.loop import SIMULATION_FORMAT, SIMULATION_RECORD
-
-    if manifest.command != "sumo-validate" or not manifest.has(SIMULATION_RECORD):
-        return None
-    doc = read_json(d / SIMULATION_RECORD)
-    if not isinstance(doc, dict) or doc.get("format") != SIMULATION_FORMAT:
-        raise InputError(f"{d / SIMULATION_RECORD}: not a record written by 'trafficgeo sumo-validate'; run it again")
-    return doc
 
 
 def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
@@ -211,9 +188,9 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
     frame_path = _given_file(frame, "frame", "give a PNG or JPEG of the video frame the GCPs were clicked on")
     frame_given = frame_path is not None
     if frame_path is None and cam is not None:
-        doc = read_json(cam)
+        extras = CalibratedCamera.read(cam).extras
         for key in FRAME_KEYS:
-            frame_path = _resolve(doc.get(key) if isinstance(doc, dict) else None, [cam.parent])
+            frame_path = _resolve(extras.get(key), [cam.parent])
             if frame_path is not None:
                 break
     frame_path = frame_path or _find(site_dirs, FRAME_NAMES)
@@ -245,8 +222,6 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
 def _refine_report_of(camera: Path) -> tuple[Path | None, str | None]:
     """The refinement report a camera JSON's ``refinement.report`` key names beside it: (the file, None) when it
     exists, (None, the name) when it does not, (None, None) without such a key."""
-    from trafficgeo.camera.calibrated import CalibratedCamera
-
     verdict = CalibratedCamera.read(camera).refinement
     name = verdict.report if verdict is not None else None
     if not name:

@@ -25,52 +25,44 @@ from trafficgeo.report.traffic_sections import (
     TABLE_ROWS,
     compare_counts_table,
     compare_speeds_table,
+    comparison_table,
     flows_figure,
-    read_table,
     run_table,
 )
-from trafficgeo.traffic.run_records import TravelTimeSummary
+from trafficgeo.traffic.run_records import SimulationRecord, TravelTimeSummary
 
 GEH_LIMIT = 5.0
 
 
-def _float(value: Any) -> float:
-    """``value`` as a float (NaN for None or anything not a number)."""
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return float("nan")
+def _finite_or(value: float, default: float) -> float:
+    return value if np.isfinite(value) else default
 
 
-def headline(record: dict[str, Any], compare: pd.DataFrame) -> dict[str, Any]:
+def headline(record: SimulationRecord, compare: pd.DataFrame) -> dict[str, Any]:
     """Share of the counts with GEH < 5, mean GEH, number of counts, target share and whether it is met: from
-    ``sumo-validate``'s record, or from ``compare_counts.csv`` for what the record lacks."""
+    ``sumo-validate``'s record, or from ``compare_counts.csv`` for what the record lacks (NaN)."""
     geh = compare["geh"].to_numpy(float) if "geh" in compare.columns else np.full(len(compare), np.nan)
-    share = _float(record.get("share_geh_below_5"))
-    share = share if np.isfinite(share) else (float((geh < GEH_LIMIT).mean()) if geh.size else float("nan"))
-    mean = _float(record.get("mean_geh"))
-    mean = mean if np.isfinite(mean) else (float(np.nanmean(geh)) if np.isfinite(geh).any() else float("nan"))
-    target = _float(record.get("target_share"))
-    target = target if np.isfinite(target) else 0.85
-    return {"share_geh_below_5": share, "mean_geh": mean, "counts": int(record.get("counts") or len(compare)),
+    share = _finite_or(record.share_geh_below_5, float((geh < GEH_LIMIT).mean()) if geh.size else float("nan"))
+    mean = _finite_or(record.mean_geh, float(np.nanmean(geh)) if np.isfinite(geh).any() else float("nan"))
+    target = _finite_or(record.target_share, 0.85)
+    return {"share_geh_below_5": share, "mean_geh": mean, "counts": record.counts or len(compare),
             "target_share": target, "target_met": bool(np.isfinite(share) and share >= target)}
 
 
-def _what_was_simulated(rec: dict[str, Any]) -> Block:
-    def seconds(key: str) -> Any:
-        v = _float(rec.get(key))
-        return (v, 1) if np.isfinite(v) else "not known"
+def _what_was_simulated(rec: SimulationRecord) -> Block:
+    def seconds(value: float) -> Any:
+        return (value, 1) if np.isfinite(value) else "not known"
 
-    rows = [["scenario folder (sumo-gui scenario.sumocfg)", str(rec.get("scenario", "-")), ""],
-            ["network", str(rec.get("net", "-")), ""],
-            ["network CRS", str(rec.get("net_crs") or "the network's own"), ""],
-            ["observed period simulated", f'{num(rec.get("begin_s"), 1)} to {num(rec.get("end_s"), 1)}', "s"],
-            ["counting interval", (_float(rec.get("interval_s")), 0), "s"],
-            ["SUMO time minus observed time", (_float(rec.get("time_offset_s")), 1), "s"],
-            ["simulation step", (_float(rec.get("step_s")), 2), "s"],
-            ["vehicles in the demand", rec.get("vehicles", "-"), ""], ["seed", rec.get("seed", "-"), ""],
-            ["time to build the scenario (sumo-demand)", seconds("build_s"), "s"],
-            ["time to run SUMO", seconds("run_s"), "s"]]
+    rows = [["scenario folder (sumo-gui scenario.sumocfg)", rec.scenario, ""],
+            ["network", rec.net, ""],
+            ["network CRS", rec.net_crs or "the network's own", ""],
+            ["observed period simulated", f"{num(rec.begin_s, 1)} to {num(rec.end_s, 1)}", "s"],
+            ["counting interval", (rec.interval_s, 0), "s"],
+            ["SUMO time minus observed time", (rec.time_offset_s, 1), "s"],
+            ["simulation step", (rec.step_s, 2), "s"],
+            ["vehicles in the demand", rec.vehicles, ""], ["seed", rec.seed, ""],
+            ["time to build the scenario (sumo-demand)", seconds(rec.build_s), "s"],
+            ["time to run SUMO", seconds(rec.run_s), "s"]]
     return table(["quantity", "value", "unit"], rows, caption="the SUMO scenario built from this run's counts")
 
 
@@ -84,25 +76,26 @@ def _travel_times(tt: TravelTimeSummary) -> Part:
             table(["", "vehicles", "mean s", "median s", "85th pct s"], rows), Text(text))
 
 
-def _observed_crossings(run: TrafficRun, rec: dict[str, Any], lines: set[str]) -> pd.DataFrame:
+def _observed_crossings(run: TrafficRun, rec: SimulationRecord, lines: set[str]) -> pd.DataFrame:
     """The run's crossings the comparison used: at the compared lines, within the simulated period."""
     cr = run_table(run, "crossings.csv")
     if cr is None or not len(cr):
         return pd.DataFrame(columns=["line", "lane", "speed_kmh"])
     t = pd.to_numeric(cr["time"], errors="coerce")
-    b, e = _float(rec.get("begin_s")), _float(rec.get("end_s"))
-    keep = cr["line"].isin(lines) & (t >= (b if np.isfinite(b) else -np.inf)) & (t < (e if np.isfinite(e) else np.inf))
+    keep = cr["line"].isin(lines) & (t >= _finite_or(rec.begin_s, -np.inf)) & (t < _finite_or(rec.end_s, np.inf))
     return cr[keep.to_numpy()]
 
 
 def simulation_section(b: ReportContext, run: TrafficRun, k: int, compare: pd.DataFrame) -> Section:
     """The Simulation section of the ``k``-th traffic run (1-based), whose comparison ``compare``
     (``compare_counts.csv``) ``sumo-validate`` wrote; what it cannot show is noted in ``b``."""
-    rec = run.simulation or {}
+    rec = run.simulation
+    if rec is None:
+        raise ValueError(f"{run.folder}: its comparison is not one sumo-validate wrote (no compare_simulation.json)")
     rel = run.folder.relative_to(b.inputs.run_dir) if run.folder != b.inputs.run_dir else Path(".")
     name = str(rel)
     title = f"Simulation: {name}" if len(b.inputs.traffic) > 1 or name != "." else "Simulation"
-    b.used.append(("SUMO scenario (sumo-validate)", str(rec.get("scenario", "-"))))
+    b.used.append(("SUMO scenario (sumo-validate)", rec.scenario))
     h = headline(rec, compare)
     verdict = "met" if h["target_met"] else "NOT met"
     lead = (f'{num(100.0 * h["share_geh_below_5"], 1)} % of the {h["counts"]} counts (line, lane, direction, '
@@ -110,13 +103,13 @@ def simulation_section(b: ReportContext, run: TrafficRun, k: int, compare: pd.Da
             f'Mean GEH {num(h["mean_geh"], 2)}; observed {int(compare["observed"].sum())} vehicles, simulated '
             f'{int(compare["simulated"].sum())}.')
     parts: list[Part] = [(Text(lead, "summary"), _what_was_simulated(rec))]
-    notes = [f"not compared (no vehicle observed there): {u}" for u in rec.get("unobserved") or []]
-    notes += [str(w) for w in rec.get("warnings") or []]
+    notes = [f"not compared (no vehicle observed there): {u}" for u in rec.unobserved]
+    notes += list(rec.warnings)
     if notes:
         parts.append(tuple(Text(n, "note") for n in notes))
     parts.append((flows_figure(b, compare),))
-    speeds = read_table(run.folder / "compare_speeds.csv")
-    sim_cross = read_table(run.folder / "simulated_crossings.csv")
+    speeds = comparison_table(run, "compare_speeds.csv")
+    sim_cross = comparison_table(run, "simulated_crossings.csv")
     lines = set(compare["line"].astype(str))
     fig = None
     if sim_cross is not None and len(sim_cross):

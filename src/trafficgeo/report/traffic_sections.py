@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from trafficgeo.errors import InputError
 from trafficgeo.report import figures as F
 from trafficgeo.report.blocks import Block, Heading, Part, Section, Table, Text, figure, items, num, table
 from trafficgeo.report.context import ReportContext
@@ -23,27 +22,17 @@ from trafficgeo.traffic.counts import period_counts
 from trafficgeo.traffic.run_records import ProcessRecord, RunSummary
 
 TABLE_ROWS = 200
-TEXT_COLUMNS = ("track_id", "class", "lane", "line", "source_track")
 
 
-def read_table(path: Path, text_cols: tuple[str, ...] = TEXT_COLUMNS) -> pd.DataFrame | None:
-    """A CSV table trafficgeo wrote outside the run's schema (the comparison's ``compare_counts.csv``...; None when
-    there is none), with ``text_cols`` as text ("" for empty); the run's own tables: :func:`run_table`.
+def comparison_table(run: TrafficRun, name: str) -> pd.DataFrame | None:
+    """Table ``name`` of the run's comparison with a simulation (``compare_counts.csv``, ``compare_speeds.csv``,
+    ``simulated_crossings.csv``) read through its :class:`~trafficgeo.traffic.run_folder.RunFolder`; None when the
+    run has no usable comparison or the comparison has no such table.
 
     Raises:
         InputError: the file is not a readable table.
     """
-    if not path.is_file():
-        return None
-    try:
-        t = pd.read_csv(path, dtype={c: str for c in text_cols}, keep_default_na=False, na_values=[""])
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not a table trafficgeo wrote ({' '.join(str(exc).split())[:80]}); run the "
-                         "command again") from None
-    for c in text_cols:
-        if c in t.columns:
-            t[c] = t[c].fillna("").astype(str)
-    return t
+    return run.run.comparison_table(name) if run.compare else None
 
 
 def run_table(run: TrafficRun, name: str) -> pd.DataFrame | None:
@@ -131,7 +120,7 @@ def traffic_section(b: ReportContext, run: TrafficRun, k: int) -> Section:
         parts.append((Heading("Counts and speeds per line and lane"), _crossing_table(crossings, s)))
     if counts is not None and len(counts):
         parts.append(_counts_table(counts))
-    compare = read_table(run.folder / "compare_counts.csv") if run.compare else None
+    compare = comparison_table(run, "compare_counts.csv")
     if compare is not None and len(compare) and run.simulation is not None:
         parts.append((Text("The comparison with the SUMO simulation of this run (trafficgeo sumo-validate) is in "
                            "the Simulation section.", "note"),))
@@ -155,7 +144,7 @@ def _comparison(b: ReportContext, run: TrafficRun, compare: pd.DataFrame) -> Par
                         f'vehicles, simulated {counts.total_simulated}.'))
     out.append(flows_figure(b, compare))
     out.append(compare_counts_table(compare))
-    speeds = read_table(run.folder / "compare_speeds.csv")
+    speeds = comparison_table(run, "compare_speeds.csv")
     if speeds is not None and len(speeds):
         out += [Heading("Spot speeds at the lines, observed vs simulated", 4), compare_speeds_table(speeds)]
     return tuple(out)

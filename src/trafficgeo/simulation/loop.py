@@ -10,10 +10,11 @@ lines, lanes and intervals, SUMO time moved back by the scenario's ``time_offset
 line, where no vehicle at all was observed is not compared (out of the camera's view is not a count of zero); the
 validation lists them (``unobserved``).
 
-Beside the comparison tables ``sumo-validate`` writes ``compare_simulation.json`` (:data:`SIMULATION_RECORD`: the
-scenario simulated and the headline figures) and lists it in the comparison's manifest, whose command is then
-``sumo-validate``: what tells the HTML report that the comparison is of a trafficgeo scenario (a plain
-``compare-sumo`` writes neither).
+Beside the comparison tables ``sumo-validate`` writes ``compare_simulation.json``
+(:class:`~trafficgeo.traffic.run_records.SimulationRecord`: the scenario simulated and the headline figures,
+through :meth:`~trafficgeo.traffic.run_folder.RunFolder.write_simulation_record`) and lists it in the comparison's
+manifest, whose command is then ``sumo-validate``: what tells the HTML report that the comparison is of a
+trafficgeo scenario (a plain ``compare-sumo`` writes neither).
 """
 
 from __future__ import annotations
@@ -46,12 +47,10 @@ from trafficgeo.traffic.validation import (
     write_comparison,
 )
 
-__all__ = ["GEH_TARGET_SHARE", "SIMULATION_FORMAT", "SIMULATION_RECORD", "SumoLoopResult", "SumoValidation",
+__all__ = ["GEH_TARGET_SHARE", "SumoLoopResult", "SumoValidation",
            "close_sumo_loop", "lane_speed_table", "observed_at_interval", "validate_sumo_scenario"]
 
 GEH_TARGET_SHARE = 0.85  # the usual calibration target: GEH < 5 for at least 85 % of the counts
-SIMULATION_RECORD = "compare_simulation.json"  # sumo-validate's record of the scenario beside the comparison
-SIMULATION_FORMAT = "trafficgeo-sumo-validation/1"
 
 
 @dataclass(frozen=True)
@@ -148,25 +147,22 @@ def validate_sumo_scenario(scenario: SumoScenario | str | os.PathLike[str],
 
 
 def _record_simulation(out: Path, val: SumoValidation) -> list[Path]:
-    """Write :data:`SIMULATION_RECORD` into ``out`` and publish the comparison's manifest again with it (command
-    ``sumo-validate``); returns all the files written."""
-    from trafficgeo.io.atomic import write_json_atomic
-    from trafficgeo.io.run_manifest import COMPARE_MANIFEST, publish_outputs
+    """Write ``compare_simulation.json`` into ``out`` beside the comparison (which then has ``sumo-validate`` as
+    its command); returns all the files written."""
+    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.traffic.run_records import SimulationRecord
 
     sc = val.scenario
-    doc = {"format": SIMULATION_FORMAT, "command": "sumo-validate", "scenario": str(sc.folder.resolve()),
-           "net": str(sc.net), "net_crs": sc.net_crs, "interval_s": sc.interval_s, "begin_s": sc.begin_s,
-           "end_s": sc.end_s, "time_offset_s": sc.time_offset_s, "step_s": sc.step_s, "seed": sc.seed,
-           "vehicles": sc.vehicles, "build_s": sc.build_s if sc.build_s > 0 else None,  # 0: read from its folder
-           "run_s": val.simulation.run_s, "counts": val.counts, "share_geh_below_5": val.share_geh_below_5,
-           "mean_geh": val.mean_geh, "target_share": GEH_TARGET_SHARE, "target_met": val.target_met,
-           "max_abs_speed_difference_kmh": val.max_abs_speed_difference_kmh,
-           "travel_time_difference_s": val.travel_time_difference_s, "unobserved": list(val.unobserved),
-           "warnings": list(sc.warnings)}
-    write_json_atomic(out / SIMULATION_RECORD, doc)
-    written = [*val.written, out / SIMULATION_RECORD]
-    publish_outputs(out, written, command="sumo-validate", name=COMPARE_MANIFEST)
-    return written
+    record = SimulationRecord(
+        scenario=str(sc.folder.resolve()), net=str(sc.net), net_crs=sc.net_crs, interval_s=sc.interval_s,
+        begin_s=sc.begin_s, end_s=sc.end_s, time_offset_s=sc.time_offset_s, step_s=sc.step_s, seed=sc.seed,
+        vehicles=sc.vehicles, build_s=sc.build_s if sc.build_s > 0 else float("nan"),  # 0: read from its folder
+        run_s=val.simulation.run_s, counts=val.counts, share_geh_below_5=val.share_geh_below_5,
+        mean_geh=val.mean_geh, target_share=GEH_TARGET_SHARE, target_met=val.target_met,
+        max_abs_speed_difference_kmh=val.max_abs_speed_difference_kmh,
+        travel_time_difference_s=val.travel_time_difference_s, unobserved=tuple(val.unobserved),
+        warnings=tuple(sc.warnings))
+    return [*val.written, RunFolder(out).write_simulation_record(record)]
 
 
 def close_sumo_loop(run: str | os.PathLike[str], net: str | os.PathLike[str], out_dir: str | os.PathLike[str], *,

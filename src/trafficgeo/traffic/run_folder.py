@@ -1,8 +1,9 @@
 """A run's output folder, and the one schema of every table trafficgeo writes into it.
 
 ``analyze``, ``process`` and ``stitch`` write a run folder; ``compare-sumo``, ``export-fcd``, ``stitch`` (its chunks),
-the HTML report and the demo read one. All of them go through :class:`RunFolder`, and every table's columns, dtypes
-and units are defined once here (:data:`SCHEMAS`):
+the HTML report and the demo read one. All of them go through :class:`RunFolder` (but ``process``'s detections and
+tracks, which the video room writes under the same schemas), and every table's columns, dtypes and units are
+defined once here (:data:`SCHEMAS`):
 
 ============================  =========================================================================
 ``vehicles.csv``              one row per vehicle (track): class, times, speed, length, lane (:data:`VEHICLES`)
@@ -16,13 +17,20 @@ and units are defined once here (:data:`SCHEMAS`):
 ``process.json``              ``process``: the video, options, what was read, the detector's tile plan
                               (:class:`~.run_records.ProcessRecord`)
 ``run.json``                  the manifest (:mod:`trafficgeo.io.run_manifest`): written last, checked by readers
-``compare_summary.json``      ``compare-sumo``: GEH and travel times (:class:`~.run_records.CompareSummary`), with
-                              the comparison's tables under its own manifest (``compare_run.json``)
+``compare_counts.csv``,       ``compare-sumo``/``sumo-validate``: observed against simulated counts (GEH), spot
+``compare_speeds.csv``,       speeds and the simulated crossings (:data:`COMPARE_TABLES`), under the comparison's
+``simulated_crossings.csv``   own manifest (``compare_run.json``)
+``compare_summary.json``      the comparison's GEH and travel times (:class:`~.run_records.CompareSummary`)
+``compare_simulation.json``   ``sumo-validate``: the scenario simulated and the headline figures
+                              (:class:`~.run_records.SimulationRecord`); its manifest's command is then
+                              ``sumo-validate``
 ============================  =========================================================================
 
 The JSON files are typed records (:mod:`trafficgeo.traffic.run_records`): :class:`RunFolder` writes them
-(:meth:`RunFolder.write_summary`, :meth:`~RunFolder.write_process`, :meth:`~RunFolder.write_compare_summary`) and
-reads them back (:meth:`RunFolder.summary`, :meth:`~RunFolder.process`, :meth:`~RunFolder.compare_summary`).
+(:meth:`RunFolder.write_summary`, :meth:`~RunFolder.write_process`, :meth:`~RunFolder.write_comparison`,
+:meth:`~RunFolder.write_simulation_record`) and reads them back (:meth:`RunFolder.summary`,
+:meth:`~RunFolder.process`, :meth:`~RunFolder.compare_summary`, :meth:`~RunFolder.simulation_record`); the
+comparison's tables are read by :meth:`RunFolder.comparison_table`.
 
 Units: times in seconds of video (``time``, ``first_time``... from the video's start), speeds in km/h, lengths and
 distances in metres, ``x, y, z`` in the camera's CRS and its units (``"crs"`` below), pixel boxes in full-frame px
@@ -33,7 +41,7 @@ columns read back as ``""`` where empty (an unknown class, no lane), never NaN.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -42,14 +50,20 @@ import pandas as pd
 
 from trafficgeo.errors import InputError
 from trafficgeo.io.run_manifest import COMPARE_MANIFEST, RunManifest, verify_outputs
-from trafficgeo.traffic.run_records import CompareSummary, ProcessRecord, RunSummary
+from trafficgeo.traffic.run_records import (
+    SIMULATION_RECORD,
+    CompareSummary,
+    ProcessRecord,
+    RunSummary,
+    SimulationRecord,
+)
 
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera
     from trafficgeo.traffic.analyze import TrafficResult
 
-__all__ = ["COUNTS", "CROSSINGS", "DETECTIONS", "SCHEMAS", "TRACKS", "TRAJECTORIES", "VEHICLES", "Column",
-           "CompareSummary", "ProcessRecord", "RunFolder", "RunSummary", "TableSchema"]
+__all__ = ["COMPARE_TABLES", "COUNTS", "CROSSINGS", "DETECTIONS", "SCHEMAS", "TRACKS", "TRAJECTORIES", "VEHICLES",
+           "Column", "RunFolder", "TableSchema"]
 
 
 @dataclass(frozen=True)
@@ -246,16 +260,21 @@ TRACKS = TableSchema("tracks.csv", (
 SCHEMAS: dict[str, TableSchema] = {s.file: s for s in (VEHICLES, CROSSINGS, COUNTS, TRAJECTORIES, DETECTIONS,
                                                       TRACKS)}
 RUN_HINT = "give the output folder of 'trafficgeo analyze' or 'trafficgeo process'"
+COMPARE_TABLES = ("compare_counts.csv", "compare_speeds.csv", "simulated_crossings.csv")  # compare-sumo's tables
+COMPARE_TEXT_COLUMNS = ("track_id", "class", "lane", "line", "source_track")  # read as text ("" where empty)
 
 
 class RunFolder:
     """The output folder ``path`` of a run: write a run's results into it, or read a finished run's tables and its
     JSON files as typed records (checked against the run's manifest: a folder whose run did not finish, or whose
-    files changed since, is refused). The one writer and reader of a run's files."""
+    files changed since, is refused). The one writer and reader of a run's files, but for ``detections.csv`` and
+    ``tracks.csv`` of ``process``, which :func:`trafficgeo.video.pipeline.detect_and_track` writes (under
+    :data:`DETECTIONS` and :data:`TRACKS`) as it finishes."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self._manifest: RunManifest | None = None
+        self._comparison: RunManifest | None = None
 
     def __repr__(self) -> str:
         return f"RunFolder({str(self.path)!r})"
@@ -267,8 +286,20 @@ class RunFolder:
         (``process``)."""
         from trafficgeo.traffic.analyze import write_analysis
 
-        self._manifest = None
+        self._manifest = self._comparison = None
         return write_analysis(self.path, result, camera, publish=publish)
+
+    def write_table(self, name: str, table: pd.DataFrame, *, float_format: str = "%.3f") -> Path:
+        """Write output table ``name`` (a key of :data:`SCHEMAS`; ``table`` must follow its schema) as CSV,
+        atomically; returns its path. The manifest is the caller's (:meth:`publish`)."""
+        from trafficgeo.io.atomic import write_csv_atomic
+
+        if name not in SCHEMAS:
+            raise ValueError(f"{name}: not a table of a run folder; one of {', '.join(SCHEMAS)}")
+        SCHEMAS[name].check(table)
+        self.path.mkdir(parents=True, exist_ok=True)
+        write_csv_atomic(self.path / name, table, float_format=float_format)
+        return self.path / name
 
     def write_summary(self, summary: RunSummary) -> Path:
         """Write ``summary.json`` (atomically); returns its path."""
@@ -278,10 +309,43 @@ class RunFolder:
         """Write ``process.json`` (atomically); returns its path."""
         return self._write_json("process.json", record.to_dict())
 
+    def write_comparison(self, tables: Mapping[str, pd.DataFrame], summary: CompareSummary) -> list[Path]:
+        """Write a comparison with a simulation (``compare-sumo``): ``tables`` (:data:`COMPARE_TABLES` by name) as
+        CSV, ``compare_summary.json``, then the comparison's manifest (``compare_run.json``); returns the paths
+        written. Until the manifest is written, readers refuse the comparison."""
+        from trafficgeo.io.atomic import write_csv_atomic
+        from trafficgeo.io.run_manifest import begin_outputs, publish_outputs
+
+        unknown = sorted(set(tables) - set(COMPARE_TABLES))
+        if unknown:
+            raise ValueError(f"{unknown}: not tables of a comparison; one of {', '.join(COMPARE_TABLES)}")
+        self._comparison = None
+        begin_outputs(self.path, COMPARE_MANIFEST)
+        written = []
+        for name, table in tables.items():
+            write_csv_atomic(self.path / name, table, float_format="%.4f")
+            written.append(self.path / name)
+        written.append(self.write_compare_summary(summary))
+        publish_outputs(self.path, written, command="compare-sumo", name=COMPARE_MANIFEST)
+        return written
+
     def write_compare_summary(self, summary: CompareSummary) -> Path:
         """Write ``compare_summary.json`` (atomically); returns its path. The comparison's manifest is the
-        caller's (:func:`trafficgeo.traffic.validation.write_comparison`)."""
+        caller's (:meth:`write_comparison` writes it)."""
         return self._write_json("compare_summary.json", summary.to_dict())
+
+    def write_simulation_record(self, record: SimulationRecord) -> Path:
+        """Write ``compare_simulation.json`` beside the comparison written last (:meth:`write_comparison`) and
+        publish the comparison's manifest again with it, its command ``sumo-validate``; returns the record's path.
+        """
+        from trafficgeo.io.run_manifest import publish_outputs
+
+        files = list(verify_outputs(self.path, name=COMPARE_MANIFEST).files)
+        self._comparison = None
+        path = self._write_json(SIMULATION_RECORD, record.to_dict())
+        publish_outputs(self.path, [*(f for f in files if f != SIMULATION_RECORD), SIMULATION_RECORD],
+                        command="sumo-validate", name=COMPARE_MANIFEST)
+        return path
 
     def _write_json(self, name: str, doc: dict[str, Any]) -> Path:
         from trafficgeo.io.atomic import write_json_atomic
@@ -295,7 +359,7 @@ class RunFolder:
         from trafficgeo.io.run_manifest import publish_outputs
 
         publish_outputs(self.path, files, command=command)
-        self._manifest = None
+        self._manifest = self._comparison = None
 
     # ------------------------------------------------------------------------------------------------ reading
     @property
@@ -341,16 +405,55 @@ class RunFolder:
         p = self.path / "process.json"
         return ProcessRecord.from_dict(self._json(p), str(p))
 
+    @property
+    def comparison(self) -> RunManifest | None:
+        """The manifest of the comparison with a simulation in the folder (``compare_run.json``), checked
+        (:class:`~trafficgeo.io.run_manifest.RunIncompleteError` when its files are incomplete or changed); None
+        without one."""
+        if self._comparison is None:
+            if not (self.path / COMPARE_MANIFEST).is_file():
+                return None
+            self._comparison = verify_outputs(self.path, name=COMPARE_MANIFEST)
+        return self._comparison
+
     def compare_summary(self) -> CompareSummary | None:
-        """``compare_summary.json`` of the ``compare-sumo`` results in the folder, checked against their own
-        manifest (``compare_run.json``; InputError when they are incomplete or changed); None without a
+        """``compare_summary.json`` of the comparison in the folder (:attr:`comparison`); None without a
         comparison, or one whose manifest does not list the file."""
-        if not (self.path / COMPARE_MANIFEST).is_file():
-            return None
-        if not verify_outputs(self.path, name=COMPARE_MANIFEST).has("compare_summary.json"):
+        found = self.comparison
+        if found is None or not found.has("compare_summary.json"):
             return None
         p = self.path / "compare_summary.json"
         return CompareSummary.from_dict(self._json(p), str(p))
+
+    def simulation_record(self) -> SimulationRecord | None:
+        """``compare_simulation.json``: what ``sumo-validate`` simulated, when the folder's comparison is from it
+        (its manifest's command is ``sumo-validate`` and lists the record); None for a plain ``compare-sumo``
+        comparison or none."""
+        found = self.comparison
+        if found is None or found.command != "sumo-validate" or not found.has(SIMULATION_RECORD):
+            return None
+        p = self.path / SIMULATION_RECORD
+        return SimulationRecord.from_dict(self._json(p), str(p))
+
+    def comparison_table(self, name: str) -> pd.DataFrame | None:
+        """Table ``name`` of the comparison in the folder (one of :data:`COMPARE_TABLES`), its text columns
+        ``""`` where empty; None without a comparison, or one whose manifest does not list the table."""
+        if name not in COMPARE_TABLES:
+            raise InputError(f"{name}: not a table of a comparison; one of {', '.join(COMPARE_TABLES)}")
+        found = self.comparison
+        if found is None or not found.has(name):
+            return None
+        path = self.path / name
+        text = dict.fromkeys(COMPARE_TEXT_COLUMNS, str)
+        try:
+            table = pd.read_csv(path, dtype=text, keep_default_na=False, na_values=[""])
+        except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+            raise InputError(f"{path}: not a table trafficgeo wrote ({' '.join(str(exc).split())[:80]}); run the "
+                             "comparison again") from None
+        for c in COMPARE_TEXT_COLUMNS:
+            if c in table.columns:
+                table[c] = table[c].fillna("").astype(str)
+        return table
 
     def vehicles(self) -> pd.DataFrame:
         return self.table("vehicles.csv")

@@ -6,11 +6,14 @@
 ``process.json``              :class:`ProcessRecord`      ``process`` (:func:`trafficgeo.pipeline.run.write_run_info`)
 ``compare_summary.json``      :class:`CompareSummary`     ``compare-sumo`` / ``sumo-validate``
                                                           (:func:`trafficgeo.traffic.validation.write_comparison`)
+``compare_simulation.json``   :class:`SimulationRecord`   ``sumo-validate``
+                                                          (:func:`trafficgeo.simulation.loop.validate_sumo_scenario`)
 ============================  ==========================  ===================================================
 
 :class:`~trafficgeo.traffic.run_folder.RunFolder` writes them (``write_summary``, ``write_process``,
-``write_compare_summary``: :meth:`to_dict` through :func:`trafficgeo.io.atomic.write_json_atomic`) and reads them
-back (``summary()``, ``process()``, ``compare_summary()``: ``from_dict``, which names the file and the key in an
+``write_compare_summary``, ``write_simulation_record``: :meth:`to_dict` through
+:func:`trafficgeo.io.atomic.write_json_atomic`) and reads them back (``summary()``, ``process()``,
+``compare_summary()``, ``simulation_record()``: ``from_dict``, which names the file and the key in an
 :class:`~trafficgeo.errors.InputError` when a file is damaged or foreign). ``to_dict`` gives the document with the
 keys in the order of the fields; a number that is not available is NaN in memory and ``null`` in the file (as the
 writers have always written it). Keys a file has beyond these are ignored; keys that joined a format later (noted
@@ -27,8 +30,11 @@ from typing import Any
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import to_json_safe
 
-__all__ = ["CompareSummary", "CountSummary", "LineCount", "ProcessRecord", "ProcessSettings", "RunSummary",
-           "TravelTimeSummary", "VideoRead"]
+__all__ = ["SIMULATION_FORMAT", "SIMULATION_RECORD", "CompareSummary", "CountSummary", "LineCount", "ProcessRecord",
+           "ProcessSettings", "RunSummary", "SimulationRecord", "TravelTimeSummary", "VideoRead"]
+
+SIMULATION_RECORD = "compare_simulation.json"  # sumo-validate's record of the scenario beside the comparison
+SIMULATION_FORMAT = "trafficgeo-sumo-validation/1"
 
 NAN = float("nan")
 _REQUIRED = object()
@@ -394,3 +400,69 @@ class CompareSummary(_Record):
         tt = o.sub("travel_times")
         return cls(CountSummary._from(o.sub("counts")), TravelTimeSummary._from(tt) if tt is not None else None,
                    o.text("crs"))
+
+
+# ---------------------------------------------------------------------------------------- compare_simulation.json
+@dataclass(frozen=True, eq=False, kw_only=True)
+class SimulationRecord(_Record):
+    """``compare_simulation.json``: the SUMO scenario ``sumo-validate`` simulated and its headline figures, beside
+    the comparison tables of the run it was built from.
+
+    The scenario: its ``scenario`` folder and ``net`` (absolute paths), ``net_crs`` (None: the network's own PROJ
+    string), the counting ``interval_s`` and the observed period ``begin_s`` to ``end_s`` simulated,
+    ``time_offset_s`` (SUMO time minus observed time), ``step_s``, ``seed``, ``vehicles`` in the demand, the
+    seconds to build it (``build_s``, NaN when not known) and to run SUMO (``run_s``). The figures: ``counts``
+    compared (line x lane x direction x interval), ``share_geh_below_5`` against ``target_share``, ``target_met``,
+    ``mean_geh``, ``max_abs_speed_difference_kmh``, ``travel_time_difference_s`` (simulated minus observed mean),
+    ``unobserved`` (lines or directions with no observed vehicle, not compared) and the scenario's ``warnings``.
+    """
+
+    format: str = SIMULATION_FORMAT
+    command: str = "sumo-validate"
+    scenario: str
+    net: str
+    net_crs: str | None
+    interval_s: float
+    begin_s: float
+    end_s: float
+    time_offset_s: float
+    step_s: float
+    seed: int
+    vehicles: int
+    build_s: float
+    run_s: float
+    counts: int
+    share_geh_below_5: float
+    mean_geh: float
+    target_share: float
+    target_met: bool
+    max_abs_speed_difference_kmh: float
+    travel_time_difference_s: float
+    unobserved: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+
+    @classmethod
+    def from_dict(cls, doc: Any, where: str = SIMULATION_RECORD) -> SimulationRecord:
+        """The record of a ``compare_simulation.json`` document; ``where`` (its path) names it in errors.
+
+        Raises:
+            InputError: ``doc`` is not a record written by ``sumo-validate`` (another format, a missing key or a
+                wrong type).
+        """
+        return _read(cls, doc, where, SIMULATION_RECORD, "run 'trafficgeo sumo-validate' again to write it")
+
+    @classmethod
+    def _from(cls, o: _Obj) -> SimulationRecord:
+        if o.raw("format", None) != SIMULATION_FORMAT:
+            raise _Malformed(f"'format' is not {SIMULATION_FORMAT}")
+        read = {"str": o.text, "int": o.integer, "float": o.number, "bool": o.flag}
+        values: dict[str, Any] = {"net_crs": o.text("net_crs", None, nullable=True)}
+        for f in fields(cls):
+            if f.type in read and f.name not in values:
+                values[f.name] = read[f.type](f.name)
+        for key in ("unobserved", "warnings"):
+            items = o.items(key, [])
+            if not all(isinstance(v, str) for v in items):
+                raise _Malformed(f"'{key}' is not a list of text")
+            values[key] = tuple(items)
+        return cls(**values)

@@ -150,22 +150,16 @@ def compare_with_simulation(observed: ObservedRun, simulated: pd.DataFrame, *,
 
 
 def write_comparison(out_dir: str | Path, comparison: Comparison, crs: pyproj.CRS | None) -> list[Path]:
-    """``compare_counts.csv``, ``compare_speeds.csv``, ``simulated_crossings.csv`` and ``compare_summary.json``."""
-    from trafficgeo.io.atomic import write_csv_atomic
-    from trafficgeo.io.run_manifest import COMPARE_MANIFEST, begin_outputs, publish_outputs
+    """``compare_counts.csv``, ``compare_speeds.csv``, ``simulated_crossings.csv`` and ``compare_summary.json``
+    into ``out_dir``, under the comparison's manifest (:meth:`~trafficgeo.traffic.run_folder.RunFolder.
+    write_comparison`); returns the paths written."""
     from trafficgeo.traffic.run_folder import RunFolder
     from trafficgeo.traffic.run_records import CompareSummary
 
-    out = begin_outputs(out_dir, COMPARE_MANIFEST)
-    written = []
-    for name, table in (("compare_counts.csv", comparison.counts), ("compare_speeds.csv", comparison.speeds),
-                        ("simulated_crossings.csv", comparison.simulated_crossings)):
-        write_csv_atomic(out / name, table, float_format="%.4f")
-        written.append(out / name)
     doc = {"counts": comparison.count_summary, "travel_times": comparison.travel_times, "crs": crs_label(crs)}
-    written.append(RunFolder(out).write_compare_summary(CompareSummary.from_dict(doc, "the comparison")))
-    publish_outputs(out, written, command="compare-sumo", name=COMPARE_MANIFEST)
-    return written
+    tables = {"compare_counts.csv": comparison.counts, "compare_speeds.csv": comparison.speeds,
+              "simulated_crossings.csv": comparison.simulated_crossings}
+    return RunFolder(out_dir).write_comparison(tables, CompareSummary.from_dict(doc, "the comparison"))
 
 
 def compare_with_sumo(run: ObservedRun | str | Path, fcd: str | Path, *, net: str | Path | None = None,
