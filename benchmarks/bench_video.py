@@ -60,9 +60,11 @@ from trafficgeo.site.lanes import read_lanes
 from trafficgeo.site.lines import read_count_lines
 from trafficgeo.site.surface import load_surface
 from trafficgeo.synth.detections import ideal_detections
+from trafficgeo.synth.identity import identity_scores, vehicle_ids
 from trafficgeo.synth.scoring import count_scores, crossing_outcomes, detection_scores
 from trafficgeo.synth.world import WorldOptions, build_world
 from trafficgeo.traffic.analyze import analyze
+from trafficgeo.traffic.journeys import JourneyOptions
 from trafficgeo.traffic.tracks import tracks_from_table
 from trafficgeo.video.detections import box_iou
 from trafficgeo.video.pipeline import TRACK_COLUMNS, ProcessOptions, settled_options
@@ -223,6 +225,42 @@ def run_label(spec: str, every: int, used: str | None = None) -> str:
     return f"{RUN_LABELS[name]}, {when}" + (" (process default)" if default else "")
 
 
+def identity_rows(label: str, run, truth: pd.DataFrame, truth_counts: pd.DataFrame, end: float, camera, surface,
+                  lanes, lines) -> list[str]:
+    """Table rows for one run: the tracker's ids, the world tracks without journeys and the journeys
+    (:mod:`trafficgeo.traffic.journeys`) side by side: identity metrics against the rendered truth boxes of the
+    vehicles at least half visible and 12 px tall on the detection frames (``trafficgeo.synth.identity``), the
+    vehicles made, per-lane counts and crossings matched to no true one (extra)."""
+    step = int(run.options.every or 1)
+    need = truth[(truth["time"] < end) & (truth["frame"] % step == 0) & (truth["visible_fraction"] >= 0.5)
+                 & (truth["y2"] - truth["y1"] >= 12.0)].dropna(subset=["x1", "y1", "x2", "y2"])
+    need = need.rename(columns={"vehicle": "id"})[["frame", "id", "x1", "y1", "x2", "y2"]]
+    tracks = run.tracks
+    t0 = time.perf_counter()
+    off = analyze(camera, surface, tracks_from_table(tracks), lanes=lanes, lines=lines,
+                  journeys=JourneyOptions(enabled=False))
+    t_off = time.perf_counter() - t0
+    rows = []
+    variants = (("tracker ids", tracks.rename(columns={"track_id": "id"}), None),
+                ("world tracks, no journeys", vehicle_ids(tracks, off.points), off),
+                ("journeys", vehicle_ids(tracks, run.traffic.points), run.traffic))
+    for name, hyp, result in variants:
+        ident = identity_scores(need, hyp[["frame", "id", "x1", "y1", "x2", "y2"]])
+        if result is not None:
+            score = count_scores(result.crossings, truth_counts, end_s=end)
+            _, extra = crossing_outcomes(result.crossings, truth_counts, truth)
+            n_true = int(score.table["true"].sum())
+            moving = result.vehicles[~result.vehicles["stationary"].astype(bool)] \
+                if "stationary" in result.vehicles.columns else result.vehicles
+            counts = f"{score.accuracy:.1%} | {extra} ({extra / max(n_true, 1):.1%}) | {len(moving)}"
+        else:
+            counts = f"- | - | {ident.hypothesis_ids}"
+        rows.append(f"| {label} | {name} | {ident.idf1:.3f} | {ident.id_switches} | {ident.fragmentations} | "
+                    f"{ident.hota:.3f} ({ident.deta:.3f} / {ident.assa:.3f}) | {ident.truth_ids} | {counts} |")
+    rows.append(f"|  | (analyze without journeys took {t_off:.1f} s) | | | | | | | | |")
+    return rows
+
+
 def part_world(camera_name: str, wdir: Path, world: WorldOptions, specs: list[str], args: argparse.Namespace) -> None:
     """Speed and accuracy of each run of ``specs`` on the world in ``wdir`` (built first if missing), then the
     side-by-side cost table, then the rest (classes, counts, causes, ideal detector) for the last run."""
@@ -270,6 +308,15 @@ def part_world(camera_name: str, wdir: Path, world: WorldOptions, specs: list[st
               f"({np.mean(errs):+.2f}, {errs.size} of {score.speed_errors.size}) |", flush=True)
         runs[spec] = (detections, result, score, run, t_pipe, label)
     print("targets: per-lane counts >= 98 %, speed at the lines <= 1.5 km/h, >= 1.0x real time")
+
+    print(f"\nidentity, {camera_name} camera: the tracker alone, its world tracks, and the journeys joined from them "
+          "(IDF1, id switches, fragmentations: motmetrics; HOTA (DetA / AssA): trackeval; truth: vehicles >= 50 % "
+          "visible and 12 px tall on the detection frames):")
+    print("| run | ids | IDF1 | id switches | fragmentations | HOTA (DetA / AssA) | truth vehicles | per-lane counts | "
+          "extra crossings (of true) | vehicles |\n|---|---|---|---|---|---|---|---|---|---|")
+    for _, _, _, run, _, label in runs.values():
+        for row in identity_rows(label, run, truth, truth_counts, end, camera, surface, lanes, lines):
+            print(row, flush=True)
 
     print(f"\ncost of each run against the every-frame, all-tiles run (issue 30), {camera_name} camera; "
           f"CPU: {cpu_flags()}:")

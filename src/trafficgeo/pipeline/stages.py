@@ -23,6 +23,7 @@ import pandas as pd
 from trafficgeo.site.site import Site
 from trafficgeo.traffic.analyze import TrafficResult
 from trafficgeo.traffic.analyze import analyze as analyze_world
+from trafficgeo.traffic.journeys import JourneyOptions
 from trafficgeo.traffic.speed import ScaleKnowledge
 from trafficgeo.traffic.tracks import ImageTracks, load_tracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions
@@ -68,10 +69,12 @@ def track(frames: DetectionFrames, fps: float, options: TrackerOptions | None = 
 
 def analyze(tracks: ImageTracks | pd.DataFrame | str | os.PathLike, site: Site, *, interval_s: float = 60.0,
             options: TrajectoryOptions | None = None, fps: float | None = None, progress: Any = None,
-            knowledge: ScaleKnowledge | None = None) -> TrafficResult:
+            knowledge: ScaleKnowledge | None = None, journeys: JourneyOptions | None = None) -> TrafficResult:
     """Image tracks (a table or file, see :func:`~trafficgeo.traffic.tracks.load_tracks`) on ``site`` -> world
-    trajectories, speeds (km/h), lanes and counts per ``interval_s`` s; the headline speeds placed by what the
-    site's calibrated camera knows of its ground scale (``knowledge`` overrides it)."""
+    trajectories, fragments joined into vehicles (``journeys``: :mod:`trafficgeo.traffic.journeys`), speeds
+    (km/h), lanes and counts per ``interval_s`` s; the headline speeds placed by what the site's calibrated camera
+    knows of its ground scale (``knowledge`` overrides it)."""
     return analyze_world(site.camera.camera, site.surface, load_tracks(tracks, fps=fps), lanes=site.lanes,
                          lines=site.count_lines, interval_s=interval_s, options=options, progress=progress,
-                         knowledge=knowledge if knowledge is not None else ScaleKnowledge.from_camera(site.camera))
+                         knowledge=knowledge if knowledge is not None else ScaleKnowledge.from_camera(site.camera),
+                         journeys=journeys)

@@ -2,8 +2,9 @@
 
 Outputs of :func:`write_analysis` (all written atomically):
 
-* ``vehicles.csv`` - one row per vehicle (track): class, lane(s), lane changes, first/last time, distance travelled
-  and speed (km/h) over the time seen, path length, length where estimated (speeds as in
+* ``vehicles.csv`` - one row per vehicle (the fragments of its track joined: :mod:`trafficgeo.traffic.journeys`,
+  with ``fragments``, ``tracker_ids`` and ``stationary``): class, lane(s), lane changes, first/last time,
+  distance travelled and speed (km/h) over the time seen, path length, length where estimated (speeds as in
   :mod:`trafficgeo.traffic.trajectories`);
 * ``counts.csv`` - per counting line, lane, direction and interval: counts (also per class), flow (veh/h),
   time-mean and space-mean speed, headways and gaps (:func:`trafficgeo.traffic.counts.aggregate_counts`);
@@ -33,6 +34,7 @@ from trafficgeo.geo.mapping import Surface, camera_crs
 from trafficgeo.site.lanes import Lanes
 from trafficgeo.site.lines import CountLine
 from trafficgeo.traffic.counts import aggregate_counts, find_crossings
+from trafficgeo.traffic.journeys import JourneyOptions, join_fragments
 from trafficgeo.traffic.lane_changes import lane_visits, main_lane
 from trafficgeo.traffic.occlusion import hidden_crossings
 from trafficgeo.traffic.run_records import LineCount, RunSummary
@@ -60,6 +62,7 @@ class TrafficResult:
     lines: list[CountLine] = field(default_factory=list)
     options: dict[str, object] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    links: pd.DataFrame | None = None  # the fragments joined into vehicles (trafficgeo.traffic.journeys.Journeys)
 
 
 Analysis = TrafficResult  # the former name
@@ -165,10 +168,11 @@ def uncrossed_warnings(lines: list[CountLine], crossings: pd.DataFrame, period: 
 def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lanes | None = None,
             lines: list[CountLine] | None = None, interval_s: float = 60.0,
             options: TrajectoryOptions | None = None, progress=None, knowledge: ScaleKnowledge | None = None,
-            speed_options: SpeedOptions | None = None) -> TrafficResult:
+            speed_options: SpeedOptions | None = None, journeys: JourneyOptions | None = None) -> TrafficResult:
     """The whole analysis of one set of image tracks (see the module docstring). ``knowledge``: what the
     calibration knows of its ground scale (:meth:`ScaleKnowledge.from_camera` of the calibrated camera; None for
-    a camera made by hand), which places each vehicle's headline speed (:mod:`trafficgeo.traffic.speed`)."""
+    a camera made by hand), which places each vehicle's headline speed (:mod:`trafficgeo.traffic.speed`);
+    ``journeys``: how the fragments of one vehicle are joined (:mod:`trafficgeo.traffic.journeys`)."""
     from trafficgeo.site.checks import check_camera_above_surface
     from trafficgeo.traffic.counts import interval_edges
     from trafficgeo.traffic.plausibility import lanes_warning
@@ -180,6 +184,14 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
     speed_opts = speed_options or SpeedOptions()
     world = world_trajectories(camera, surface, tracks, opts, progress=progress, knowledge=knowledge,
                                speed_options=speed_opts)
+    crs = camera_crs(camera)
+    mpu = metres_per_unit(crs) if crs is not None else 1.0
+    journey_opts = journeys or JourneyOptions()
+    joined = join_fragments(world, metres_per_unit=mpu, lanes=lanes, options=journey_opts, min_points=opts.min_points)
+    dropped = dict(world.dropped)
+    for reason, n in joined.dropped.items():
+        dropped[reason] = dropped.get(reason, 0) + n
+    world = WorldTracks(points=joined.points, vehicles=joined.vehicles, dropped=dropped)
     if lanes is not None:
         add_lanes(world, lanes)
     else:
@@ -187,10 +199,9 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
         world.vehicles["lane"], world.vehicles["lanes"], world.vehicles["lane_changes"] = "", "", 0
     if "length_m" in world.vehicles.columns and len(world.points):
         world.points["length_m"] = world.points["track_id"].map(world.vehicles.set_index("track_id")["length_m"])
-    crs = camera_crs(camera)
-    mpu = metres_per_unit(crs) if crs is not None else 1.0
-    crossings = find_crossings(world.points, lines or [], lanes, metres_per_unit=mpu)
-    hidden = hidden_crossings(world.points, tracks, camera.image_size, lines or [], lanes, crossings,
+    moving = _moving_points(world)  # stationary objects are not traffic: they count at no line
+    crossings = find_crossings(moving, lines or [], lanes, metres_per_unit=mpu)
+    hidden = hidden_crossings(moving, tracks, camera.image_size, lines or [], lanes, crossings,
                               coast_s=opts.coast_hidden_s, period=period, metres_per_unit=mpu)
     crossings = crossings.assign(hidden=False)
     if len(hidden):
@@ -207,8 +218,18 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
     return TrafficResult(points=world.points, vehicles=world.vehicles, crossings=crossings, counts=counts,
                     period=period, dropped=world.dropped, lanes=lanes, lines=list(lines or []),
                     options={**asdict(opts), "interval_s": interval_s,
-                             "speed_scale_knowledge": knowledge.describe() if knowledge is not None else "none"},
-                    warnings=warnings)
+                             "speed_scale_knowledge": knowledge.describe() if knowledge is not None else "none",
+                             "journeys": asdict(journey_opts)},
+                    warnings=warnings, links=joined.links)
+
+
+def _moving_points(world: WorldTracks) -> pd.DataFrame:
+    """The points of the vehicles that are not stationary."""
+    veh = world.vehicles
+    if "stationary" not in veh.columns or not veh["stationary"].any():
+        return world.points
+    still = set(veh.loc[veh["stationary"].astype(bool), "track_id"].astype(str))
+    return world.points[~world.points["track_id"].astype(str).isin(still).to_numpy()]
 
 
 def analyze_tracks(camera: CalibratedCamera | Camera | str | os.PathLike, surface: Surface | float | str | os.PathLike,
@@ -216,12 +237,14 @@ def analyze_tracks(camera: CalibratedCamera | Camera | str | os.PathLike, surfac
                    lanes: Lanes | str | os.PathLike | None = None,
                    lines: list[CountLine] | str | os.PathLike | None = None, *, interval_s: float = 60.0,
                    options: TrajectoryOptions | None = None, fps: float | None = None, resolution_m: float = 0.25,
-                   progress=None, knowledge: ScaleKnowledge | None = None) -> TrafficResult:
+                   progress=None, knowledge: ScaleKnowledge | None = None,
+                   journeys: JourneyOptions | None = None) -> TrafficResult:
     """Image tracks -> world trajectories, true speeds (km/h), lanes and counts at counting lines (``trafficgeo
     analyze``). Each input is an object or a path (:class:`trafficgeo.site.Site`): ``camera`` (camera JSON),
     ``surface`` (number, ``"plane"``, DEM or point cloud gridded at ``resolution_m`` m), ``tracks`` (table, tracks
     CSV or MOT file; ``fps`` when it has no time column), ``lanes`` and ``lines`` (GIS files or image CSVs). Counts
-    per ``interval_s`` seconds; ``options`` for the trajectory smoother. What the calibration knows of its ground
+    per ``interval_s`` seconds; ``options`` for the trajectory smoother, ``journeys`` for joining the fragments of
+    one vehicle (:mod:`trafficgeo.traffic.journeys`). What the calibration knows of its ground
     scale (``knowledge``, which places the headline speeds) comes from a calibrated camera (its JSON or
     :class:`~trafficgeo.camera.calibrated.CalibratedCamera`); give it for a bare Camera. Nothing is written: see
     :meth:`trafficgeo.traffic.run_folder.RunFolder.write_traffic`.
@@ -242,7 +265,7 @@ def analyze_tracks(camera: CalibratedCamera | Camera | str | os.PathLike, surfac
         knowledge = ScaleKnowledge.from_camera(site.camera)
     return analyze(site.camera.camera, site.surface, load_tracks(tracks, fps=fps), lanes=site.lanes,
                    lines=site.count_lines, interval_s=interval_s, options=options, progress=progress,
-                   knowledge=knowledge)
+                   knowledge=knowledge, journeys=journeys)
 
 
 # ------------------------------------------------------------------------------------------------ writing
@@ -278,6 +301,7 @@ def gis_layers(analysis: TrafficResult, crs: pyproj.CRS) -> list:
 def summary(analysis: TrafficResult, crs: pyproj.CRS | None = None) -> RunSummary:
     """Totals for the terminal and ``summary.json`` (its record; ``crs``: the camera's, written as WKT)."""
     veh = analysis.vehicles
+    traffic = veh[~veh["stationary"].astype(bool)] if "stationary" in veh.columns else veh
     c = analysis.counts
     # every line x lane x direction of the counts table, zeros too (a line nobody crossed is listed)
     per_line = (c.assign(line=c["line"].astype(str), lane=c["lane"].fillna("").astype(str))
@@ -288,7 +312,7 @@ def summary(analysis: TrafficResult, crs: pyproj.CRS | None = None) -> RunSummar
         points=len(analysis.points),
         dropped_points=analysis.dropped,
         outlier_points=int(analysis.points["outlier"].sum()) if len(analysis.points) else 0,
-        mean_speed_kmh=float(veh["speed_kmh"].mean()) if veh["speed_kmh"].notna().any() else None,
+        mean_speed_kmh=float(traffic["speed_kmh"].mean()) if traffic["speed_kmh"].notna().any() else None,
         classes={str(k): int(v) for k, v in veh["class"].value_counts().items()} if len(veh) else {},
         lane_changes=int(veh["lane_changes"].sum()) if len(veh) else 0,
         crossings=tuple(LineCount(str(k[0]), str(k[1]), int(k[2]), int(v))
@@ -297,6 +321,8 @@ def summary(analysis: TrafficResult, crs: pyproj.CRS | None = None) -> RunSummar
         options=analysis.options,
         warnings=tuple(analysis.warnings),
         crs=crs.to_wkt() if crs is not None else None,
+        fragments=int(veh["fragments"].sum()) if "fragments" in veh.columns else None,
+        stationary_vehicles=int(veh["stationary"].sum()) if "stationary" in veh.columns else 0,
     )
 
 

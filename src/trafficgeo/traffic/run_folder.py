@@ -148,8 +148,9 @@ class TableSchema:
                 table[c] = table[c].astype("Int64")
         later = [c for c in self.columns if c.added and c.name not in table.columns]
         if later:  # a file written before these columns joined the table: empty, in the schema's place
-            for c in later:
-                table[c.name] = "" if c.dtype == "str" else float("nan")
+            for c in later:  # as an empty column of the file would read
+                table[c.name] = ("" if c.dtype == "str" else pd.Series(pd.NA, index=table.index, dtype="Int64")
+                                 if c.dtype == "int" else float("nan"))
             order = [n for n in self.names if n in table.columns]
             table = table[order + [n for n in table.columns if n not in order]]
         return table
@@ -158,7 +159,8 @@ class TableSchema:
 S, KMH, M, CRS_UNITS, PX, DEG = "s", "km/h", "m", "crs", "px", "deg"
 
 VEHICLES = TableSchema("vehicles.csv", (
-    Column("track_id", "str", "", "vehicle id (the tracker's id; a split track gets a suffix)"),
+    Column("track_id", "str", "", "vehicle id (the id of its first piece of track: the tracker's id, with a "
+           "suffix where that id was split)"),
     Column("source_track", "str", "", "the tracker's id the vehicle came from"),
     Column("class", "str", "", "vehicle class (car, van, truck, bus, motorcycle, bicycle; '' unknown)"),
     Column("first_time", "float", S, "first time seen"),
@@ -186,6 +188,12 @@ VEHICLES = TableSchema("vehicles.csv", (
     Column("lane", "str", "", "main lane ('' none)"),
     Column("lanes", "str", "", "lanes in order of visit, '>'-separated"),
     Column("lane_changes", "int", "", "lane changes"),
+    Column("fragments", "int", "", "the pieces of track joined into this vehicle (1: seen without a break)",
+           added="2026-12-06"),
+    Column("tracker_ids", "str", "", "the tracker's ids of those pieces, ';'-separated, in time order",
+           added="2026-12-06"),
+    Column("stationary", "bool", "", "never moved (a parked vehicle, a billboard): no speeds, counted at no line",
+           added="2026-12-06"),
 ), what="one row per vehicle")
 
 CROSSINGS = TableSchema("crossings.csv", (
@@ -244,6 +252,8 @@ TRAJECTORIES = TableSchema("trajectories.csv", (
     Column("lat", "float", DEG, "latitude (EPSG:4326)"),
     Column("lane", "str", "", "lane ('' none)"),
     Column("length_m", "float", M, "vehicle length"),
+    Column("fragment", "str", "", "the piece of track the point belongs to (vehicles.csv tracker_ids)",
+           added="2026-12-06"),
 ), what="one row per vehicle and frame")
 
 _BOX = (Column("frame", "int", "", "video frame index"), Column("time", "float", S, "frame time"),

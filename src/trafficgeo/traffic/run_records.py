@@ -182,8 +182,10 @@ class RunSummary(_Record):
     vehicles' ``speed_kmh``; None when no vehicle has one); ``classes`` (vehicles per class, ``""``: unknown);
     ``lane_changes``; ``crossings`` per line, lane and direction; ``hidden_crossings`` (of vehicles hidden at the
     line); ``options`` (the trajectory options, ``interval_s`` and ``speed_scale_knowledge``, as a JSON object);
-    ``warnings``; ``crs`` (WKT, None without a CRS). ``hidden_crossings``, ``warnings`` and ``crs`` joined the
-    format later: 0, none and None in a file written before them.
+    ``warnings``; ``crs`` (WKT, None without a CRS); ``fragments`` (world tracks before they were joined into
+    vehicles: :mod:`trafficgeo.traffic.journeys`) and ``stationary_vehicles`` (objects that never moved).
+    ``hidden_crossings``, ``warnings``, ``crs``, ``fragments`` and ``stationary_vehicles`` joined the format later:
+    0, none, None, None and 0 in a file written before them.
     """
 
     period_s: tuple[float, float]
@@ -199,6 +201,8 @@ class RunSummary(_Record):
     options: dict[str, Any]
     warnings: tuple[str, ...] = ()
     crs: str | None = None
+    fragments: int | None = None
+    stationary_vehicles: int = 0
 
     @property
     def interval_s(self) -> float | None:
@@ -230,7 +234,9 @@ class RunSummary(_Record):
                    mean_speed_kmh=o.number("mean_speed_kmh", null=None), classes=o.counts("classes"),
                    lane_changes=o.integer("lane_changes"), crossings=crossings,
                    hidden_crossings=o.integer("hidden_crossings", 0), options=o.object("options"),
-                   warnings=tuple(warnings), crs=o.text("crs", None, nullable=True))
+                   warnings=tuple(warnings), crs=o.text("crs", None, nullable=True),
+                   fragments=o.integer("fragments", None, nullable=True),
+                   stationary_vehicles=o.integer("stationary_vehicles", 0))
 
 
 # ------------------------------------------------------------------------------------------------ process.json

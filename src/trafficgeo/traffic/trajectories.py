@@ -72,7 +72,8 @@ class TrajectoryOptions:
     max_gap_s: float = 5.0  # a longer gap in time splits a track
     check_gap_s: float = 0.5  # a gap this long splits a track unless the motion on both sides bridges it
     rejoin_gap_s: float = 2.0  # parts of a track split apart this long or less are joined again if motion bridges
-    min_points: int = 5  # shorter tracks (after splitting) are dropped
+    min_points: int = 5  # vehicles with fewer points (after their fragments are joined) are dropped
+    min_fragment_points: int = 2  # shorter pieces of track (after splitting) are dropped before joining
     box_correction: bool = True  # fit a cuboid to each box (tracks with boxes only)
     estimate_length: bool = True  # estimate each vehicle's length from its boxes (where the view allows)
     frame_margin_px: float = 2.0  # boxes this close to the frame's edge are cut off by it: not used
@@ -93,10 +94,11 @@ class TrajectoryOptions:
                   "split_outliers": self.split_outliers >= 1, "max_gap_s": self.max_gap_s > 0,
                   "check_gap_s": self.check_gap_s > 0, "rejoin_gap_s": self.rejoin_gap_s > 0,
                   "max_metres_per_px": self.max_metres_per_px > 0, "coast_hidden_s": self.coast_hidden_s >= 0,
-                  "min_points": self.min_points >= 2}
+                  "min_points": self.min_points >= 2, "min_fragment_points": self.min_fragment_points >= 1}
         for name, ok in checks.items():
             if not ok:
-                need = {"min_points": "at least 2", "coast_hidden_s": "0 (off) or more"}.get(name, "positive")
+                need = {"min_points": "at least 2", "min_fragment_points": "at least 1",
+                        "coast_hidden_s": "0 (off) or more"}.get(name, "positive")
                 raise InputError(f"trajectory option {name}={getattr(self, name)!r} is out of range; it must be "
                                  f"{need}", parameters=(name,))
 
@@ -219,7 +221,9 @@ def _smooth_segments(t: np.ndarray, xy_m: np.ndarray, cov: np.ndarray, opts: Tra
                      segments: list[np.ndarray] | None = None) -> list[tuple[np.ndarray, SmoothedTrack]]:
     """Smooth one track's points (indices into t), starting from ``segments`` or from the track split at long
     gaps, and split again wherever ``split_outliers`` points in a row are rejected (an ID switch, or a wrong start
-    that the filter then refuses to leave). Returns (indices, smoothed) per part of at least ``min_points``."""
+    that the filter then refuses to leave). Returns (indices, smoothed) per part of at least
+    ``min_fragment_points`` (shorter vehicles are dropped after their fragments are joined:
+    :mod:`trafficgeo.traffic.journeys`)."""
     if segments is None:
         pending = list(np.split(np.arange(t.size), _gap_cuts(t, xy_m, cov, opts)))
     else:
@@ -227,7 +231,7 @@ def _smooth_segments(t: np.ndarray, xy_m: np.ndarray, cov: np.ndarray, opts: Tra
     done = []
     while pending:
         idx = pending.pop(0)
-        if idx.size < opts.min_points:
+        if idx.size < opts.min_fragment_points:
             continue
         sm = smooth_track(t[idx], xy_m[idx], cov[idx], accel_sigma=opts.accel_sigma, gate=opts.gate)
         starts = _runs(sm.outlier, opts.split_outliers)
