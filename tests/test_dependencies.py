@@ -14,7 +14,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 #: optional extra -> the only source files that may import its packages (lazily, with a hint to install it)
-EXTRAS = {"cluster": {"src/trafficgeo/batch/runner.py"}, "openvino": {"src/trafficgeo/video/detectors/backends.py"}}
+EXTRAS = {"cluster": {"src/trafficgeo/batch/runner.py"}, "openvino": {"src/trafficgeo/video/detectors/backends.py"},
+          "test": {"src/trafficgeo/synth/identity.py"}}
 
 
 def _normal(name: str) -> str:

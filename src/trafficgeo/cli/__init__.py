@@ -259,7 +259,7 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "surface_crs": "--surface-crs", "radius_m": "--radius", "backend": "--backend",
          "crs": "--crs", "gcp_crs": "--gcp-crs", "odm_image": "--odm-image", "image_size": "--image-size",
          "pattern": "--pattern", "focal_px": "--focal-px", "intrinsics": "--intrinsics",
-         "fps": "--fps", "coast_hidden_s": "--coast-hidden", "pixel_sigma": "--pixel-sigma",
+         "fps": "--fps", "coast_hidden_s": "--coast-hidden", "max_gap_s": "--join-gap", "pixel_sigma": "--pixel-sigma",
          "accel_sigma": "--accel-sigma", "max_metres_per_px": "--max-metres-per-px", "camera": "--camera",
          "calibration_report": "--calibration-report", "frame": "--frame", "video": "--video", "ortho": "--ortho",
          "dem": "--dem", "cloud": "--cloud", "at_s": "--at", "gcps": "--gcps", "workdir": "--workdir",

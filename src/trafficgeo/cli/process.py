@@ -56,6 +56,8 @@ def process(
     restart: Annotated[bool, typer.Option(help="ignore a checkpoint and start again")] = False,
     annotate: Annotated[Path | None, typer.Option(help="also write an annotated video (.mp4): boxes, ids, lanes, "
                                                   "km/h, counting lines")] = None,
+    join_gap: Annotated[float, typer.Option(help="the longest time (s) a vehicle may go unseen between two pieces "
+                                            "of its track that are joined into one vehicle (0: not joined)")] = 4.0,
     surface_crs: SurfaceCrsOpt = None,
     resolution: ResolutionOpt = 0.25,
     report_html: ReportHtmlOpt = None,
@@ -72,6 +74,7 @@ def process(
     from trafficgeo.cli.report import check_html_path
     from trafficgeo.pipeline.run import process_video
     from trafficgeo.report.traffic import print_analysis
+    from trafficgeo.traffic.journeys import JourneyOptions
     from trafficgeo.video.pipeline import ProcessOptions
 
     check_out_dir(out)
@@ -93,6 +96,7 @@ def process(
                 bar.update(task, completed=done, total=total, rate=rate, t=f"{t:.1f} s")
 
             run = process_video(video, camera, surface, out, lanes, lines, options=opts, interval_s=interval, roi=roi,
+                                journeys=JourneyOptions.with_gap(join_gap),
                                 restart=restart, resolution_m=resolution, surface_crs=surface_crs, annotate=annotate,
                                 progress=tick, notice=lambda text: console.print(text, markup=False),
                                 annotate_progress=lambda d, n: bar.update(drawn, completed=d, total=n,

@@ -48,6 +48,8 @@ def analyze(
                                                      "(m), are not used")] = 1.5,
     coast_hidden: Annotated[float, typer.Option(help="seconds a vehicle that vanishes behind a nearer one is "
                                                 "carried on, to count the lines it passes unseen (0: off)")] = 3.0,
+    join_gap: Annotated[float, typer.Option(help="the longest time (s) a vehicle may go unseen between two pieces "
+                                            "of its track that are joined into one vehicle (0: not joined)")] = 4.0,
     surface_crs: SurfaceCrsOpt = None,
     resolution: ResolutionOpt = 0.25,
     report_html: ReportHtmlOpt = None,
@@ -60,6 +62,7 @@ def analyze(
     from trafficgeo.site.surface import check_resolution, load_surface
     from trafficgeo.traffic.analyze import analyze_tracks
     from trafficgeo.traffic.counts import check_interval
+    from trafficgeo.traffic.journeys import JourneyOptions
     from trafficgeo.traffic.run_folder import RunFolder
     from trafficgeo.traffic.speed import ScaleKnowledge
     from trafficgeo.traffic.tracks import read_tracks
@@ -80,7 +83,8 @@ def analyze(
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task("tracks", total=len(image_tracks.track_ids))
         analysis = analyze_tracks(cam, surf, image_tracks, lanes, lines, interval_s=interval, options=opts,
-                                  progress=lambda i, n: progress.update(task, completed=i), knowledge=knowledge)
+                                  progress=lambda i, n: progress.update(task, completed=i), knowledge=knowledge,
+                                  journeys=JourneyOptions.with_gap(join_gap))
     written = RunFolder(out).write_traffic(analysis, cam)
     print_analysis(analysis, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")

@@ -30,6 +30,7 @@ from trafficgeo.site.site import Site
 from trafficgeo.site.surface import check_resolution
 from trafficgeo.traffic.analyze import TrafficResult
 from trafficgeo.traffic.counts import check_interval
+from trafficgeo.traffic.journeys import JourneyOptions
 from trafficgeo.traffic.run_folder import RunFolder
 from trafficgeo.traffic.trajectories import TrajectoryOptions
 from trafficgeo.video.pipeline import ProcessOptions
@@ -107,6 +108,7 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
                   lines: Sequence[CountLine] | PathLike | None = None, *, options: ProcessOptions | None = None,
                   interval_s: float = 60.0, trajectory: TrajectoryOptions | None = None,
                   roi: np.ndarray | PathLike | None = None, restart: bool = False, resolution_m: float = 0.25,
+                  journeys: JourneyOptions | None = None,
                   surface_crs: str | None = None, annotate: PathLike | None = None,
                   progress: Callable[[int, int, float], None] | None = None,
                   notice: Callable[[str], None] | None = None,
@@ -118,7 +120,8 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
     ``camera``, ``surface``, ``lanes``, ``lines``: objects or paths (:class:`trafficgeo.site.Site`; the surface
     of a point cloud gridded at ``resolution_m`` m, ``surface_crs`` for a file without a CRS); ``options``: the
     detector, time range, frame step and checkpoints (:class:`~trafficgeo.video.pipeline.ProcessOptions`); counts
-    per ``interval_s`` s; ``trajectory``: the smoother's options; ``roi``: a bool mask (H, W) or a mask image / CSV
+    per ``interval_s`` s; ``trajectory``: the smoother's options; ``journeys``: how the pieces of one vehicle's
+    track are joined (:mod:`trafficgeo.traffic.journeys`); ``roi``: a bool mask (H, W) or a mask image / CSV
     polygon; ``annotate``: also write an annotated ``.mp4``. ``progress(frames_done, frames_total, time_s)`` per
     frame, ``notice(line)`` for the tile plan and checkpoint news, ``annotate_progress(done, total)``.
 
@@ -172,7 +175,8 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
             raise InputError(f"{video}: no vehicle was tracked; check the ROI, the time range and the detector")
         from trafficgeo.traffic.tracks import tracks_from_table
 
-        result = analyze(tracks_from_table(tracks), site, interval_s=interval_s, options=trajectory)
+        result = analyze(tracks_from_table(tracks), site, interval_s=interval_s, options=trajectory,
+                         journeys=journeys)
         plan_doc = detector_doc.get("tiling") or {}
         if plan_doc.get("line_warnings"):  # the counting lines too far for the detector: in summary.json too
             result = replace(result, warnings=[*plan_doc["line_warnings"], *result.warnings])
@@ -212,10 +216,12 @@ def stitch(chunks: Sequence[PathLike], camera: CalibratedCamera | Camera | PathL
            surface: Surface | float | PathLike, out_dir: PathLike, lanes: Lanes | PathLike | None = None,
            lines: Sequence[CountLine] | PathLike | None = None, *, interval_s: float = 60.0,
            resolution_m: float = 0.25, surface_crs: str | None = None,
-           notice: Callable[[str], None] | None = None) -> TrafficResult:
+           notice: Callable[[str], None] | None = None, journeys: JourneyOptions | None = None) -> TrafficResult:
     """Join the tracks of the runs of overlapping time chunks of one video (``process_video`` with ``start_s`` /
     ``end_s``, e.g. on several machines; folders in any order) and analyse them into the run folder ``out_dir``
-    (``trafficgeo stitch``). ``notice(line)`` gets a warning per gap or unequal overlap between chunks."""
+    (``trafficgeo stitch``). ``notice(line)`` gets a warning per gap or unequal overlap between chunks. The pieces of
+    one vehicle's track are joined across the chunks as within one (``journeys``:
+    :mod:`trafficgeo.traffic.journeys`)."""
     from trafficgeo.io.run_manifest import check_writable_folder
     from trafficgeo.video.stitch import plan_chunks, stitch_tracks
 
@@ -242,7 +248,7 @@ def stitch(chunks: Sequence[PathLike], camera: CalibratedCamera | Camera | PathL
     joined["class"] = joined["class"].fillna("")
     from trafficgeo.traffic.tracks import tracks_from_table
 
-    result = analyze(tracks_from_table(joined), site, interval_s=interval_s)
+    result = analyze(tracks_from_table(joined), site, interval_s=interval_s, journeys=journeys)
     folder = RunFolder(out)
     written = folder.write_traffic(result, site.camera.camera, publish=False)
     written.append(folder.write_table("tracks.csv", joined))

@@ -25,6 +25,12 @@ def print_analysis(analysis: TrafficResult, console: Console) -> None:
                   f"{s.outlier_points} rejected as outliers; not used: {dropped}")
     console.print(f"mean vehicle speed (speed_kmh: distance travelled over the well-calibrated window / its time): "
                   f"{speed}; lane changes: {s.lane_changes}")
+    if s.fragments is not None and s.fragments > s.vehicles:
+        console.print(f"{s.fragments} pieces of track joined into {s.vehicles} vehicles (a vehicle lost for a moment "
+                      "and found again is one vehicle: 'fragments' and 'tracker_ids' in vehicles.csv)")
+    if s.stationary_vehicles:
+        console.print(f"{s.stationary_vehicles} of the vehicles never moved (parked vehicles, signs): listed with "
+                      "'stationary' in vehicles.csv, without speeds, counted at no line")
     for text in analysis.warnings:
         console.print(f"[yellow]warning:[/yellow] {text}")
     if s.crossings:

@@ -101,12 +101,29 @@ def identity_scores(truth: pd.DataFrame, hypotheses: pd.DataFrame, *, iou: float
 
 
 def vehicle_ids(tracks: pd.DataFrame, points: pd.DataFrame) -> pd.DataFrame:
-    """The track boxes ``tracks`` (``tracks.csv``: ``frame, track_id, x1, y1, x2, y2``) with ``id`` the vehicle
+    """The track boxes ``tracks`` (``tracks.csv``: ``frame, time, track_id, x1, y1, x2, y2``) with ``id`` the vehicle
     each box became in ``points`` (``trajectories.csv``: ``track_id`` the vehicle, ``source_track`` the tracker's
-    id, ``frame``); boxes ``analyze`` did not use keep the tracker's id (``"t<id>"``)."""
+    id, ``frame``, ``time``). A box ``analyze`` did not use (too far, cut off by the frame's edge) takes the vehicle
+    of the nearest box in time of its tracker id that was used; a tracker id none of whose boxes was used keeps its
+    own id (``"t<id>"``)."""
     key = points[["source_track", "frame", "track_id"]].astype({"source_track": str}).drop_duplicates(
         ["source_track", "frame"])
     out = tracks.assign(source_track=tracks["track_id"].astype(str)).merge(key.rename(columns={"track_id": "id"}),
                                                                            how="left", on=["source_track", "frame"])
-    out["id"] = out["id"].where(out["id"].notna(), "t" + out["source_track"])
+    ids = out["id"].to_numpy(dtype=object)
+    for _src, rows in out.groupby("source_track").indices.items():
+        have = rows[pd.notna(ids[rows])]
+        lost = rows[pd.isna(ids[rows])]
+        if not have.size or not lost.size:
+            continue
+        f_have = out["frame"].to_numpy()[have]
+        order = np.argsort(f_have)
+        f_sorted = f_have[order]
+        f_lost = out["frame"].to_numpy()[lost]
+        k = np.clip(np.searchsorted(f_sorted, f_lost), 1, max(f_sorted.size - 1, 1))
+        left = np.clip(k - 1, 0, f_sorted.size - 1)
+        right = np.clip(k, 0, f_sorted.size - 1)
+        pick = np.where(np.abs(f_sorted[left] - f_lost) <= np.abs(f_sorted[right] - f_lost), left, right)
+        ids[lost] = ids[have[order[pick]]]
+    out["id"] = np.where(pd.isna(ids), "t" + out["source_track"].astype(str), ids)
     return out.drop(columns=["source_track"])

@@ -19,8 +19,9 @@ different class (both known), a different length (both measured) and a different
 cost, and each second of gap adds ``gap_cost_per_s``. A pair is never
 joined when the two overlap in time (two vehicles seen at the same time), when ``b`` starts more than
 ``max_gap_s`` after ``a`` ends, when either distance is beyond ``gate`` (chi-square, 2 dof), when going from one
-to the other takes more than ``max_speed_mps`` (no vehicle teleports), or when the two move in directions more
-than ``max_turn_deg`` apart.
+to the other takes more than ``max_speed_mps`` (no vehicle teleports), when the two move in directions more
+than ``max_turn_deg`` apart (where each one's own motion tells its direction), or when they stand in lanes of
+opposite directions of travel (lanes with bearings).
 
 **Global association.** Every end may join at most one start and every start at most one end. The links are
 chosen together, by a linear assignment (Hungarian, :func:`scipy.optimize.linear_sum_assignment`, with the
@@ -56,7 +57,7 @@ import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
 from trafficgeo.errors import InputError
-from trafficgeo.site.lanes import Lanes
+from trafficgeo.site.lanes import Lanes, angle_between
 from trafficgeo.traffic.duplicates import DuplicateOptions, merge_duplicates
 from trafficgeo.traffic.smoothing import CHI2_2DOF_999
 from trafficgeo.traffic.trajectories import VEHICLE_COLUMNS, WorldTracks
@@ -90,7 +91,7 @@ class JourneyOptions:
     class_cost: float = 3.0  # added when both classes are known and differ
     lane_cost: float = 2.0  # added when the lanes at the two ends are known and differ
     gap_cost_per_s: float = 1.0  # added per second of gap: of two fits, the shorter gap wins
-    no_link_cost: float = 12.0  # cost of leaving an end, or a start, without a link
+    no_link_cost: float = 6.0  # cost of leaving an end, or a start, without a link
     window_s: float = 60.0  # s of fragment ends per assignment
     stationary_m: float = 2.5  # m: a vehicle never farther than this from where it stands is stationary ...
     stationary_min_s: float = 3.0  # ... when seen at least this long
@@ -106,6 +107,17 @@ class JourneyOptions:
         if self.window_s <= 2.0 * self.max_gap_s:
             raise InputError(f"journey option window_s={self.window_s:g} must be more than twice max_gap_s="
                              f"{self.max_gap_s:g}", parameters=("window_s",))
+
+
+    @classmethod
+    def with_gap(cls, max_gap_s: float) -> JourneyOptions:
+        """The defaults with fragments joined across gaps up to ``max_gap_s`` s (0: not joined)."""
+        if not np.isfinite(max_gap_s) or max_gap_s < 0:
+            raise InputError(f"max_gap_s={max_gap_s:g}: give the longest time (s) a vehicle may go unseen between "
+                             "two pieces of its track, e.g. 4 (0: pieces are not joined)", parameters=("max_gap_s",))
+        if max_gap_s == 0:
+            return cls(enabled=False)
+        return cls(max_gap_s=float(max_gap_s), window_s=max(cls.window_s, 3.0 * float(max_gap_s)))
 
 
 @dataclass(frozen=True)
@@ -204,8 +216,15 @@ def fragment_ends(points: pd.DataFrame, vehicles: pd.DataFrame, *, metres_per_un
             xy = ends[[f"x{end}", f"y{end}"]].to_numpy()[ok] / m + origin
             heading = np.degrees(np.arctan2(ends[f"vx{end}"].to_numpy()[ok], ends[f"vy{end}"].to_numpy()[ok])) % 360
             ends.loc[ok, f"lane{end}"] = lanes.assign(xy[:, 0], xy[:, 1], heading)
+            # the direction of travel of the lane the end stands in, whatever the end's own (noisy) heading
+            bearing_of = dict(zip(lanes.names, lanes.bearings or [np.nan] * len(lanes.names), strict=True))
+            ends[f"bearing{end}"] = np.nan
+            ends.loc[ok, f"bearing{end}"] = [bearing_of.get(n, np.nan) for n in lanes.assign(xy[:, 0], xy[:, 1])]
     else:
         ends["lane0"], ends["lane1"] = "", ""
+    for c in ("bearing0", "bearing1"):
+        if c not in ends.columns:
+            ends[c] = np.nan
     return ends
 
 
@@ -251,6 +270,12 @@ def link_candidates(ends: pd.DataFrame, options: JourneyOptions | None = None) -
     v1 = np.column_stack([col["vx1"][a], col["vy1"][a]]).astype(np.float64)
     v0 = np.column_stack([col["vx0"][b], col["vy0"][b]]).astype(np.float64)
     sv1, sv0 = col["sv1"][a].astype(np.float64), col["sv0"][b].astype(np.float64)
+    with np.errstate(invalid="ignore"):  # directions of travel, where each end's own motion tells one
+        s1, s0 = np.hypot(*v1.T), np.hypot(*v0.T)
+        cos = np.sum(v1 * v0, axis=1) / np.maximum(s1 * s0, 1e-9)
+        turned = ((s1 > np.maximum(MOVING_MPS, 2.0 * sv1)) & (s0 > np.maximum(MOVING_MPS, 2.0 * sv0))
+                  & (cos < np.cos(np.radians(opts.max_turn_deg))))
+        against = angle_between(col["bearing1"][a].astype(np.float64), col["bearing0"][b].astype(np.float64)) > 90.0
     strong1 = np.all(np.isfinite(v1), axis=1) & (sv1 <= opts.weak_velocity_sigma_mps)
     strong0 = np.all(np.isfinite(v0), axis=1) & (sv0 <= opts.weak_velocity_sigma_mps)
     # Both velocities known: each end carried to the middle of the gap. One of them a glimpse (its velocity
@@ -277,10 +302,6 @@ def link_candidates(ends: pd.DataFrame, options: JourneyOptions | None = None) -
                                           np.where(moving, opts.lateral_sigma_mps**2,
                                                    (opts.accel_sigma_mps2 * gap) ** 2), u), 0.0)
     jump = np.hypot(*(p0 - p1).T) / np.maximum(gap, 1e-6)
-    with np.errstate(invalid="ignore"):
-        s1, s0 = np.hypot(*v1.T), np.hypot(*v0.T)
-        cos = np.sum(v1 * v0, axis=1) / np.maximum(s1 * s0, 1e-9)
-    turned = (s1 > MOVING_MPS) & (s0 > MOVING_MPS) & (cos < np.cos(np.radians(opts.max_turn_deg)))
     cls_a, cls_b = col["class"][a].astype(str), col["class"][b].astype(str)
     cost = d2_pos + d2_vel + opts.gap_cost_per_s * gap
     cost += np.where((cls_a != "") & (cls_b != "") & (cls_a != cls_b), opts.class_cost, 0.0)
@@ -291,7 +312,7 @@ def link_candidates(ends: pd.DataFrame, options: JourneyOptions | None = None) -
     sb = np.nan_to_num(col["length_std_m"][b].astype(np.float64), nan=1.0)
     length_d2 = np.where(np.isfinite(la) & np.isfinite(lb), (la - lb) ** 2 / (sa**2 + sb**2 + 0.5**2), 0.0)
     cost += np.minimum(length_d2, opts.gate)
-    ok = ((d2_pos <= opts.gate) & (d2_vel <= opts.gate) & (jump <= opts.max_speed_mps) & ~turned
+    ok = ((d2_pos <= opts.gate) & (d2_vel <= opts.gate) & (jump <= opts.max_speed_mps) & ~turned & ~against
           & (strong1 | strong0) & np.isfinite(cost))
     out = pd.DataFrame({"a": a, "b": b, "gap_s": gap, "position_d2": d2_pos, "velocity_d2": d2_vel, "cost": cost})
     return out[ok].reset_index(drop=True) if ok.any() else empty
@@ -425,8 +446,9 @@ def join_fragments(world: WorldTracks, *, metres_per_unit: float = 1.0, lanes: L
                    options: JourneyOptions | None = None, min_points: int = 1) -> Journeys:
     """The journeys of the world tracks ``world`` (:func:`~trafficgeo.traffic.trajectories.world_trajectories`;
     positions in CRS units with ``metres_per_unit`` metres each; ``lanes``: the lanes at the fragments' ends add
-    to the cost): fragments of one vehicle joined, stationary objects flagged (module docstring). Vehicles with
-    fewer than ``min_points`` points in all are left out: a short glimpse is kept only where it joins others."""
+    to the cost): fragments of one vehicle joined, stationary objects flagged (module docstring). Vehicles none of
+    whose fragments has ``min_points`` points are left out: a short glimpse is kept only where it extends a
+    longer track."""
     opts = options or JourneyOptions()
     points, frag = world.points, world.vehicles.reset_index(drop=True)
     absorbed: dict[str, list[str]] = {}
@@ -470,7 +492,12 @@ def join_fragments(world: WorldTracks, *, metres_per_unit: float = 1.0, lanes: L
             vehicle_of[names[r]] = row["track_id"]
             order.append(names[r])
     vehicles = pd.DataFrame(rows, columns=[*VEHICLE_COLUMNS, *JOURNEY_COLUMNS])
-    short = set(vehicles.loc[vehicles["points"] < min_points, "track_id"].astype(str)) if len(vehicles) else set()
+    # a vehicle needs min_points in all and one piece of track that long: glimpses only extend a real track
+    longest = {row["track_id"]: max(int(frag.at[r, "points"]) for r in chain) for row, chain in zip(rows, chains,
+                                                                                                    strict=True)}
+    short = set(vehicles.loc[(vehicles["points"] < min_points)
+                             | (vehicles["track_id"].map(longest) < min_points), "track_id"].astype(str)) \
+        if len(vehicles) else set()
     vehicles = vehicles[~vehicles["track_id"].astype(str).isin(short)].reset_index(drop=True)
     if len(vehicles):
         vehicles["fragments"] = vehicles["fragments"].astype(int)
