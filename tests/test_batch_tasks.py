@@ -77,7 +77,7 @@ def _assert_same_values(ours: pd.DataFrame, theirs: pd.DataFrame, times: tuple[s
     worst = 0.0
     assert len(ours) == len(theirs) > 0
     for c in theirs.columns:
-        if c in ("track_id", "source_track"):
+        if c in ("track_id", "source_track", "tracker_ids"):
             continue
         a, b = ours[c], theirs[c]
         if pd.api.types.is_float_dtype(b):
@@ -97,6 +97,7 @@ def test_one_file_gives_what_process_gives(anchor: dict) -> None:
     vehicles = _sorted(read_table(ds, "vehicles"), ["first_time", "source_track"])
     theirs = _sorted(traffic.vehicles, ["first_time", "source_track"])
     assert vehicles["track_id"].tolist() == ["0-" + t for t in theirs["track_id"]]  # same tracker ids
+    assert vehicles["tracker_ids"].tolist() == [";".join("0-" + i for i in t.split(";")) for t in theirs["tracker_ids"]]
     worst = [_assert_same_values(vehicles, theirs, ("first_time", "last_time"))]
     crossings = _sorted(read_table(ds, "crossings"), ["line", "time"])
     worst.append(_assert_same_values(crossings, _sorted(traffic.crossings, ["line", "time"]), ("time",)))

@@ -123,7 +123,7 @@ def test_a_vehicle_behind_is_not_the_one_that_vanished() -> None:
 
 def test_a_stationary_object_is_flagged_without_speed_and_counted_nowhere() -> None:
     """A parked car standing on the counting line for 20 s (its points jitter across it) and a car driving by:
-    the parked one is listed, flagged, without speed, and counts at no line; the mean speed is the moving car's."""
+    the parked one is listed, flagged, and counts at no line; the mean speed is the moving car's."""
     rng = np.random.default_rng(5)
     t = _times(0.0, 20.0)
     parked = _fragment("P", t, 1.75, np.full(t.size, 50.0) + rng.normal(0.0, 0.3, t.size), rng)
@@ -132,7 +132,8 @@ def test_a_stationary_object_is_flagged_without_speed_and_counted_nowhere() -> N
     result = _run(tracks)
     veh = result.vehicles.set_index("track_id")
     assert bool(veh.at["P", "stationary"]) and not bool(veh.at["M", "stationary"])
-    assert np.isnan(veh.at["P", "speed_kmh"]) and veh.at["M", "speed_kmh"] == pytest.approx(43.2, abs=2.0)
+    assert veh.at["P", "speed_kmh"] == pytest.approx(0.0, abs=2.0)
+    assert veh.at["M", "speed_kmh"] == pytest.approx(43.2, abs=2.0)
     assert list(result.crossings["track_id"]) == ["M"]
     counts = result.counts.groupby("lane")["count"].sum()
     assert counts.get("1", 0) == 0 and counts.get("2", 0) == 1

@@ -52,6 +52,8 @@ _API: dict[str, str] = {
     "analyze_tracks": "trafficgeo.traffic.analyze",
     "TrafficResult": "trafficgeo.traffic.analyze",
     "TrajectoryOptions": "trafficgeo.traffic.trajectories",
+    "JourneyOptions": "trafficgeo.traffic.journeys",
+    "join_fragments": "trafficgeo.traffic.journeys",
     "RunFolder": "trafficgeo.traffic.run_folder",
     "SCHEMAS": "trafficgeo.traffic.run_folder",
     "compare_with_sumo": "trafficgeo.traffic.validation",
@@ -108,6 +110,7 @@ __all__ = [
     "GroundPoints",
     "ImageTracks",
     "InputError",
+    "JourneyOptions",
     "Lanes",
     "OrthoRefinement",
     "OutputError",
@@ -135,6 +138,7 @@ __all__ = [
     "drape_orthophoto",
     "export_fcd",
     "georeference",
+    "join_fragments",
     "load_camera",
     "load_lanes",
     "load_lines",
@@ -187,6 +191,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.site.site import Site, load_camera, load_lanes, load_lines
     from trafficgeo.site.surface import load_surface
     from trafficgeo.traffic.analyze import TrafficResult, analyze_tracks
+    from trafficgeo.traffic.journeys import JourneyOptions, join_fragments
     from trafficgeo.traffic.run_folder import SCHEMAS, RunFolder
     from trafficgeo.traffic.tracks import ImageTracks, load_tracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions

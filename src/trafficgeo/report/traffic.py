@@ -30,7 +30,8 @@ def print_analysis(analysis: TrafficResult, console: Console) -> None:
                       "and found again is one vehicle: 'fragments' and 'tracker_ids' in vehicles.csv)")
     if s.stationary_vehicles:
         console.print(f"{s.stationary_vehicles} of the vehicles never moved (parked vehicles, signs): listed with "
-                      "'stationary' in vehicles.csv, without speeds, counted at no line")
+                      "'stationary' in vehicles.csv, with their near-zero speeds, counted at no line and left out of "
+                      "the mean speed")
     for text in analysis.warnings:
         console.print(f"[yellow]warning:[/yellow] {text}")
     if s.crossings:

@@ -103,6 +103,8 @@ def traffic_section(b: ReportContext, run: TrafficRun, k: int) -> Section:
                "or empty)")
     if not lanes:
         b.skip(f"lanes ({name})", "the run has no lanes: pass --lanes to analyze/process for per-lane results")
+    if vehicles is not None and "stationary" in vehicles.columns:  # parked vehicles and signs: not in the speeds
+        vehicles = vehicles[~vehicles["stationary"].fillna(False).astype(bool)]
     if vehicles is not None and len(vehicles) and _speed_columns(vehicles)[0] in vehicles.columns:
         parts.append((figure(F.speed_histograms(vehicles, column=_speed_columns(vehicles)[0]),
                              "Distribution of the vehicles' speeds (distance travelled along the direction of travel "
@@ -195,6 +197,12 @@ def _run_summary(run: TrafficRun, s: RunSummary) -> Part:
             ["mean of the vehicles' speeds (speed_kmh: distance travelled over the well-calibrated window / its time)",
              (s.mean_speed_kmh, 1), "km/h"],
             ["lane changes", s.lane_changes, ""]]
+    if s.fragments is not None:
+        rows.append(["pieces of track joined into the vehicles (a vehicle lost and found again is one)", s.fragments,
+                     ""])
+    if s.stationary_vehicles:
+        rows.append(["vehicles that never moved (parked, signs): listed, counted at no line, not in the speeds",
+                     s.stationary_vehicles, ""])
     for key, label, unit in (("interval_s", "counting interval", "s"),
                              ("pixel_sigma", "pixel noise of a track point", "px"),
                              ("max_metres_per_px", "points farther than this many metres per pixel not used", "m")):

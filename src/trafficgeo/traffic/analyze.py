@@ -34,7 +34,7 @@ from trafficgeo.geo.mapping import Surface, camera_crs
 from trafficgeo.site.lanes import Lanes
 from trafficgeo.site.lines import CountLine
 from trafficgeo.traffic.counts import aggregate_counts, find_crossings
-from trafficgeo.traffic.journeys import JourneyOptions, join_fragments
+from trafficgeo.traffic.journeys import JOURNEY_COLUMNS, JourneyOptions, join_fragments
 from trafficgeo.traffic.lane_changes import lane_visits, main_lane
 from trafficgeo.traffic.occlusion import hidden_crossings
 from trafficgeo.traffic.run_records import LineCount, RunSummary
@@ -197,6 +197,9 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
     else:
         world.points["lane"] = ""
         world.vehicles["lane"], world.vehicles["lanes"], world.vehicles["lane_changes"] = "", "", 0
+    later = [c for c in JOURNEY_COLUMNS if c in world.vehicles.columns]  # after the lanes, as in vehicles.csv
+    world = WorldTracks(points=world.points, dropped=world.dropped,
+                        vehicles=world.vehicles[[c for c in world.vehicles.columns if c not in later] + later])
     if "length_m" in world.vehicles.columns and len(world.points):
         world.points["length_m"] = world.points["track_id"].map(world.vehicles.set_index("track_id")["length_m"])
     moving = _moving_points(world)  # stationary objects are not traffic: they count at no line

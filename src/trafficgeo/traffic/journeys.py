@@ -32,7 +32,9 @@ streams over any length of video (time chunks and batch segments, whose tracks r
 
 **Stationary objects.** A vehicle that never moves more than ``stationary_m`` metres (or three of its position
 sigmas) from where it stands, over at least ``stationary_min_s`` seconds, is a parked vehicle, a billboard or a
-shadow: it stays in ``vehicles.csv`` with ``stationary`` true, its speeds left empty, and it counts at no line.
+shadow: it stays in ``vehicles.csv`` with ``stationary`` true and its (near-zero) speeds, counts at no line and is
+left out of the speed statistics (summary, report). A vehicle queued at a signal for all the time it is seen is
+flagged too: over the time seen it cannot be told from a parked one.
 
 Outputs: the points of :class:`~trafficgeo.traffic.trajectories.WorldTracks` with ``track_id`` the vehicle and
 ``fragment`` the fragment it came from (the world track's id), one vehicle row per journey (``fragments``,
@@ -200,7 +202,7 @@ def fragment_ends(points: pd.DataFrame, vehicles: pd.DataFrame, *, metres_per_un
         row["extent_m"] = float(np.max(np.hypot(*(xy - np.median(xy, axis=0)).T)))
         row["median_sigma_m"] = float(np.nanmedian(sd)) if np.isfinite(sd).any() else 0.0
         rows.append(row)
-    ends = pd.DataFrame(rows)
+    ends = pd.DataFrame(rows, columns=["track_id", "t0", "t1"]) if not rows else pd.DataFrame(rows)
     for c in ("x0", "y0", "x1", "y1", "vx0", "vy0", "vx1", "vy1", "sv0", "sv1", "sp0", "sp1", "extent_m",
               "median_sigma_m"):
         if c not in ends.columns:
@@ -377,10 +379,10 @@ def associate(ends: pd.DataFrame, cands: pd.DataFrame, options: JourneyOptions |
 
 # ------------------------------------------------------------------------------------------------ journeys
 def _chains(n: int, links: pd.DataFrame, t0: np.ndarray) -> list[list[int]]:
-    """Fragments (row numbers) of each journey in time order, journeys in the order of their first start."""
+    """Fragments (row numbers) of each journey in time order, journeys in the order of their first fragment."""
     succ = dict(zip(links["a"].astype(int), links["b"].astype(int), strict=True))
     has_pred = set(succ.values())
-    heads = sorted((r for r in range(n) if r not in has_pred), key=lambda r: (np.nan_to_num(t0[r], nan=np.inf), r))
+    heads = [r for r in range(n) if r not in has_pred]
     chains = []
     for h in heads:
         chain = [h]
@@ -484,9 +486,6 @@ def join_fragments(world: WorldTracks, *, metres_per_unit: float = 1.0, lanes: L
         sigma = float(np.nanmax(ends["median_sigma_m"].to_numpy()[chain]))
         row["stationary"] = bool(row["duration_s"] >= opts.stationary_min_s
                                  and extent <= max(opts.stationary_m, 3.0 * sigma))
-        if row["stationary"]:  # not traffic: no speeds
-            for c in ("speed_kmh", "speed_std_kmh", "travel_speed_kmh", "mean_speed_kmh", "median_speed_kmh"):
-                row[c] = np.nan
         rows.append(row)
         for r in chain:
             vehicle_of[names[r]] = row["track_id"]
