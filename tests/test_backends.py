@@ -18,6 +18,7 @@ from trafficgeo.errors import InputError
 from trafficgeo.video.cost import estimate_cost, plan_passes
 from trafficgeo.video.detections import box_iou
 from trafficgeo.video.detectors.backends import BackendChoice, cache_dir, choose_backend, probe
+from trafficgeo.video.detectors.backends import int8_saturation as real_int8_saturation
 from trafficgeo.video.detectors.builtin import builtin_model_path
 from trafficgeo.video.detectors.learned import detector_backend
 from trafficgeo.video.detectors.tiling import grid_plan
@@ -158,21 +159,35 @@ def test_auto_without_openvino_falls_back_to_onnxruntime(no_openvino) -> None:
     assert OnnxDetector(path, format="nanodet", backend="auto", threads=1).backend_choice.cached
 
 
-def test_the_builtin_model_offers_its_int8_version_to_the_probe(no_openvino) -> None:
+@pytest.mark.parametrize("vnni", [True, False])
+def test_the_builtin_model_offers_its_int8_version_to_the_probe(no_openvino, monkeypatch: pytest.MonkeyPatch,
+                                                                vnni: bool) -> None:
+    """Where the CPU has VNNI the probe times the INT8 version; where it has not (8-bit dot products saturate:
+    backends.int8_saturation) the probe refuses it with that reason. Both CPUs are simulated by their flags."""
+    from trafficgeo.video.detectors import backends
     from trafficgeo.video.detectors.learned import make_learned_detector
     from trafficgeo.video.detectors.onnx import OnnxDetector
 
+    this_cpu_saturates = real_int8_saturation() is not None  # before the flags are simulated
+    flags = frozenset({"sse2", "avx2", "fma"} | ({"avx512_vnni"} if vnni else set()))
+    monkeypatch.setattr(backends, "cpu_flags", lambda: flags)
+    monkeypatch.setattr(backends, "cpu_signature", lambda: f"simulated [{' '.join(sorted(flags))}]")  # cache key
     choice = detector_backend(make_learned_detector(backend="auto", threads=1))
-    assert set(choice.times_ms) == {"onnxruntime", "onnxruntime-int8"} and not choice.refused
-    int8 = make_learned_detector(backend="onnxruntime-int8", threads=1)
+    if vnni:
+        assert set(choice.times_ms) == {"onnxruntime", "onnxruntime-int8"} and not choice.refused
+    else:
+        assert set(choice.times_ms) == {"onnxruntime"} and choice.backend == "onnxruntime"
+        assert "no VNNI" in choice.refused["onnxruntime-int8"]
+    int8 = make_learned_detector(backend="onnxruntime-int8", threads=1)  # asked for by name: runs on any CPU
     assert detector_backend(int8).backend == "onnxruntime-int8" and set(detector_backend(int8).times_ms) == {
         "onnxruntime-int8"}
-    # the INT8 version finds the same vehicles on a real frame (two cars of the Intel clip, full frame)
-    frame = next(iter(load_labels(INTEL_LABELS).values())).image
-    f32 = make_learned_detector(backend="onnxruntime", threads=1).detect(frame, 0.0)
-    q = int8.detect(frame, 0.0)
-    assert len(f32.boxes) == len(q.boxes) > 0
-    assert np.all(np.max(box_iou(f32.boxes[:, None], q.boxes[None]), axis=1) > 0.8)
+    if vnni and not this_cpu_saturates:
+        # on a VNNI CPU the INT8 version finds the same vehicles on a real frame (two cars of the Intel clip)
+        frame = next(iter(load_labels(INTEL_LABELS).values())).image
+        f32 = make_learned_detector(backend="onnxruntime", threads=1).detect(frame, 0.0)
+        q = int8.detect(frame, 0.0)
+        assert len(f32.boxes) == len(q.boxes) > 0
+        assert np.all(np.max(box_iou(f32.boxes[:, None], q.boxes[None]), axis=1) > 0.8)
     with pytest.raises(InputError, match="has no INT8 version") as caught:
         OnnxDetector(builtin_model_path("nanodet"), format="nanodet", backend="onnxruntime-int8")
     assert caught.value.parameters == ("backend",)

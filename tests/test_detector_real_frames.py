@@ -19,6 +19,7 @@ import pytest
 
 from labelled_frames import INTEL_LABELS, NGSIM_LABELS, Score, load_labels, score_labels
 from trafficgeo.errors import InputError
+from trafficgeo.video.detectors.backends import int8_saturation
 from trafficgeo.video.detectors.builtin import builtin_model_path
 from trafficgeo.video.detectors.factory import make_detector
 from trafficgeo.video.detectors.onnx import OnnxDetector
@@ -92,6 +93,9 @@ def test_the_shipped_model_runs_at_a_frame_shaped_input_as_well_as_square(nanode
         nanodet.detect_batch([np.zeros((100, 100, 3), np.uint8)], input_hw=(100, 100))
 
 
+@pytest.mark.skipif(int8_saturation() is not None, reason="this CPU has no VNNI: the backend probe does not offer the "
+                    "INT8 version here (tests/test_backends.py), whose 8-bit dot products saturate on it (measured on "
+                    "an AVX2 CPU: NGSIM 2 x 2 tiles F1 0.741 -> 0.717)")
 def test_the_int8_version_is_within_0_01_f1_of_the_float_model_on_every_labelled_set(nanodet) -> None:
     # The backend probe runs the INT8 version where it is faster; it must find what the float model finds.
     # Measured when written: NGSIM full frame 0.622 -> 0.642, 2 x 2 tiles 0.741 -> 0.737; Intel unchanged.

@@ -29,6 +29,7 @@ from trafficgeo.video.detectors.backends import (
     OrtBackend,
     check_backend,
     choose_backend,
+    int8_saturation,
     openvino_version,
 )
 from trafficgeo.video.detectors.names import DETECTOR_PARAMETERS, ONNX_HINT
@@ -281,10 +282,20 @@ class OnnxDetector:
                 candidates[OPENVINO] = openvino(self.path)
         if asked == "openvino":
             candidates[OPENVINO] = openvino(self.path)
-        if self.int8_path is not None and (asked == ORT_INT8 or (asked == "auto" and providers is None)):
+        def unless_saturating(make: Callable[[], Backend]) -> Callable[[], Backend]:
+            def checked() -> Backend:  # refused by the probe with this reason on a CPU without VNNI
+                why = int8_saturation()
+                if why is not None:
+                    raise RuntimeError(why)
+                return make()
+            return checked
+
+        if self.int8_path is not None and asked == ORT_INT8:  # asked for by name: runs on any CPU
             candidates[ORT_INT8] = ort_int8
-            if asked == "auto" and openvino_version() is not None:
-                candidates[OPENVINO_INT8] = openvino(self.int8_path)
+        elif self.int8_path is not None and asked == "auto" and providers is None:
+            candidates[ORT_INT8] = unless_saturating(ort_int8)
+            if openvino_version() is not None:
+                candidates[OPENVINO_INT8] = unless_saturating(openvino(self.int8_path))
         rng = np.random.default_rng(0)
         frame = rng.integers(0, 256, (self.input_hw[0], self.input_hw[1], 3), dtype=np.uint8)
         blob, _g = self.layout.pre.blob([frame] * (self._batch or 1), self.input_hw)
