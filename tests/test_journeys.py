@@ -143,14 +143,17 @@ def test_a_stationary_object_is_flagged_without_speed_and_counted_nowhere() -> N
     assert summary(result).mean_speed_kmh == pytest.approx(veh.at["M", "speed_kmh"])
 
 
-def _world(fragments: list[tuple[str, float, float, float, float]]) -> WorldTracks:
-    """Hand-made world tracks: (id, start s, end s, x m, speed m/s northwards from y = 0 at t = 0)."""
+def _world(fragments: list[tuple[str, float, float, float, float]], sigma_m: dict[str, float] | None = None
+           ) -> WorldTracks:
+    """Hand-made world tracks: (id, start s, end s, x m, speed m/s northwards from y = 0 at t = 0); ``sigma_m``:
+    position sigmas of some of them (default 0.2 m)."""
     pts, veh = [], []
     for name, start, stop, x, v in fragments:
         t = _times(start, stop)
         t0, t1 = float(t[0]), float(t[-1])
         pts.append(pd.DataFrame({"track_id": name, "source_track": name, "time": t, "x": E0 + x, "y": N0 + v * t,
-                                 "position_std_m": 0.2, "speed_kmh": 3.6 * v, "class": "car"}))
+                                 "position_std_m": (sigma_m or {}).get(name, 0.2), "speed_kmh": 3.6 * v,
+                                 "class": "car"}))
         veh.append({"track_id": name, "source_track": name, "class": "car", "first_time": t0, "last_time": t1,
                     "duration_s": t1 - t0, "points": t.size, "outliers": 0, "path_length_m": v * (t1 - t0),
                     "travel_m": v * (t1 - t0), "speed_kmh": 3.6 * v, "speed_std_kmh": 0.5,
@@ -175,3 +178,17 @@ def test_journeys_never_overlap_in_time_and_keep_every_point(spec: list) -> None
         spans = g.groupby("fragment")["time"].agg(["min", "max"]).sort_values("min").to_numpy()
         assert np.all(spans[1:, 0] > spans[:-1, 1])
         assert np.all(np.diff(g["time"].to_numpy()) > 0)  # one vehicle: times in order, no two at once
+
+
+def test_a_piece_placed_tens_of_metres_wide_joins_nothing_and_does_not_make_its_vehicle_stationary() -> None:
+    """A piece whose ground position is 40 m unsure (a box cut off by the frame's top on a real clip) would fit any
+    vehicle: it joins none; and a journey is judged stationary by its best-placed piece, so a moving car is not."""
+    world = _world([("a", 0.0, 3.0, 1.75, 6.0), ("x", 3.3, 3.6, 1.75, 6.0), ("b", 4.0, 7.0, 1.75, 6.0)],
+                   sigma_m={"x": 40.0})
+    out = join_fragments(world)
+    assert "x" in set(out.vehicles["track_id"])  # on its own
+    moving = out.vehicles.set_index("track_id")
+    assert not moving.loc[moving["tracker_ids"].str.contains("a"), "stationary"].any()
+    loose = join_fragments(world, options=JourneyOptions(max_position_sigma_m=1e3))  # the gate off: it joins
+    assert "x" not in set(loose.vehicles["track_id"])
+    assert not loose.vehicles["stationary"].any()  # judged by its best-placed piece, not by the 40 m one

@@ -18,7 +18,8 @@ joined to each other (a glimpse may be a bad box: only a fragment with a known m
 different class (both known), a different length (both measured) and a different lane at the two ends add to the
 cost, and each second of gap adds ``gap_cost_per_s``. A pair is never
 joined when the two overlap in time (two vehicles seen at the same time), when ``b`` starts more than
-``max_gap_s`` after ``a`` ends, when either distance is beyond ``gate`` (chi-square, 2 dof), when going from one
+``max_gap_s`` after ``a`` ends, when either distance is beyond ``gate`` (chi-square, 2 dof), when the two ends'
+positions are together less sure than ``max_position_sigma_m`` (where anything would fit), when going from one
 to the other takes more than ``max_speed_mps`` (no vehicle teleports), when the two move in directions more
 than ``max_turn_deg`` apart (where each one's own motion tells its direction), or when they stand in lanes of
 opposite directions of travel (lanes with bearings).
@@ -30,11 +31,11 @@ unlinked costs ``no_link_cost``. It runs over a window of ``window_s`` seconds o
 whose end lies in the last ``max_gap_s`` of a window are decided again in the next one, so the association
 streams over any length of video (time chunks and batch segments, whose tracks reach ``analyze`` joined).
 
-**Stationary objects.** A vehicle that never moves more than ``stationary_m`` metres (or three of its position
-sigmas) from where it stands, over at least ``stationary_min_s`` seconds, is a parked vehicle, a billboard or a
-shadow: it stays in ``vehicles.csv`` with ``stationary`` true and its (near-zero) speeds, counts at no line and is
-left out of the speed statistics (summary, report). A vehicle queued at a signal for all the time it is seen is
-flagged too: over the time seen it cannot be told from a parked one.
+**Stationary objects.** A vehicle that never moves more than ``stationary_m`` metres (or three position sigmas of
+its best-placed piece of track) from where it stands, over at least ``stationary_min_s`` seconds, is a parked
+vehicle, a billboard or a shadow: it stays in ``vehicles.csv`` with ``stationary`` true and its (near-zero) speeds,
+counts at no line and is left out of the speed statistics (summary, report). A vehicle queued at a signal for all
+the time it is seen is flagged too: over the time seen it cannot be told from a parked one.
 
 Outputs: the points of :class:`~trafficgeo.traffic.trajectories.WorldTracks` with ``track_id`` the vehicle and
 ``fragment`` the fragment it came from (the world track's id), one vehicle row per journey (``fragments``,
@@ -89,6 +90,7 @@ class JourneyOptions:
     weak_velocity_sigma_mps: float = 3.0  # m/s: an end whose velocity is less sure is a glimpse (module docstring)
     gate: float = CHI2_2DOF_999  # chi-square (2 dof) above which a position or velocity difference forbids a join
     max_speed_mps: float = 70.0  # m/s: farther jumps are not one vehicle (no teleporting)
+    max_position_sigma_m: float = 5.0  # m: ends placed worse than this (both together) are not joined
     max_turn_deg: float = 100.0  # deg: ends moving in directions farther apart are not one vehicle
     class_cost: float = 3.0  # added when both classes are known and differ
     lane_cost: float = 2.0  # added when the lanes at the two ends are known and differ
@@ -314,7 +316,8 @@ def link_candidates(ends: pd.DataFrame, options: JourneyOptions | None = None) -
     sb = np.nan_to_num(col["length_std_m"][b].astype(np.float64), nan=1.0)
     length_d2 = np.where(np.isfinite(la) & np.isfinite(lb), (la - lb) ** 2 / (sa**2 + sb**2 + 0.5**2), 0.0)
     cost += np.minimum(length_d2, opts.gate)
-    ok = ((d2_pos <= opts.gate) & (d2_vel <= opts.gate) & (jump <= opts.max_speed_mps) & ~turned & ~against
+    placed = np.hypot(col["sp1"][a].astype(np.float64), col["sp0"][b].astype(np.float64)) <= opts.max_position_sigma_m
+    ok = ((d2_pos <= opts.gate) & (d2_vel <= opts.gate) & (jump <= opts.max_speed_mps) & ~turned & ~against & placed
           & (strong1 | strong0) & np.isfinite(cost))
     out = pd.DataFrame({"a": a, "b": b, "gap_s": gap, "position_d2": d2_pos, "velocity_d2": d2_vel, "cost": cost})
     return out[ok].reset_index(drop=True) if ok.any() else empty
@@ -483,7 +486,7 @@ def join_fragments(world: WorldTracks, *, metres_per_unit: float = 1.0, lanes: L
             row["fragments"] += len(also)
             row["tracker_ids"] = ";".join(dict.fromkeys([*row["tracker_ids"].split(";"), *also]))
         extent = _journey_extent(ends, chain)
-        sigma = float(np.nanmax(ends["median_sigma_m"].to_numpy()[chain]))
+        sigma = float(np.nanmin(ends["median_sigma_m"].to_numpy()[chain]))  # its best-placed piece's
         row["stationary"] = bool(row["duration_s"] >= opts.stationary_min_s
                                  and extent <= max(opts.stationary_m, 3.0 * sigma))
         rows.append(row)
