@@ -34,6 +34,11 @@ Part 2, accuracy against the world's truth, with the true camera and a DEM from 
 * what became of each true crossing (counted, in a wrong lane, missed) against which vehicles touch it in the
   image and how visible it is at the line (:func:`trafficgeo.synth.scoring.crossing_outcomes`): the causes.
 
+Identity (issue 38), per run: the tracker's ids, the world tracks without joining and the journeys
+(:mod:`trafficgeo.traffic.journeys`) side by side on the same tracked boxes - IDF1, id switches, fragmentations
+(motmetrics) and HOTA (trackeval) against the rendered truth boxes (:mod:`trafficgeo.synth.identity`), per-lane
+counts, extra crossings and the vehicles made.
+
 Part 3, the ceiling set by occlusion and tracking: the same tracker and ``analyze`` fed by an ideal detector
 (the true boxes of every vehicle at least 30 / 50 / 70 % visible, exactly;
 :func:`trafficgeo.synth.detections.ideal_detections`).
