@@ -407,8 +407,8 @@ def _weighted_class(classes: list[str], durations: list[float]) -> str:
     return best if sum(known.values()) >= total.get("", 0.0) else ""
 
 
-def _journey_row(frag: pd.DataFrame, ends: pd.DataFrame, chain: list[int], gaps_m: float) -> dict:
-    """One vehicle row over the fragments ``chain`` (rows of ``frag`` and ``ends``)."""
+def _journey_row(frag: pd.DataFrame, chain: list[int], gaps_m: float) -> dict:
+    """One vehicle row over the fragments ``chain`` (rows of ``frag``; ``gaps_m``: the distance between them, m)."""
     f = frag.iloc[chain]
     first, last = float(f["first_time"].min()), float(f["last_time"].max())
     duration = last - first
@@ -480,7 +480,7 @@ def join_fragments(world: WorldTracks, *, metres_per_unit: float = 1.0, lanes: L
         gaps_m = 0.0
         for a, b in pairwise(chain):
             gaps_m += float(np.hypot(ends.at[b, "x0"] - ends.at[a, "x1"], ends.at[b, "y0"] - ends.at[a, "y1"]))
-        row = _journey_row(frag, ends, chain, gaps_m)
+        row = _journey_row(frag, chain, gaps_m)
         also = [t for r in chain for t in absorbed.get(names[r], [])]
         if also:  # second tracks of this vehicle at the same time, merged into it
             row["fragments"] += len(also)
