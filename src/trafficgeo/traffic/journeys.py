@@ -407,43 +407,51 @@ def _weighted_class(classes: list[str], durations: list[float]) -> str:
     return best if sum(known.values()) >= total.get("", 0.0) else ""
 
 
-def _journey_row(frag: pd.DataFrame, chain: list[int], gaps_m: float) -> dict:
-    """One vehicle row over the fragments ``chain`` (rows of ``frag``; ``gaps_m``: the distance between them, m)."""
-    f = frag.iloc[chain]
-    first, last = float(f["first_time"].min()), float(f["last_time"].max())
+def _journey_row(cols: dict[str, np.ndarray], chain: list[int], gaps_m: float) -> dict:
+    """One vehicle row over the fragments ``chain`` (rows of the fragment table, given as its ``cols``: column ->
+    array; ``gaps_m``: the distance between the fragments, m)."""
+    idx = np.asarray(chain, dtype=np.int64)
+
+    def f(c: str) -> np.ndarray:
+        return cols[c][idx]
+
+    def num(c: str) -> np.ndarray:
+        return np.asarray(f(c), dtype=np.float64)
+
+    first, last = float(np.min(num("first_time"))), float(np.max(num("last_time")))
     duration = last - first
-    row = {c: f[c].iloc[0] for c in VEHICLE_COLUMNS}
-    row.update(first_time=first, last_time=last, duration_s=duration, points=int(f["points"].sum()),
-               outliers=int(f["outliers"].sum()), path_length_m=float(f["path_length_m"].sum()) + gaps_m,
-               travel_m=float(f["travel_m"].sum()) + gaps_m,
-               min_distance_m=float(f["min_distance_m"].min()))
-    row["class"] = _weighted_class(list(f["class"].fillna("").astype(str)), list(f["duration_s"].astype(float)))
+    row = {c: cols[c][idx[0]] for c in VEHICLE_COLUMNS}
+    row.update(first_time=first, last_time=last, duration_s=duration, points=int(np.sum(num("points"))),
+               outliers=int(np.sum(num("outliers"))), path_length_m=float(np.sum(num("path_length_m"))) + gaps_m,
+               travel_m=float(np.sum(num("travel_m"))) + gaps_m, min_distance_m=float(np.nanmin(num("min_distance_m")))
+               if np.isfinite(num("min_distance_m")).any() else np.nan)
+    classes = ["" if (isinstance(c, float) and c != c) else str(c) for c in f("class")]
+    row["class"] = _weighted_class(classes, list(num("duration_s")))
     # the headline speed of the fragment whose speed window is longest (where the calibration knows the scale)
-    window = (f["speed_end_time"] - f["speed_start_time"]).to_numpy(dtype=np.float64)
+    window = num("speed_end_time") - num("speed_start_time")
     if np.isfinite(window).any():
-        best = f.iloc[int(np.nanargmax(window))]
+        best = idx[int(np.nanargmax(window))]
         for c in ("speed_kmh", "speed_std_kmh", "speed_start_time", "speed_end_time"):
-            row[c] = best[c]
+            row[c] = cols[c][best]
     if len(chain) > 1 and duration > 0:
-        seen = f["duration_s"].to_numpy(dtype=np.float64)
+        seen = num("duration_s")
         row["travel_speed_kmh"] = 3.6 * row["travel_m"] / duration
         row["mean_speed_kmh"] = 3.6 * row["path_length_m"] / duration
-        med = f["median_speed_kmh"].to_numpy(dtype=np.float64)
+        med = num("median_speed_kmh")
         if np.isfinite(med).any():
             ok = np.isfinite(med)
             row["median_speed_kmh"] = float(np.average(med[ok], weights=np.maximum(seen[ok], 1e-3)))
-        ps = f["point_speed_std_kmh"].to_numpy(dtype=np.float64)
-        n = f["points"].to_numpy(dtype=np.float64)
+        ps, n = num("point_speed_std_kmh"), num("points")
         if np.isfinite(ps).any():
             ok = np.isfinite(ps)
             row["point_speed_std_kmh"] = float(np.sqrt(np.average(ps[ok] ** 2, weights=n[ok])))
-        length, sigma = f["length_m"].to_numpy(dtype=np.float64), f["length_std_m"].to_numpy(dtype=np.float64)
+        length, sigma = num("length_m"), num("length_std_m")
         ok = np.isfinite(length) & np.isfinite(sigma) & (sigma > 0)
         if ok.any():
             w = 1.0 / sigma[ok] ** 2
             row["length_m"], row["length_std_m"] = float(np.sum(w * length[ok]) / w.sum()), float(1 / np.sqrt(w.sum()))
     row["fragments"] = len(chain)
-    row["tracker_ids"] = ";".join(dict.fromkeys(f["source_track"].astype(str)))
+    row["tracker_ids"] = ";".join(dict.fromkeys(str(t) for t in f("source_track")))
     return row
 
 
@@ -475,18 +483,20 @@ def join_fragments(world: WorldTracks, *, metres_per_unit: float = 1.0, lanes: L
     chains = _chains(len(frag), chosen, t0)
     names = frag["track_id"].astype(str).to_numpy()
     rows, order, vehicle_of = [], [], {}
+    cols = {c: frag[c].to_numpy() for c in frag.columns}  # arrays, not per-row pandas look-ups
+    ecols = {c: ends[c].to_numpy(dtype=np.float64) for c in ("x0", "y0", "x1", "y1", "extent_m", "median_sigma_m")}
     absorbed = {k: v for k, v in absorbed.items() if k in set(names)}
     for chain in chains:
         gaps_m = 0.0
         for a, b in pairwise(chain):
-            gaps_m += float(np.hypot(ends.at[b, "x0"] - ends.at[a, "x1"], ends.at[b, "y0"] - ends.at[a, "y1"]))
-        row = _journey_row(frag, chain, gaps_m)
+            gaps_m += float(np.hypot(ecols["x0"][b] - ecols["x1"][a], ecols["y0"][b] - ecols["y1"][a]))
+        row = _journey_row(cols, chain, gaps_m)
         also = [t for r in chain for t in absorbed.get(names[r], [])]
         if also:  # second tracks of this vehicle at the same time, merged into it
             row["fragments"] += len(also)
             row["tracker_ids"] = ";".join(dict.fromkeys([*row["tracker_ids"].split(";"), *also]))
-        extent = _journey_extent(ends, chain)
-        sigma = float(np.nanmin(ends["median_sigma_m"].to_numpy()[chain]))  # its best-placed piece's
+        extent = _journey_extent(ecols, chain)
+        sigma = float(np.nanmin(ecols["median_sigma_m"][chain]))  # its best-placed piece's
         row["stationary"] = bool(row["duration_s"] >= opts.stationary_min_s
                                  and extent <= max(opts.stationary_m, 3.0 * sigma))
         rows.append(row)
@@ -495,8 +505,8 @@ def join_fragments(world: WorldTracks, *, metres_per_unit: float = 1.0, lanes: L
             order.append(names[r])
     vehicles = pd.DataFrame(rows, columns=[*VEHICLE_COLUMNS, *JOURNEY_COLUMNS])
     # a vehicle needs min_points in all and one piece of track that long: glimpses only extend a real track
-    longest = {row["track_id"]: max(int(frag.at[r, "points"]) for r in chain) for row, chain in zip(rows, chains,
-                                                                                                    strict=True)}
+    points_of = np.asarray(cols["points"], dtype=np.int64) if len(frag) else np.zeros(0, dtype=np.int64)
+    longest = {row["track_id"]: int(points_of[chain].max()) for row, chain in zip(rows, chains, strict=True)}
     short = set(vehicles.loc[(vehicles["points"] < min_points)
                              | (vehicles["track_id"].map(longest) < min_points), "track_id"].astype(str)) \
         if len(vehicles) else set()
@@ -525,10 +535,11 @@ def join_fragments(world: WorldTracks, *, metres_per_unit: float = 1.0, lanes: L
     return Journeys(points=pts, vehicles=vehicles, links=links, dropped={k: v for k, v in dropped.items() if v})
 
 
-def _journey_extent(ends: pd.DataFrame, chain: list[int]) -> float:
-    """The farthest a journey's fragments reach from its first fragment's median position (m): the fragments'
-    own extents and the distances between their ends."""
-    e = ends.iloc[chain]
-    xy = np.concatenate([e[["x0", "y0"]].to_numpy(), e[["x1", "y1"]].to_numpy()])
+def _journey_extent(ecols: dict[str, np.ndarray], chain: list[int]) -> float:
+    """The farthest a journey's fragments reach from the median of their ends (m): the fragments' own extents and
+    the distances between their ends (``ecols``: columns of :func:`fragment_ends`)."""
+    idx = np.asarray(chain, dtype=np.int64)
+    xy = np.concatenate([np.column_stack([ecols["x0"][idx], ecols["y0"][idx]]),
+                         np.column_stack([ecols["x1"][idx], ecols["y1"][idx]])]).astype(np.float64)
     spread = float(np.max(np.hypot(*(xy - np.median(xy, axis=0)).T))) if len(xy) else 0.0
-    return max(spread, float(e["extent_m"].max()))
+    return max(spread, float(np.max(ecols["extent_m"][idx])))
