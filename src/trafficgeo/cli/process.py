@@ -82,6 +82,7 @@ def process(
     opts = ProcessOptions(detector=detector, detector_format=detector_format, start_s=start, end_s=end, every=every,
                           checkpoint_s=checkpoint, tiles=tiles, tiling=tiling, backend=backend,
                           tile_schedule=tile_schedule)
+    journeys = JourneyOptions.with_gap(join_gap)
     columns = (TextColumn("[progress.description]{task.description}"), BarColumn(),
                TextColumn("{task.completed}/{task.total} frames, {task.fields[rate]:.1f} fps, video {task.fields[t]}"),
                TimeRemainingColumn())
@@ -96,7 +97,7 @@ def process(
                 bar.update(task, completed=done, total=total, rate=rate, t=f"{t:.1f} s")
 
             run = process_video(video, camera, surface, out, lanes, lines, options=opts, interval_s=interval, roi=roi,
-                                journeys=JourneyOptions.with_gap(join_gap),
+                                journeys=journeys,
                                 restart=restart, resolution_m=resolution, surface_crs=surface_crs, annotate=annotate,
                                 progress=tick, notice=lambda text: console.print(text, markup=False),
                                 annotate_progress=lambda d, n: bar.update(drawn, completed=d, total=n,

@@ -72,6 +72,7 @@ def analyze(
     check_html_path(report_html)
     check_interval(interval)
     check_resolution(resolution)
+    journeys = JourneyOptions.with_gap(join_gap)  # before any work
     opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
                              max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
     calibrated = camera_argument(camera)  # a bad camera file is named before the tracks are read
@@ -84,7 +85,7 @@ def analyze(
         task = progress.add_task("tracks", total=len(image_tracks.track_ids))
         analysis = analyze_tracks(cam, surf, image_tracks, lanes, lines, interval_s=interval, options=opts,
                                   progress=lambda i, n: progress.update(task, completed=i), knowledge=knowledge,
-                                  journeys=JourneyOptions.with_gap(join_gap))
+                                  journeys=journeys)
     written = RunFolder(out).write_traffic(analysis, cam)
     print_analysis(analysis, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")

@@ -50,7 +50,8 @@ OUTPUT_FILES = ("vehicles.csv", "counts.csv", "crossings.csv", "trajectories.csv
 class TrafficResult:
     """Everything ``analyze`` computes from one set of image tracks: the tables of
     :mod:`trafficgeo.traffic.run_folder` (``points`` is ``trajectories.csv``), the ``period`` (s) the tracks span,
-    the points dropped per reason, the lanes and lines used, the options and the warnings."""
+    the points dropped per reason, the lanes and lines used, the options, the warnings and ``links``, the pieces of
+    track joined into vehicles (:class:`trafficgeo.traffic.journeys.Journeys`; not written to the run folder)."""
 
     points: pd.DataFrame
     vehicles: pd.DataFrame
@@ -62,7 +63,7 @@ class TrafficResult:
     lines: list[CountLine] = field(default_factory=list)
     options: dict[str, object] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
-    links: pd.DataFrame | None = None  # the fragments joined into vehicles (trafficgeo.traffic.journeys.Journeys)
+    links: pd.DataFrame | None = None
 
 
 Analysis = TrafficResult  # the former name

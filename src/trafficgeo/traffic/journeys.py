@@ -144,11 +144,6 @@ class Journeys:
     links: pd.DataFrame
     dropped: dict[str, int] = field(default_factory=dict)
 
-    @property
-    def world(self) -> WorldTracks:
-        """As :class:`~trafficgeo.traffic.trajectories.WorldTracks` (nothing dropped)."""
-        return WorldTracks(points=self.points, vehicles=self.vehicles, dropped={})
-
 
 # ------------------------------------------------------------------------------------------------ fragment ends
 def _line_fit(t: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:

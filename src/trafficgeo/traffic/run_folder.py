@@ -192,8 +192,8 @@ VEHICLES = TableSchema("vehicles.csv", (
            added="2026-12-06"),
     Column("tracker_ids", "str", "", "the tracker's ids of those pieces, ';'-separated, in time order",
            added="2026-12-06"),
-    Column("stationary", "bool", "", "never moved (a parked vehicle, a billboard): no speeds, counted at no line",
-           added="2026-12-06"),
+    Column("stationary", "bool", "", "never moved (a parked vehicle, a billboard): counted at no line and left out of "
+           "the speed statistics (its own near-zero speeds kept)", added="2026-12-06"),
 ), what="one row per vehicle")
 
 CROSSINGS = TableSchema("crossings.csv", (

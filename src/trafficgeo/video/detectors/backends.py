@@ -210,18 +210,28 @@ def cache_dir() -> Path:
     return (Path(xdg) if xdg else Path.home() / ".cache") / "trafficgeo"
 
 
-def cpu_signature() -> str:
-    """The CPU's model name and SIMD flags (from /proc/cpuinfo; the platform's processor name elsewhere)."""
+def _cpuinfo() -> tuple[str, frozenset[str]] | None:
+    """The CPU's model name and feature flags from /proc/cpuinfo; None where it cannot be read."""
     try:
         text = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
     except OSError:
+        return None
+    lines = text.splitlines()
+    model = next((ln.split(":", 1)[1].strip() for ln in lines if ln.startswith("model name")), "")
+    flags = next((ln.split(":", 1)[1].split() for ln in lines if ln.startswith(("flags", "Features")) and ":" in ln),
+                 [])
+    return model, frozenset(flags)
+
+
+def cpu_signature() -> str:
+    """The CPU's model name and SIMD flags (from /proc/cpuinfo; the platform's processor name elsewhere)."""
+    info = _cpuinfo()
+    if info is None:
         import platform
 
         return platform.processor() or platform.machine()
-    model = next((ln.split(":", 1)[1].strip() for ln in text.splitlines() if ln.startswith("model name")), "")
-    flags = next((ln.split(":", 1)[1].split() for ln in text.splitlines() if ln.startswith(("flags", "Features"))),
-                 [])
-    simd = sorted(f for f in set(flags) if f.startswith(("avx", "amx", "sse4", "fma", "f16c", "asimd", "sve")))
+    model, flags = info
+    simd = sorted(f for f in flags if f.startswith(("avx", "amx", "sse4", "fma", "f16c", "asimd", "sve")))
     return f"{model} [{' '.join(simd)}]"
 
 
@@ -230,12 +240,8 @@ VNNI_FLAGS = frozenset({"avx512_vnni", "avx_vnni", "amx_int8"})  # x86 8-bit dot
 
 def cpu_flags() -> frozenset[str]:
     """This CPU's feature flags (from /proc/cpuinfo; empty where it cannot be read)."""
-    try:
-        text = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
-    except OSError:
-        return frozenset()
-    line = next((ln for ln in text.splitlines() if ln.startswith(("flags", "Features"))), "")
-    return frozenset(line.split(":", 1)[1].split()) if ":" in line else frozenset()
+    info = _cpuinfo()
+    return info[1] if info is not None else frozenset()
 
 
 def int8_saturation(flags: frozenset[str] | None = None) -> str | None:
