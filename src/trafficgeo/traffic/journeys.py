@@ -146,14 +146,13 @@ class Journeys:
 
 
 # ------------------------------------------------------------------------------------------------ fragment ends
-def _line_fit(t: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """Position at ``t[-1]`` and velocity of a least-squares straight line through ``xy`` (n, 2) at times ``t``;
-    None for fewer than two distinct times."""
+def _line_velocity(t: np.ndarray, xy: np.ndarray) -> np.ndarray | None:
+    """Velocity of the least-squares straight line through ``xy`` (n, 2) at times ``t``; None for fewer than two
+    distinct times."""
     if t.size < 2 or np.ptp(t) <= 0:
         return None
     tc = t - t.mean()
-    v = (tc @ (xy - xy.mean(axis=0))) / float(tc @ tc)
-    return xy.mean(axis=0) + v * (t[-1] - t.mean()), v
+    return (tc @ (xy - xy.mean(axis=0))) / float(tc @ tc)
 
 
 def fragment_ends(points: pd.DataFrame, vehicles: pd.DataFrame, *, metres_per_unit: float = 1.0,
@@ -163,8 +162,9 @@ def fragment_ends(points: pd.DataFrame, vehicles: pd.DataFrame, *, metres_per_un
     positions there ``x0, y0, x1, y1`` (m from ``origin``, CRS units; default: the first point), the velocities
     ``vx0, vy0, vx1, vy1`` (m/s, a straight line over ``end_window_s`` at each end; NaN when too short), their
     sigmas ``sv0, sv1`` (m/s), the position sigmas ``sp0, sp1`` (m), ``class``, ``length_m``, ``length_std_m``,
-    ``lane0, lane1`` (the lanes at the two ends, "" unknown) and ``extent_m``, the farthest any point lies from
-    the fragment's median position (m)."""
+    ``lane0, lane1`` (the lanes at the two ends, "" unknown), ``bearing0, bearing1`` (the direction of travel of
+    the lane each end stands in, deg; NaN unknown), ``extent_m``, the farthest any point lies from the fragment's
+    median position (m), and ``median_sigma_m``, its points' median position sigma (m)."""
     opts = options or JourneyOptions()
     m = float(metres_per_unit)
     if origin is None:
@@ -185,12 +185,11 @@ def fragment_ends(points: pd.DataFrame, vehicles: pd.DataFrame, *, metres_per_un
         row = {"track_id": tid, "t0": float(t[0]), "t1": float(t[-1])}
         for end, near in (("0", t <= t[0] + opts.end_window_s), ("1", t >= t[-1] - opts.end_window_s)):
             k = 0 if end == "0" else -1
-            fit = _line_fit(t[near], xy[near]) if end == "1" else _line_fit(-t[near][::-1], xy[near][::-1])
+            v = _line_velocity(t[near], xy[near])
             sp = float(sd[k]) if np.isfinite(sd[k]) else 1.0
-            if fit is None:
+            if v is None:
                 v, sv = np.array([np.nan, np.nan]), opts.unknown_velocity_sigma_mps
             else:
-                v = fit[1] if end == "1" else -fit[1]
                 span = float(np.ptp(t[near]))
                 sv = float(np.hypot(opts.min_velocity_sigma_mps, 2.0 * np.sqrt(3.0) * sp / max(span, 1e-3)
                                     / np.sqrt(max(near.sum() / 2.0, 1.0))))
@@ -211,12 +210,12 @@ def fragment_ends(points: pd.DataFrame, vehicles: pd.DataFrame, *, metres_per_un
     if lanes is not None and len(ends):
         ok0, ok1 = np.isfinite(ends["x0"]).to_numpy(), np.isfinite(ends["x1"]).to_numpy()
         ends["lane0"], ends["lane1"] = "", ""
+        bearing_of = dict(zip(lanes.names, lanes.bearings or [np.nan] * len(lanes.names), strict=True))
         for end, ok in (("0", ok0), ("1", ok1)):
             xy = ends[[f"x{end}", f"y{end}"]].to_numpy()[ok] / m + origin
             heading = np.degrees(np.arctan2(ends[f"vx{end}"].to_numpy()[ok], ends[f"vy{end}"].to_numpy()[ok])) % 360
             ends.loc[ok, f"lane{end}"] = lanes.assign(xy[:, 0], xy[:, 1], heading)
             # the direction of travel of the lane the end stands in, whatever the end's own (noisy) heading
-            bearing_of = dict(zip(lanes.names, lanes.bearings or [np.nan] * len(lanes.names), strict=True))
             ends[f"bearing{end}"] = np.nan
             ends.loc[ok, f"bearing{end}"] = [bearing_of.get(n, np.nan) for n in lanes.assign(xy[:, 0], xy[:, 1])]
     else:
@@ -228,11 +227,6 @@ def fragment_ends(points: pd.DataFrame, vehicles: pd.DataFrame, *, metres_per_un
 
 
 # ------------------------------------------------------------------------------------------------ link costs
-def _rotation(u: np.ndarray) -> np.ndarray:
-    """(N, 2, 2) rotations whose first column is the unit direction ``u`` (N, 2) (along), second across."""
-    return np.stack([np.stack([u[:, 0], -u[:, 1]], axis=1), np.stack([u[:, 1], u[:, 0]], axis=1)], axis=1)
-
-
 def _mahalanobis2(e: np.ndarray, base_var: np.ndarray, along_var: np.ndarray, across_var: np.ndarray,
                   u: np.ndarray) -> np.ndarray:
     """e^T S^-1 e for S = base_var I + R diag(along_var, across_var) R^T (R from ``u``; all (N,))."""
