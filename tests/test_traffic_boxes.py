@@ -184,6 +184,26 @@ def test_clipped_boxes_use_what_the_frame_leaves():
     assert horizontal_error(got.xyz[1:2], truth[1:2])[0] < 0.01  # right edge and bottom suffice
 
 
+def test_boxes_cut_off_by_the_bottom_are_fitted_by_their_top_edge():
+    """A vehicle leaving (or entering) through the bottom of the frame: with ``top_edge`` its box's top edge and
+    centre place it (exactly with the right size; by about the size's error otherwise); a box whose top edge
+    would put the cuboid's bottom well inside the frame is not that of one vehicle and keeps the fallback."""
+    cam, surf = camera(), road()
+    truth = on_road(surf, [-1.0, 0.0, 2.0, -1.0, 3.0], [9.0, 10.0, 11.0, 12.0, 8.5])
+    heading = np.array([0.0, 180.0, 20.0, 0.0, 340.0])
+    full = cuboid_boxes(cam, truth, heading, *CAR)
+    assert np.all(full[:, 3] > cam.height) and np.all(full[:, 1] > 0)  # cut off at the bottom only
+    boxes = clip(cam, full)
+    assert list(box_ground_points(cam, surf, boxes, heading, CAR).status) == ["clipped_bottom"] * 5
+    got = box_ground_points(cam, surf, boxes, heading, CAR, top_edge=True)
+    assert list(got.status) == ["top_edge"] * 5
+    assert horizontal_error(got.xyz, truth).max() < 0.01 < 0.4 < horizontal_error(got.naive_xyz, truth).min()
+    longer = box_ground_points(cam, surf, boxes, heading, CAR * [1.1, 1.0, 1.1], top_edge=True)
+    assert horizontal_error(longer.xyz, truth).max() < 1.0
+    blob = np.array([[300.0, 100.0, 700.0, cam.height - 1.0]])  # a tall box ending at the frame: not one car
+    assert box_ground_points(cam, surf, blob, [0.0], CAR, top_edge=True).status[0] == "clipped_bottom"
+
+
 def test_missing_heading_box_or_ground():
     cam, surf = camera(), road()
     truth = on_road(surf, [0.0, 0.0, 0.0], [30.0, 30.0, 30.0])

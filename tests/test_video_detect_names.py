@@ -192,8 +192,8 @@ def test_counts_per_class_add_up_with_unknown_vehicles() -> None:
 def test_unknown_class_points_take_their_tracks_dimensions() -> None:
     """A vehicle of unknown class in some frames (merged with another in the image) is fitted with its track's
     class there, not a car's."""
+    from trafficgeo.traffic.measurements import known_classes as _known_classes
     from trafficgeo.traffic.tracks import ImageTracks
-    from trafficgeo.traffic.trajectories import _known_classes
 
     n = 6
     tracks = ImageTracks(track_id=np.array(["a", "a", "a", "b", "b", "c"]), frame=np.arange(n),

@@ -32,6 +32,7 @@ NO_DIMENSIONS = "no_dimensions"  # dimensions not finite and positive: naive poi
 CLIPPED_BOTTOM = "clipped_bottom"  # the box's bottom touches the frame border: naive point kept
 CLIPPED_SIDES = "clipped_sides"  # both side edges touch the frame border: naive point kept
 NOT_CONVERGED = "not_converged"  # the fit found no cuboid matching the box: NaN
+TOP_EDGE = "top_edge"  # the box's bottom touches the frame border: fitted to its top edge instead (top_edge=True)
 FALLBACK_STATUSES = (NO_HEADING, NO_DIMENSIONS, CLIPPED_BOTTOM, CLIPPED_SIDES)
 
 
@@ -63,15 +64,18 @@ class BoxGroundPoints:
         return self.status == "ok"
 
 
-def _selection(free: np.ndarray) -> np.ndarray:
+def _selection(free: np.ndarray, top: np.ndarray | None = None) -> np.ndarray:
     """Weights (N, 2, 4) that take the two fitted box quantities from a box ``x1, y1, x2, y2``: the horizontal
-    centre (or the one side edge the frame leaves) and the bottom edge."""
+    centre (or the one side edge the frame leaves) and the bottom edge (the top edge where ``top`` (N,) is
+    True)."""
     use_x1, use_x2 = free[:, 0], free[:, 2]
     both = use_x1 & use_x2
+    top = np.zeros(free.shape[0], dtype=bool) if top is None else top
     T = np.zeros((free.shape[0], 2, 4))
     T[:, 0, 0] = np.where(both, 0.5, use_x1)
     T[:, 0, 2] = np.where(both, 0.5, ~use_x1)
-    T[:, 1, 3] = 1.0
+    T[:, 1, 1] = top
+    T[:, 1, 3] = ~top
     return T
 
 
@@ -174,7 +178,8 @@ def _edge_rms(pred: np.ndarray, obs: np.ndarray, free: np.ndarray) -> np.ndarray
 
 
 def box_ground_points(camera: Camera, surface: Surface, boxes: ArrayLike, heading_deg: ArrayLike, dims: ArrayLike, *,
-                      iterations: int = 10, tol_px: float = 1e-3, border_px: float = 2.0) -> BoxGroundPoints:
+                      iterations: int = 10, tol_px: float = 1e-3, border_px: float = 2.0,
+                      top_edge: bool = False) -> BoxGroundPoints:
     """Footprint centres of vehicles from their image boxes, modelling each vehicle as a level cuboid.
 
     Args:
@@ -188,6 +193,7 @@ def box_ground_points(camera: Camera, surface: Surface, boxes: ArrayLike, headin
         tol_px: the fit converges when the two fitted box quantities match to ``tol_px`` px (1e-3 px is ~2 mm at
             120 m from an 8 m high camera).
         border_px: box edges within this of the outermost pixel centres are taken as clipped (:func:`free_edges`).
+        top_edge: fit a box clipped at the bottom to its top edge instead (status ``top_edge``; see below).
 
     Method: starting from the naive point (the bottom centre mapped to ``surface``) moved away from the camera by
     the footprint's reach along the line of sight, Newton iterations on the footprint centre (x, y), with
@@ -202,6 +208,14 @@ def box_ground_points(camera: Camera, surface: Surface, boxes: ArrayLike, headin
     nearest corner to the centre is unknown, so no correction is attempted. Over a rough surface (a DEM from
     lidar) the bottom edge can stop moving monotonically along the line of sight far away: a box whose fit cannot
     get within ``tol_px`` there is ``not_converged``.
+
+    With ``top_edge``, a box clipped at the bottom whose top edge and at least one side are in view (a vehicle
+    leaving through the bottom of a frame from a camera close to the road) is fitted with its horizontal centre
+    (or free side) and its top edge, the cuboid's far end: status ``top_edge``. That edge depends on the vehicle's
+    length and height as well, so these points are worse than ``ok`` ones by about the error of the dimensions
+    (a real roof is shorter than its vehicle: the fitted centre then lies a little towards the camera). A fit
+    whose cuboid would end above the frame's bottom (not the clipped box it was fitted to) keeps
+    ``clipped_bottom``.
     """
     b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
     n = b.shape[0]
@@ -212,6 +226,8 @@ def box_ground_points(camera: Camera, surface: Surface, boxes: ArrayLike, headin
     status = _precheck(b, heading, dims_m, naive_status, free)
     xyz = np.where(np.isin(status, FALLBACK_STATUSES)[:, None], naive, np.nan)
     residual_px = np.full(n, np.nan)
+    if top_edge:
+        _fit_top_edges(camera, surface, b, heading, dims_m, naive, free, status, xyz, iterations, tol_px, border_px)
     fit = np.flatnonzero(status == "ok")
     if fit.size:
         dims_u = dims_m[fit] * units_per_metre(camera)
@@ -224,6 +240,27 @@ def box_ground_points(camera: Camera, surface: Surface, boxes: ArrayLike, headin
         status[fit[cut]] = CLIPPED_BOTTOM
         xyz[fit[cut]], residual_px[fit[cut]] = naive[fit[cut]], np.nan
     return BoxGroundPoints(xyz=xyz, status=status, naive_xyz=naive, residual_px=residual_px)
+
+
+def _fit_top_edges(camera: Camera, surface: Surface, b: np.ndarray, heading: np.ndarray, dims_m: np.ndarray,
+                   naive: np.ndarray, free: np.ndarray, status: np.ndarray, xyz: np.ndarray, iterations: int,
+                   tol_px: float, border_px: float) -> None:
+    """Fit the boxes clipped at the bottom only (top and a side free) by their top edge; where the fitted cuboid
+    reaches the frame's bottom as the clipped box does, set ``status`` to ``top_edge`` and ``xyz`` to its
+    centre (in place)."""
+    top = np.flatnonzero((status == CLIPPED_BOTTOM) & free[:, 1] & (free[:, 0] | free[:, 2]))
+    if not top.size:
+        return
+    dims_u = dims_m[top] * units_per_metre(camera)
+    fitted, converged, _ = _fit_centres(camera, surface, b[top], heading[top], dims_u, naive[top], free[top],
+                                        iterations, tol_px, top=np.ones(top.size, dtype=bool))
+    full = Cuboids.at(camera, surface, heading[top]).boxes(fitted[:, :2], dims_u)
+    height = b[top, 3] - b[top, 1]
+    with np.errstate(invalid="ignore"):
+        reaches = full[:, 3] >= camera.height - 1 - border_px - np.maximum(4.0, 0.1 * height)
+    good = converged & reaches
+    status[top[good]] = TOP_EDGE
+    xyz[top[good]] = fitted[good]
 
 
 def _lowest_corner_cut(camera: Camera, centre: np.ndarray, heading: np.ndarray, dims: np.ndarray, free: np.ndarray,
@@ -239,11 +276,12 @@ def _lowest_corner_cut(camera: Camera, centre: np.ndarray, heading: np.ndarray, 
 
 
 def _fit_centres(camera: Camera, surface: Surface, boxes: np.ndarray, heading: np.ndarray, dims: np.ndarray,
-                 start: np.ndarray, free: np.ndarray, iterations: int,
-                 tol_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Fitted centres (N, 3), converged (N,) and all-edge RMS residuals (N,) px; ``dims`` in CRS units."""
+                 start: np.ndarray, free: np.ndarray, iterations: int, tol_px: float,
+                 top: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fitted centres (N, 3), converged (N,) and all-edge RMS residuals (N,) px; ``dims`` in CRS units; ``top``
+    (N,): fit the top edge instead of the bottom (:func:`_selection`)."""
     model = Cuboids.at(camera, surface, heading)
-    T = _selection(free)
+    T = _selection(free, top)
     # The box's bottom is the footprint's corner nearest the camera: start from its centre seen from there.
     ray = start[:, :2] - camera.position[:2]
     norm = np.linalg.norm(ray, axis=1, keepdims=True)

@@ -9,10 +9,13 @@ points in a row means the track jumped to another vehicle (an ID switch): the tr
 gaps longer than ``max_gap_s`` and at gaps over ``check_gap_s`` that the motion on both sides does not bridge (an ID
 switch while the vehicle was lost: :func:`_gap_cuts`); the parts are named ``<track>.1``, ``<track>.2``, ...
 A box cut off by the left, right or bottom edge of the frame does not show where the vehicle meets the road: such
-points are not used (``box_clipped``). Nor are points within two pixel sigmas of the end of the surface (a DEM's
-edge, the horizon: ``surface_edge``), whose errors are no longer symmetric, nor points so far away that one pixel
-spans more than ``max_metres_per_px`` of road (``too_far``): their noise is no longer small against the
-curvature of the image-to-ground map, so it biases positions and speeds.
+points are not used (``box_clipped``), but for boxes cut off by the bottom only (``top_edge_clipped``): those are
+fitted by their top edge (:func:`trafficgeo.traffic.measurements.fit_top_edges`), with the fit's shift under the
+vehicle's unknown length and height in their covariance, and join the part of their track nearest in time. Nor
+are points within two pixel sigmas of the end of the surface (a DEM's edge, the horizon: ``surface_edge``), whose
+errors are no longer symmetric, nor points so far away that one pixel spans more than ``max_metres_per_px`` of
+road (``too_far``): their noise is no longer small against the curvature of the image-to-ground map, so it biases
+positions and speeds.
 
 With boxes, the bottom centre of a box is not the footprint centre (the lowest point of a vehicle is its nearest
 bottom corner). A second pass fits a level cuboid of the class's typical size, heading along the smoothed track,
@@ -37,7 +40,7 @@ degrees clockwise from north, accelerations in m/s^2, times in seconds.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -46,6 +49,15 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import GroundPoints, Surface, camera_crs, lonlat_of, pixels_to_world
+from trafficgeo.traffic.measurements import (
+    blocks,
+    fit_boxes,
+    fit_top_edges,
+    ground_covariance,
+    majority,
+    track_slices,
+    vehicle_length,
+)
 from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, along_track, smooth_track, travel_direction
 from trafficgeo.traffic.speed import ScaleKnowledge, SpeedOptions, cumulative_travel_m, scale_terms, window_speed
 from trafficgeo.traffic.tracks import ImageTracks
@@ -53,9 +65,6 @@ from trafficgeo.traffic.tracks import ImageTracks
 MIN_MOVING_SPEED = 1.0  # m/s: below this a smoothed heading is noise
 MIN_SPEED_DURATION_S = 1.0  # a vehicle seen for less than this gets no speeds at all (a glimpse tells too little)
 EDGE_SIGMAS = 2.0  # points within this many pixel sigmas of the end of the surface are not used
-BOX_FIT_TOL_PX = 0.02  # the cuboid fit stops when the box's centre and bottom match to this (px): far below noise
-BLOCK_POINTS = 8192  # per-point passes (ground points, covariances, cuboid fits) run over this many points at a time,
-# so their temporaries stay a few MB whatever the number of points
 
 
 MAX_COAST_HIDDEN_S = 30.0  # s, the longest a vehicle hidden behind another is carried on
@@ -77,6 +86,7 @@ class TrajectoryOptions:
     box_correction: bool = True  # fit a cuboid to each box (tracks with boxes only)
     estimate_length: bool = True  # estimate each vehicle's length from its boxes (where the view allows)
     frame_margin_px: float = 2.0  # boxes this close to the frame's edge are cut off by it: not used
+    top_edge_clipped: bool = True  # boxes cut off by the bottom of the frame are fitted to their top edge instead
     max_metres_per_px: float = 1.5  # farther points, where one pixel spans more of the road (m), are not used
     coast_hidden_s: float = 3.0  # s a track that vanishes behind a nearer vehicle is carried on to count lines; 0: off
 
@@ -114,27 +124,6 @@ class WorldTracks:
 
 
 # ------------------------------------------------------------------------------------------------ ground points
-def ground_covariance(camera: Camera, surface: Surface, uv: np.ndarray, xyz: np.ndarray, pixel_sigma: float,
-                      m_per_unit: float) -> np.ndarray:
-    """(N, 2, 2) horizontal covariance (m^2) of ground points ``xyz`` from ``pixel_sigma`` px of image noise:
-    ``pixel_sigma^2 J J^T`` with J the ground-from-pixel Jacobian by one-pixel differences. Where a neighbour pixel
-    does not reach the road, an isotropic sigma of ``pixel_sigma * range / focal / sin(incidence)`` is used."""
-    n = uv.shape[0]
-    cols = []
-    for du, dv in ((1.0, 0.0), (0.0, 1.0)):
-        nb = pixels_to_world(camera, uv + [du, dv], surface, with_lonlat=False, frame_margin_px=2.0)
-        cols.append((nb.xyz[:, :2] - xyz[:, :2]) * m_per_unit)
-    J = np.stack(cols, axis=2)  # (N, 2, 2): d(x, y) / d(u, v)
-    cov = pixel_sigma**2 * np.einsum("nij,nkj->nik", J, J) + (0.02**2) * np.eye(2)
-    bad = ~np.all(np.isfinite(cov.reshape(n, 4)), axis=1)
-    if bad.any():
-        rng = np.linalg.norm((xyz[bad] - camera.position) * m_per_unit, axis=1)
-        sin_inc = np.clip(np.abs((xyz[bad, 2] - camera.position[2]) * m_per_unit) / np.maximum(rng, 1e-9), 0.05, 1)
-        s = pixel_sigma * rng / camera.focal_px / sin_inc
-        cov[bad] = s[:, None, None] ** 2 * np.eye(2)
-    return cov
-
-
 def clipped_boxes(camera: Camera, box: np.ndarray, margin_px: float) -> np.ndarray:
     """Boxes (N, 4) that touch the left, right or bottom edge of the frame: the vehicle is cut off there, so the
     box's bottom centre is not its ground point. NaN boxes are not clipped."""
@@ -151,14 +140,9 @@ def near_surface_edge(camera: Camera, surface: Surface, uv: np.ndarray, shift_px
     return ~far.ok
 
 
-def _blocks(n: int) -> list[slice]:
-    """Slices covering range(n) in pieces of :data:`BLOCK_POINTS`."""
-    return [slice(k, min(k + BLOCK_POINTS, n)) for k in range(0, n, BLOCK_POINTS)]
-
-
 def ground_points(camera: Camera, surface: Surface, uv: np.ndarray, **kwargs) -> GroundPoints:
     """:func:`pixels_to_world` (without lon/lat) over pixels (N, 2) block by block (:data:`BLOCK_POINTS`)."""
-    parts = [pixels_to_world(camera, uv[sl], surface, with_lonlat=False, **kwargs) for sl in _blocks(uv.shape[0])]
+    parts = [pixels_to_world(camera, uv[sl], surface, with_lonlat=False, **kwargs) for sl in blocks(uv.shape[0])]
     if not parts:
         return pixels_to_world(camera, uv, surface, with_lonlat=False, **kwargs)
     return GroundPoints(xyz=np.concatenate([g.xyz for g in parts]), status=np.concatenate([g.status for g in parts]),
@@ -288,25 +272,10 @@ def _rejoin(t: np.ndarray, xy_m: np.ndarray, cov: np.ndarray, opts: TrajectoryOp
 
 
 # ------------------------------------------------------------------------------------------------ main
-def _track_slices(track_id: np.ndarray) -> list[tuple[str, np.ndarray]]:
-    keys, first = np.unique(track_id, return_index=True)
-    order = np.argsort(first)
-    bounds = np.append(np.sort(first), track_id.size)
-    return [(str(keys[o]), np.arange(bounds[k], bounds[k + 1])) for k, o in enumerate(order)]
-
-
-def _majority(values: np.ndarray) -> str:
-    vals = [str(v) for v in values if str(v)]
-    if not vals:
-        return ""
-    names, counts = np.unique(vals, return_counts=True)
-    return str(names[np.argmax(counts)])
-
-
 def _vehicle_class(values: np.ndarray) -> str:
     """A vehicle's class from its points': the most frequent one, or "" (unknown) when more of its points are of
     unknown class (e.g. blobs of vehicles merged in the image) than of that class."""
-    best = _majority(values)
+    best = majority(values)
     names = np.asarray([str(v) for v in values], dtype=object)
     return best if np.sum(names == best) >= np.sum(names == "") else ""
 
@@ -336,14 +305,15 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     uv = np.column_stack([tracks.u, tracks.v])
     ground = ground_points(camera, surface, uv)
     status = ground.status.copy()
-    status[ground.ok & clipped_boxes(camera, tracks.box, opts.frame_margin_px)] = "box_clipped"
+    clipped = ground.ok & clipped_boxes(camera, tracks.box, opts.frame_margin_px)
+    status[clipped] = "box_clipped"
     ok = status == "ok"
     cov = np.full((len(tracks), 2, 2), np.nan)
     use = np.flatnonzero(ok)
-    for sl in _blocks(use.size):
+    for sl in blocks(use.size):
         cov[use[sl]] = ground_covariance(camera, surface, uv[use[sl]], ground.xyz[use[sl]], opts.pixel_sigma, m)
     origin = camera.position[:2]
-    slices = _track_slices(tracks.track_id)
+    slices = track_slices(tracks.track_id)
     n_steps = 2 * len(slices)
 
     def tick(k: int) -> None:
@@ -366,7 +336,7 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     have = ok & np.isfinite(smoothed[:, 0])
     status[ok & ~have] = "short_track"
     have_idx = np.flatnonzero(have)
-    for sl in _blocks(have_idx.size):
+    for sl in blocks(have_idx.size):
         status[have_idx[sl]] = usable_positions(camera, surface, smoothed[have_idx[sl]], opts)
     ok = status == "ok"
     # Pass 2: the measurements (cuboid-fitted footprint centres with boxes), smoothed again on the same parts.
@@ -374,22 +344,34 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     use_boxes = opts.box_correction and bool(np.any(ok & np.all(np.isfinite(tracks.box), axis=1)))
     heading = np.full(len(tracks), np.nan)
     good, dims = np.ones(len(tracks), dtype=bool), np.full((len(tracks), 3), np.nan)
+    attached: list[list[np.ndarray]] = [[np.zeros(0, dtype=np.int64) for _ in segs] for _t, _r, segs in pass1]
     if use_boxes:
         for _tid, rows, segs in pass1:
             for idx, sm in segs:
                 heading[rows[idx]] = _fill_heading(sm)
-        good, dims = _fit_boxes(camera, surface, tracks, heading, ok, measured)
+        good, dims = fit_boxes(camera, surface, tracks, heading, ok, measured)
+        if opts.top_edge_clipped:
+            attached = _attach_clipped(tracks, slices, pass1, status == "box_clipped", heading, opts)
+            top = np.concatenate([a for per_track in attached for a in per_track] + [np.zeros(0, dtype=np.int64)])
+            fitted, top_cov = fit_top_edges(camera, surface, tracks, heading, top, dims, measured,
+                                             opts.pixel_sigma, m)
+            cov[fitted] = top_cov
+            good[fitted], status[fitted], ok[fitted] = True, "ok", True
+            attached = [[a[ok[a]] for a in per_track] for per_track in attached]
     cov2 = np.where(good[:, None, None], cov, (100.0**2) * np.eye(2))
     xy2_m = (measured - origin) * m
     named = []
     no_size = (float("nan"), float("nan"))
-    for k, (tid, rows, segs) in enumerate(pass1, start=len(slices) + 1):
-        parts = [idx[ok[rows[idx]]] for idx, _ in segs]
+    for k, ((tid, rows, segs), extra) in enumerate(zip(pass1, attached, strict=True), start=len(slices) + 1):
+        rows_in = [rows[idx[ok[rows[idx]]]] for idx, _ in segs]
+        rows = np.unique(np.concatenate([rows] + extra)) if extra else rows
+        parts = [np.searchsorted(rows, np.union1d(r, a)) for r, a in zip(rows_in, extra, strict=True)]
         segs = _smooth_segments(tracks.time[rows], xy2_m[rows], cov2[rows], opts, segments=parts)
         used = np.zeros(len(tracks), dtype=bool)
         for j, (idx, sm) in enumerate(segs, start=1):
-            size = _vehicle_length(camera, surface, heading[rows[idx]], tracks.box[rows[idx]], dims[rows[idx]],
-                                   good[rows[idx]], opts) if use_boxes and opts.estimate_length else no_size
+            whole = good[rows[idx]] & (status[rows[idx]] == "ok") & ~clipped[rows[idx]]
+            size = vehicle_length(camera, surface, heading[rows[idx]], tracks.box[rows[idx]], dims[rows[idx]],
+                                   whole, opts.pixel_sigma) if use_boxes and opts.estimate_length else no_size
             named.append((tid if len(segs) == 1 else f"{tid}.{j}", tid, rows[idx], sm, size))
             used[rows[idx]] = True
         short = rows[ok[rows] & ~used[rows]]
@@ -400,8 +382,40 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
         kept[rows] = True
     dropped = {str(k): int(c) for k, c in zip(*np.unique(status[~kept].astype(str), return_counts=True),
                                                strict=True)}
+    if clipped.any():  # the distance of a point fitted to its top edge is that of its footprint centre
+        top = np.flatnonzero(clipped & kept)
+        xyz = np.column_stack([measured[top], surface.elevation(measured[top, 0], measured[top, 1])])
+        distance = ground.distance_m.copy()
+        distance[top] = np.linalg.norm((xyz - camera.position) * m, axis=1)
+        ground = replace(ground, distance_m=distance)
     return _assemble(camera, surface, tracks, ground, measured, named, m, dropped, knowledge,
-                     speed_options or SpeedOptions())
+                     speed_options or SpeedOptions(), clipped)
+
+
+def _attach_clipped(tracks: ImageTracks, slices: list[tuple[str, np.ndarray]], pass1: list,
+                    clipped: np.ndarray, heading: np.ndarray, opts: TrajectoryOptions) -> list[list[np.ndarray]]:
+    """Per track and part of pass 1, the rows of that track whose box the frame's bottom cuts off and that lie
+    within ``max_gap_s`` of that part (the nearest part in time); ``heading`` (deg) of each such row is set (in
+    place) to that of the part's nearest point."""
+    out = []
+    for (_tid, all_rows), (_t, rows, segs) in zip(slices, pass1, strict=True):
+        cand = all_rows[clipped[all_rows]]
+        per_seg = [np.zeros(0, dtype=np.int64) for _ in segs]
+        if cand.size and segs:
+            t = tracks.time[cand]
+            spans = np.array([[tracks.time[rows[idx[0]]], tracks.time[rows[idx[-1]]]] for idx, _ in segs])
+            dist = np.maximum(spans[None, :, 0] - t[:, None], 0.0) + np.maximum(t[:, None] - spans[None, :, 1], 0.0)
+            best = np.argmin(dist, axis=1)
+            near = dist[np.arange(cand.size), best] <= opts.max_gap_s
+            for j, (idx, _sm) in enumerate(segs):
+                mine = cand[near & (best == j)]
+                if mine.size:
+                    seg_rows = rows[idx]
+                    nearest = np.abs(tracks.time[seg_rows][None, :] - tracks.time[mine][:, None]).argmin(axis=1)
+                    heading[mine] = heading[seg_rows[nearest]]
+                    per_seg[j] = mine[np.isfinite(heading[mine])]
+        out.append(per_seg)
+    return out
 
 
 def usable_positions(camera: Camera, surface: Surface, xy: np.ndarray, opts: TrajectoryOptions) -> np.ndarray:
@@ -423,60 +437,11 @@ def usable_positions(camera: Camera, surface: Surface, xy: np.ndarray, opts: Tra
     return out
 
 
-def _known_classes(tracks: ImageTracks) -> np.ndarray:
-    """Per-point classes, those of unknown class (``""``: e.g. a blob of vehicles merged in the image) replaced
-    by their track's majority class, so that a vehicle keeps its own dimensions in the frames where it is not
-    told apart."""
-    vclass = np.asarray(tracks.vclass, dtype=object).copy()
-    blank = vclass == ""
-    if blank.any() and not blank.all():
-        for _tid, rows in _track_slices(np.asarray(tracks.track_id)):
-            hole = rows[blank[rows]]
-            if hole.size:
-                vclass[hole] = _majority(vclass[rows])
-    return vclass
-
-
-def _fit_boxes(camera: Camera, surface: Surface, tracks: ImageTracks, heading: np.ndarray, ok: np.ndarray,
-               measured: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cuboid-fitted footprint centres of all usable boxes, written into ``measured`` (CRS units) where the fit
-    succeeds. Where it fails, the bottom-centre point is up to half a vehicle off; it stays in its track only as
-    a hint (the caller gives it a 100 m sigma) so that the smoother bridges it from its neighbours. Returns the
-    success mask (N,) and the class dimensions used (N, 3) m."""
-    from trafficgeo.geo.cuboids import dimensions_for
-    from trafficgeo.traffic.box_points import box_ground_points
-
-    dims = dimensions_for(_known_classes(tracks))
-    good = np.zeros(len(tracks), dtype=bool)
-    usable = np.flatnonzero(ok & np.all(np.isfinite(tracks.box), axis=1))
-    for sl in _blocks(usable.size):
-        use = usable[sl]
-        fit = box_ground_points(camera, surface, tracks.box[use], heading[use], dims[use], iterations=15,
-                                tol_px=BOX_FIT_TOL_PX)
-        good[use] = fit.status == "ok"
-        measured[use[good[use]]] = fit.xyz[good[use], :2]
-    return good, dims
-
-
-def _vehicle_length(camera: Camera, surface: Surface, heading: np.ndarray, boxes: np.ndarray, dims: np.ndarray,
-                    good: np.ndarray, opts: TrajectoryOptions, max_frames: int = 40) -> tuple[float, float]:
-    """Length (m) and its 1-sigma (m) of one vehicle from up to ``max_frames`` of its boxes (NaN where the view
-    does not determine it, e.g. seen only from behind; see :func:`trafficgeo.traffic.box_points.estimate_length_refit`).
-    The box's top edge is not used: real roofs are shorter than their vehicles."""
-    from trafficgeo.traffic.box_length import estimate_length_refit
-
-    idx = np.flatnonzero(good)
-    if idx.size < 5:
-        return float("nan"), float("nan")
-    idx = idx[np.linspace(0, idx.size - 1, min(max_frames, idx.size)).round().astype(int)]
-    length0, width, height = np.median(dims[idx], axis=0)
-    return estimate_length_refit(camera, surface, heading[idx], boxes[idx], float(width), float(height),
-                                 length0_m=float(length0), pixel_sigma=opts.pixel_sigma, use_top=False)
-
-
 def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, measured: np.ndarray, parts: list,
               m: float, dropped: dict[str, int], knowledge: ScaleKnowledge | None,
-              speed_opts: SpeedOptions) -> WorldTracks:
+              speed_opts: SpeedOptions, clipped: np.ndarray) -> WorldTracks:
+    """The tables of :class:`WorldTracks` from the smoothed ``parts``; a vehicle's class is voted by its points
+    whose box the frame does not cut off (``clipped`` (N,)) where it has any: a cut-off box hides its size."""
     crs = camera_crs(camera)
     origin = camera.position[:2]
     point_tables, vehicle_rows = [], []
@@ -491,7 +456,8 @@ def _assemble(camera: Camera, surface: Surface, tracks: ImageTracks, ground, mea
     for (name, source, rows, sm, (length, length_std)), d, part_terms in zip(parts, directions, known, strict=True):
         x = origin[0] + sm.x / m
         y = origin[1] + sm.y / m
-        vclass = _vehicle_class(tracks.vclass[rows])
+        whole = rows[~clipped[rows]]
+        vclass = _vehicle_class(tracks.vclass[whole if whole.size else rows])
         step = np.hypot(np.diff(sm.x), np.diff(sm.y))
         duration = float(sm.time[-1] - sm.time[0])
         glimpse_ok = duration >= MIN_SPEED_DURATION_S
