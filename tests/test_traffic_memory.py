@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import trafficgeo.traffic.trajectories as trajectories
+import trafficgeo.traffic.measurements as measurements
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.cuboids import VEHICLE_DIMENSIONS, cuboid_boxes
 from trafficgeo.geo.surface import PlaneSurface
@@ -47,7 +47,7 @@ def test_peak_memory_per_point_does_not_grow_with_the_points(monkeypatch: pytest
     cam, surface, tracks = _boxed_tracks(40)
     world_trajectories(cam, surface, ImageTracks(*(getattr(tracks, f)[:200] for f in (
         "track_id", "frame", "time", "u", "v", "box", "vclass", "score"))))  # warm-up (compiled code)
-    monkeypatch.setattr(trajectories, "BLOCK_POINTS", 256, raising=False)
+    monkeypatch.setattr(measurements, "BLOCK_POINTS", 256)
     tracemalloc.start()
     try:
         world = world_trajectories(cam, surface, tracks)

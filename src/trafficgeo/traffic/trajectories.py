@@ -367,6 +367,9 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
         rows = np.unique(np.concatenate([rows] + extra)) if extra else rows
         parts = [np.searchsorted(rows, np.union1d(r, a)) for r, a in zip(rows_in, extra, strict=True)]
         segs = _smooth_segments(tracks.time[rows], xy2_m[rows], cov2[rows], opts, segments=parts)
+        # points fitted by their top edge only extend a track: a part made of them alone (they did not fit the
+        # rest of their track) is dropped
+        segs = [(idx, sm) for idx, sm in segs if not clipped[rows[idx]].all()]
         used = np.zeros(len(tracks), dtype=bool)
         for j, (idx, sm) in enumerate(segs, start=1):
             whole = good[rows[idx]] & (status[rows[idx]] == "ok") & ~clipped[rows[idx]]
@@ -375,7 +378,7 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
             named.append((tid if len(segs) == 1 else f"{tid}.{j}", tid, rows[idx], sm, size))
             used[rows[idx]] = True
         short = rows[ok[rows] & ~used[rows]]
-        status[short] = "short_track"
+        status[short] = np.where(clipped[short], "box_clipped", "short_track")
         tick(k)
     kept = np.zeros(len(tracks), dtype=bool)
     for _name, _tid, rows, _sm, _size in named:
