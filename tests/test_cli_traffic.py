@@ -157,6 +157,95 @@ def test_bad_input_exits_2_with_one_line_and_nothing_written(case: str, scene: d
     assert not out.exists()
 
 
+def test_a_time_far_from_the_others_is_refused_before_the_work(scene: dict[str, Path], tmp_path: Path) -> None:
+    """Issue 43: one row at 1e9 s (a frame number off by a factor) made analyze build counts tables without bound
+    (9 GB in 2 minutes at --interval 1); the number of counting intervals is now capped, checked before the work."""
+    from trafficgeo.errors import InputError
+    from trafficgeo.traffic.counts import MAX_INTERVALS, interval_edges
+
+    assert interval_edges(0.0, MAX_INTERVALS * 1.0, 1.0).size == MAX_INTERVALS + 1
+    with pytest.raises(InputError, match="counting intervals"):
+        interval_edges(0.0, 1e9, 1.0)
+    df = pd.read_csv(scene["tracks"])
+    far = df.iloc[[-1]].copy()
+    far["frame"] = int(FPS) * 10**9
+    pd.concat([df, far]).to_csv(tmp_path / "far.csv", index=False)
+    out = tmp_path / "out"
+    code, _stdout, stderr = invoke("analyze", scene["camera"], tmp_path / "far.csv", "--fps", FPS, "--surface", Z0,
+                                   "--interval", 1, "--out", out)
+    assert code == 2, stderr
+    assert "counting intervals" in stderr and "--fps" in stderr and "--interval" in stderr
+    assert len(stderr.strip().splitlines()) == 1 and "Traceback" not in stderr
+    assert not out.exists()
+
+
+HOLD = """
+import sys
+from trafficgeo.io.folder_lock import hold_folder
+with hold_folder(sys.argv[1]):
+    print("held", flush=True)
+    sys.stdin.read()
+"""
+
+
+def test_analyze_is_refused_while_another_run_writes_its_folder(scene: dict[str, Path], tmp_path: Path) -> None:
+    """Issue 43: analyze took no folder lock, so run beside process into one --out both exited 0 and process's
+    results were silently replaced. Every writer of a run folder now holds its lock: analyze is refused at once,
+    and so are the library's writers (the run's tables, a comparison) called from another process."""
+    import os
+    import subprocess
+    import sys
+
+    from trafficgeo.errors import InputError
+    from trafficgeo.traffic.run_folder import RunFolder
+
+    run = tmp_path / "run"
+    code, _stdout, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
+                                   "--lines", scene["lines"], "--out", run)
+    assert code == 0, stderr
+    before = {p.name: p.read_bytes() for p in run.iterdir() if p.is_file() and p.name != ".lock"}
+    src = Path(__file__).resolve().parents[1] / "src"
+    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(run)], env={**os.environ, "PYTHONPATH": str(src)},
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        code, _stdout, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
+                                       "--out", run)
+        assert code == 2 and len(stderr.strip().splitlines()) == 1 and "Traceback" not in stderr
+        assert f"another trafficgeo run (pid {holder.pid}) is writing to this folder" in stderr
+        folder = RunFolder(run)
+        with pytest.raises(InputError, match="another trafficgeo run"):
+            folder.write_comparison({}, None)  # refused before it looks at what it writes
+        with pytest.raises(InputError, match="another trafficgeo run"):
+            folder.publish(["counts.csv"], command="analyze")
+    finally:
+        holder.kill()
+        holder.wait(timeout=30)
+    assert {p.name: p.read_bytes() for p in run.iterdir() if p.is_file() and p.name != ".lock"} == before
+
+
+def test_analyze_cleans_up_what_a_killed_writer_left(scene: dict[str, Path], tmp_path: Path) -> None:
+    """Issue 43: the temporary files (and a temporary GeoPackage's SQLite journal) of a writer killed mid-write
+    survived every rerun of analyze; whoever takes the folder's lock now removes them, and nothing of the user's."""
+    from trafficgeo.io.atomic import atomic_path, is_temporary_name
+
+    run = tmp_path / "run"
+    writer = atomic_path(run / "trajectories.gpkg")
+    tmp = writer.__enter__()  # entered and never left: a writer killed mid-write
+    tmp.write_text("half")
+    journal = tmp.with_name(tmp.name + "-journal")
+    journal.write_text("half")
+    mine = [run / "notes-journal", run / ".trajectories.gpkg.ABCDEFGH.tmp.gpkg-journal"]
+    for p in mine:
+        p.write_text("mine")
+    assert is_temporary_name(tmp.name) and is_temporary_name(journal.name)
+    assert not any(is_temporary_name(p.name) for p in mine)
+    code, _stdout, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
+                                   "--out", run)
+    assert code == 0, stderr
+    assert not tmp.exists() and not journal.exists() and all(p.exists() for p in mine)
+
+
 @pytest.mark.slow
 def test_export_fcd_and_compare_sumo_round_trip(scene: dict[str, Path], tmp_path: Path) -> None:
     """The observed trajectories exported as SUMO FCD and compared with themselves: every GEH is 0, speeds agree;

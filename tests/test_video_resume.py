@@ -19,10 +19,10 @@ import pytest
 from cli_support import invoke
 from trafficgeo.geo.surface import ConstantSurface
 from trafficgeo.io.atomic import atomic_path, is_temporary_name, remove_stale_temporaries
+from trafficgeo.io.folder_lock import hold_folder
 from trafficgeo.video.checkpoint import (
     CHECKPOINT_DIR,
     STATE_FILE,
-    hold_folder,
     load_checkpoint,
     read_part,
     run_key,
@@ -286,7 +286,7 @@ def test_the_tracker_restores_by_replaying_its_detections() -> None:
 LOCK = """
     import sys
     from trafficgeo.errors import InputError
-    from trafficgeo.video.checkpoint import hold_folder
+    from trafficgeo.io.folder_lock import hold_folder
     try:
         with hold_folder(sys.argv[1]):
             print("held", flush=True)

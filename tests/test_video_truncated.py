@@ -89,3 +89,36 @@ def test_process_says_what_it_read(videos: dict[str, Path], tmp_path: Path) -> N
     assert code == 0 and "warning" not in stdout, stderr
     doc = json.loads((tmp_path / "whole" / "process.json").read_text())
     assert doc["read"] == {"start_s": 0.0, "end_s": pytest.approx(7.0), "frames": 70, "complete": True}
+
+
+def test_a_resume_after_detection_finished_still_says_what_was_read(videos: dict[str, Path], tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 43: a run that stopped after its detection had finished (here: the analysis fails) resumed without
+    decoding a frame and forgot what the first attempt read: process.json said nothing was read, the truncated
+    video's warning was gone and --strict exited 0."""
+    import trafficgeo.pipeline.run as run_module
+    from trafficgeo.camera.io import write_camera_json
+    from trafficgeo.camera.model import Camera
+    from trafficgeo.video.checkpoint import CHECKPOINT_DIR
+
+    cam = Camera.from_orientation((W, H), 300.0, [500000.0, 5000000.0, 8.0], 0.0, 30.0, crs="EPSG:32633")
+    write_camera_json(tmp_path / "camera.json", cam)
+    args = ["process", videos["cut"], "--camera", tmp_path / "camera.json", "--surface", "0", "--start", 0, "--end",
+            7, "--detector", "background", "--out", tmp_path / "run"]
+    code, whole_out, _ = invoke(*args[:-1], tmp_path / "whole")
+    assert code == 0
+    first = json.loads((tmp_path / "whole" / "process.json").read_text())["read"]
+
+    def stop(*_a, **_k):
+        raise KeyboardInterrupt  # as Ctrl-C in the analysis: the checkpoint stays, detection complete
+
+    with monkeypatch.context() as m:
+        m.setattr(run_module, "analyze", stop)
+        assert invoke(*args)[0] != 0
+    assert (tmp_path / "run" / CHECKPOINT_DIR).is_dir()
+    code, stdout, _ = invoke(*args, "--strict")
+    assert "had finished" in stdout  # nothing decoded this time
+    assert code == 1 and [ln for ln in stdout.splitlines() if ln.startswith("warning: read")] == \
+        [ln for ln in whole_out.splitlines() if ln.startswith("warning: read")]
+    assert json.loads((tmp_path / "run" / "process.json").read_text())["read"] == first
+    assert first["complete"] is False and first["frames"] > 0

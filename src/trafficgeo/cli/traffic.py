@@ -58,6 +58,7 @@ def analyze(
     from rich.progress import Progress
 
     from trafficgeo.cli.report import check_html_path
+    from trafficgeo.io.folder_lock import hold_folder
     from trafficgeo.report.traffic import print_analysis
     from trafficgeo.site.surface import check_resolution, load_surface
     from trafficgeo.traffic.analyze import analyze_tracks
@@ -78,15 +79,16 @@ def analyze(
     calibrated = camera_argument(camera)  # a bad camera file is named before the tracks are read
     cam = calibrated.camera
     knowledge = ScaleKnowledge.from_camera(calibrated)
-    image_tracks = read_tracks(tracks, fps=fps)
-    surf = load_surface(surface, calibrated, surface_crs=surface_crs, resolution_m=resolution)
-    console.print(f"surface: {surf.describe()}")
-    with Progress(console=console, transient=True) as progress:
-        task = progress.add_task("tracks", total=len(image_tracks.track_ids))
-        analysis = analyze_tracks(cam, surf, image_tracks, lanes, lines, interval_s=interval, options=opts,
-                                  progress=lambda i, n: progress.update(task, completed=i), knowledge=knowledge,
-                                  journeys=journeys)
-    written = RunFolder(out).write_traffic(analysis, cam)
+    with hold_folder(out):  # refused at once while another run writes this folder, held until written
+        image_tracks = read_tracks(tracks, fps=fps)
+        surf = load_surface(surface, calibrated, surface_crs=surface_crs, resolution_m=resolution)
+        console.print(f"surface: {surf.describe()}")
+        with Progress(console=console, transient=True) as progress:
+            task = progress.add_task("tracks", total=len(image_tracks.track_ids))
+            analysis = analyze_tracks(cam, surf, image_tracks, lanes, lines, interval_s=interval, options=opts,
+                                      progress=lambda i, n: progress.update(task, completed=i),
+                                      knowledge=knowledge, journeys=journeys)
+        written = RunFolder(out).write_traffic(analysis, cam)
     print_analysis(analysis, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")
     if report_html is not None:

@@ -21,6 +21,7 @@ Reading a raster decimated for display (and its colours) is :mod:`trafficgeo.geo
 
 from __future__ import annotations
 
+import errno
 import math
 import os
 import warnings
@@ -463,6 +464,18 @@ def _write_bands(dst: rasterio.io.DatasetWriter, data: np.ndarray, descriptions:
             dst.set_band_description(i + 1, descriptions[i])
 
 
+def _reads_back(path: Path, arr: np.ndarray) -> bool:
+    """Whether the GeoTIFF ``path`` reads back as ``arr`` (bands, rows, cols), every block of it."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as src:
+                back = src.read()
+    except RasterioError:
+        return False
+    return back.shape == arr.shape and np.array_equal(back, arr, equal_nan=np.issubdtype(arr.dtype, np.floating))
+
+
 def write_geotiff(
     path: str | os.PathLike[str],
     data: ArrayLike,
@@ -477,7 +490,9 @@ def write_geotiff(
     Floating-point data are stored as float32 and integer data in their own dtype unless ``dtype`` is given.
     Float NaN cells are written as ``nodata`` when a (non-NaN) nodata value is given. The file is tiled 256 x 256
     when both sides are >= 256 px. ``transform`` uses the rasterio corner convention; ``crs`` may be None.
-    The file appears only when complete (:func:`trafficgeo.io.atomic.atomic_path`).
+    The file appears only when complete (:func:`trafficgeo.io.atomic.atomic_path`) and read back whole: a disk
+    that refuses part of it (full, or a file-size limit), which libtiff reports only as a message, raises
+    :class:`~trafficgeo.errors.OutputError` (the partial file removed).
     """
     arr = np.asarray(data)
     if arr.ndim == 2:
@@ -515,9 +530,16 @@ def write_geotiff(
     if rows >= _TILE and cols >= _TILE:
         profile.update(tiled=True, blockxsize=_TILE, blockysize=_TILE)
     with atomic_path(path) as tmp:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(tmp, "w", **profile) as dst:
-                _write_bands(dst, arr, descs)
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                with rasterio.open(tmp, "w", **profile) as dst:
+                    _write_bands(dst, arr, descs)
+            with open(tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
+            whole = _reads_back(tmp, arr)
+        except RasterioError as exc:
+            raise OSError(errno.EIO, f"GDAL could not write the GeoTIFF ({' '.join(str(exc).split())})") from exc
+        if not whole:  # libtiff tells a failed write only as a message: the file would look written
+            raise OSError(errno.EIO, "the GeoTIFF does not read back whole: the disk did not take all of it "
+                                     "(full, or over a size limit)")

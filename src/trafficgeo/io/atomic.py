@@ -118,8 +118,19 @@ def write_json_atomic(path: str | os.PathLike[str], doc: Any) -> None:
     write_text_atomic(path, json.dumps(to_json_safe(doc), indent=2, allow_nan=False) + "\n")
 
 
+SQLITE_SIDE_FILES = ("-journal", "-wal", "-shm")  # what SQLite (a GeoPackage) keeps beside a file it writes
+
+
 def is_temporary_name(name: str) -> bool:
-    """Whether a file name is one :func:`atomic_path` gives its temporary files."""
+    """Whether a file name is one :func:`atomic_path` gives its temporary files, or the SQLite journal of one (a
+    GeoPackage being written when its writer was killed)."""
+    for side in SQLITE_SIDE_FILES:
+        if name.endswith(side) and _is_atomic_name(name[: -len(side)]):
+            return True
+    return _is_atomic_name(name)
+
+
+def _is_atomic_name(name: str) -> bool:
     m = _TEMP_NAME.fullmatch(name)
     return m is not None and Path(m["target"]).suffix == (m["suffix"] or "")
 

@@ -79,18 +79,52 @@ class ProcessResult:
         return (end - start) / self.seconds
 
 
-def _what_was_read(video: Path, opts: ProcessOptions, read: dict, caught: list) -> tuple[dict, str | None]:
-    """What the frames seen (``read``: first/last frame time (s) and frames) and the reader's warnings (``caught``)
-    say about the time range read: ``process.json``'s ``read`` and a one-line warning when fewer seconds were decoded
-    than asked (or than the file says it holds), else None."""
-    from trafficgeo.video.reader import VideoReadWarning, video_info
+READ_RECORD = "read.json"  # in the checkpoint folder: what the detection read, for a run resumed after it finished
 
-    for w in caught:  # other warnings are shown as usual
+
+def _reader_said(caught: list) -> list[str]:
+    """The reader's warnings (:class:`VideoReadWarning`) among ``caught``, once each; others are shown as usual."""
+    from trafficgeo.video.reader import VideoReadWarning
+
+    for w in caught:
         if not issubclass(w.category, VideoReadWarning):
             warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    return list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, VideoReadWarning)))
+
+
+def _keep_what_was_read(checkpoint: Path, read: dict, said: list[str]) -> tuple[dict, list[str]]:
+    """``read`` and ``said`` as this run saw them, kept in the checkpoint folder once the detection has finished;
+    or, for a run resumed after its detection had finished (no frame decoded now), those kept by the run that
+    did the detection (a kept record that is not one is ignored)."""
+    from trafficgeo.io.atomic import write_json_atomic
+
+    path = checkpoint / READ_RECORD
+    if read["frames"] == 0 and not said and path.is_file() and path.stat().st_size < 1 << 20:
+        import json
+
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+            kept, told = doc["read"], doc["said"]
+            numbers = [kept["first"], kept["last"]]
+            if (set(kept) == {"first", "last", "frames"} and isinstance(kept["frames"], int)
+                    and all(v is None or isinstance(v, int | float) for v in numbers)
+                    and isinstance(told, list) and all(isinstance(t, str) for t in told)):
+                return kept, told
+        except (OSError, ValueError, KeyError, TypeError):
+            pass
+    if checkpoint.is_dir():
+        write_json_atomic(path, {"read": read, "said": said})
+    return read, said
+
+
+def _what_was_read(video: Path, opts: ProcessOptions, read: dict, said: list[str]) -> tuple[dict, str | None]:
+    """What the frames seen (``read``: first/last frame time (s) and frames) and the reader's warnings (``said``)
+    say about the time range read: ``process.json``'s ``read`` and a one-line warning when fewer seconds were decoded
+    than asked (or than the file says it holds), else None."""
+    from trafficgeo.video.reader import video_info
+
     info = video_info(video)
     asked = opts.end_s if opts.end_s is not None else info.duration_s
-    said = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, VideoReadWarning)))
     step = opts.every / info.fps if info.fps > 0 else 0.0
     end = None if read["last"] is None else read["last"] + step  # the end of the last frame used
     doc = {"start_s": read["first"], "end_s": end, "frames": read["frames"]}
@@ -132,8 +166,9 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
     >>> run.read["complete"], sorted(run.folder.counts().columns)[:2]
     (True, ['count', 'count_car'])
     """
+    from trafficgeo.io.folder_lock import hold_folder
     from trafficgeo.io.run_manifest import begin_outputs, check_writable_folder
-    from trafficgeo.video.checkpoint import hold_folder
+    from trafficgeo.video.checkpoint import CHECKPOINT_DIR
     from trafficgeo.video.pipeline import detect_and_track, finish_run, settled_options
     from trafficgeo.video.reader import VideoReadWarning, video_info
 
@@ -170,7 +205,8 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
                                                   lanes=lane_set, lines=count_lines, progress=tick, notice=notice,
                                                   detector_info=detector_doc.update)
         elapsed = time.perf_counter() - t0
-        read_doc, short = _what_was_read(video, opts, read, caught)
+        read, said = _keep_what_was_read(out / CHECKPOINT_DIR, read, _reader_said(caught))
+        read_doc, short = _what_was_read(video, opts, read, said)
         if not len(tracks):
             raise InputError(f"{video}: no vehicle was tracked; check the ROI, the time range and the detector")
         from trafficgeo.traffic.tracks import tracks_from_table
@@ -222,6 +258,7 @@ def stitch(chunks: Sequence[PathLike], camera: CalibratedCamera | Camera | PathL
     (``trafficgeo stitch``). ``notice(line)`` gets a warning per gap or unequal overlap between chunks. The pieces of
     one vehicle's track are joined across the chunks as within one (``journeys``:
     :mod:`trafficgeo.traffic.journeys`)."""
+    from trafficgeo.io.folder_lock import hold_folder
     from trafficgeo.io.run_manifest import check_writable_folder
     from trafficgeo.video.stitch import plan_chunks, stitch_tracks
 
@@ -238,21 +275,22 @@ def stitch(chunks: Sequence[PathLike], camera: CalibratedCamera | Camera | PathL
             raise InputError(f"out_dir {out}: is one of the chunks; write the stitched run to a folder of its own",
                              parameters=("out_dir",))
         seen[key] = folder
-    read = [_chunk(Path(folder)) for folder in chunks]
-    order, problems = plan_chunks([r[1] for r in read], [str(c) for c in chunks], [r[2] for r in read])
-    for text in problems:
-        if notice is not None:
-            notice(f"warning: {text}")
-    site = Site.load(camera, surface, lanes, lines, surface_crs=surface_crs, resolution_m=resolution_m)
-    joined = stitch_tracks([read[k][0] for k in order])
-    joined["class"] = joined["class"].fillna("")
-    from trafficgeo.traffic.tracks import tracks_from_table
+    with hold_folder(out):  # one run at a time in a folder
+        read = [_chunk(Path(folder)) for folder in chunks]
+        order, problems = plan_chunks([r[1] for r in read], [str(c) for c in chunks], [r[2] for r in read])
+        for text in problems:
+            if notice is not None:
+                notice(f"warning: {text}")
+        site = Site.load(camera, surface, lanes, lines, surface_crs=surface_crs, resolution_m=resolution_m)
+        joined = stitch_tracks([read[k][0] for k in order])
+        joined["class"] = joined["class"].fillna("")
+        from trafficgeo.traffic.tracks import tracks_from_table
 
-    result = analyze(tracks_from_table(joined), site, interval_s=interval_s, journeys=journeys)
-    folder = RunFolder(out)
-    written = folder.write_traffic(result, site.camera.camera, publish=False)
-    written.append(folder.write_table("tracks.csv", joined))
-    folder.publish(written, command="stitch")
+        result = analyze(tracks_from_table(joined), site, interval_s=interval_s, journeys=journeys)
+        folder = RunFolder(out)
+        written = folder.write_traffic(result, site.camera.camera, publish=False)
+        written.append(folder.write_table("tracks.csv", joined))
+        folder.publish(written, command="stitch")
     return result
 
 

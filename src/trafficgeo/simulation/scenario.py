@@ -21,6 +21,7 @@ import os
 import shutil
 import tempfile
 import time
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -103,37 +104,68 @@ def _check_options(observed: ObservedRun, interval_s: float, begin_s: float | No
     return interval, b, e
 
 
+SUMOCFG_OPTIONS = {  # the options of scenario.sumocfg, by section, as sumo-demand writes them
+    "input": ("net-file", "route-files", "additional-files"),
+    "time": ("begin", "end", "step-length"),
+    "output": ("fcd-output", "fcd-output.attributes", "device.fcd.begin"),
+    "random_number": ("seed",),
+    "report": ("no-step-log",),
+}
+
+
+def _xml(root: ET.Element) -> str:
+    """``root`` as an indented XML document; attribute values escaped by the XML library."""
+    ET.indent(root, space="    ")
+    return ET.tostring(root, encoding="unicode") + "\n"
+
+
 def _sumocfg(net_rel: str, end_sumo_s: float, step_s: float, seed: int, fcd_begin_s: float) -> str:
-    return ("<configuration>\n"
-            "    <input>\n"
-            f'        <net-file value="{net_rel}"/>\n'
-            '        <route-files value="demand.rou.xml"/>\n'
-            '        <additional-files value="outputs.add.xml"/>\n'
-            "    </input>\n"
-            "    <time>\n"
-            '        <begin value="0"/>\n'
-            f'        <end value="{end_sumo_s:.3f}"/>\n'
-            f'        <step-length value="{step_s:g}"/>\n'
-            "    </time>\n"
-            "    <output>\n"
-            '        <fcd-output value="fcd.xml"/>\n'
-            f'        <fcd-output.attributes value="{FCD_ATTRIBUTES}"/>\n'
-            f'        <device.fcd.begin value="{fcd_begin_s:.3f}"/>\n'
-            "    </output>\n"
-            "    <random_number>\n"
-            f'        <seed value="{seed}"/>\n'
-            "    </random_number>\n"
-            "    <report>\n"
-            '        <no-step-log value="true"/>\n'
-            "    </report>\n"
-            "</configuration>\n")
+    values = {"net-file": net_rel, "route-files": "demand.rou.xml", "additional-files": "outputs.add.xml",
+              "begin": "0", "end": f"{end_sumo_s:.3f}", "step-length": f"{step_s:g}", "fcd-output": "fcd.xml",
+              "fcd-output.attributes": FCD_ATTRIBUTES, "device.fcd.begin": f"{fcd_begin_s:.3f}",
+              "seed": str(seed), "no-step-log": "true"}
+    root = ET.Element("configuration")
+    for section, names in SUMOCFG_OPTIONS.items():
+        part = ET.SubElement(root, section)
+        for name in names:
+            ET.SubElement(part, name, value=values[name])
+    return _xml(root)
 
 
 def _outputs_add(file: str, interval_s: float, begin_sumo_s: float, end_sumo_s: float) -> str:
-    return ("<additional>\n"
-            f'    <edgeData id="simulated" file="{file}" period="{interval_s:g}" begin="{begin_sumo_s:.3f}" '
-            f'end="{end_sumo_s:.3f}" excludeEmpty="true"/>\n'
-            "</additional>\n")
+    root = ET.Element("additional")
+    ET.SubElement(root, "edgeData", id="simulated", file=file, period=f"{interval_s:g}", begin=f"{begin_sumo_s:.3f}",
+                  end=f"{end_sumo_s:.3f}", excludeEmpty="true")
+    return _xml(root)
+
+
+def check_sumocfg(scenario: SumoScenario) -> None:
+    """Refuse a ``scenario.sumocfg`` that is not as :func:`build_sumo_scenario` writes it (its manifest can be
+    written again by anyone who edits it): only the options of :data:`SUMOCFG_OPTIONS`, the scenario's own route
+    and output files, its network, no other outputs and no TraCI port."""
+    path = scenario.sumocfg
+    try:
+        root = ET.parse(path).getroot()
+    except (OSError, ET.ParseError) as exc:
+        raise InputError(f"scenario {scenario.folder}: scenario.sumocfg cannot be read ({exc}); run 'trafficgeo "
+                         "sumo-demand' again", parameters=("scenario",)) from None
+    seen = {(part.tag, opt.tag): opt.attrib for part in root for opt in part}
+    allowed = {(section, name) for section, names in SUMOCFG_OPTIONS.items() for name in names}
+    fixed = {"route-files": "demand.rou.xml", "additional-files": "outputs.add.xml", "fcd-output": "fcd.xml"}
+    why = None
+    if root.tag != "configuration" or set(seen) != allowed or any(set(a) != {"value"} for a in seen.values()):
+        odd = sorted(f"{s}/{n}" for s, n in set(seen) ^ allowed) or ["an attribute other than value"]
+        why = f"it has options sumo-demand does not write or lacks its own ({', '.join(odd[:4])})"
+    else:
+        values = {name: attrib["value"] for (_s, name), attrib in seen.items()}
+        bad = [n for n, v in fixed.items() if values[n] != v]
+        if bad:
+            why = f"its {', '.join(bad)} {'is' if len(bad) == 1 else 'are'} not the scenario's own"
+        elif (scenario.folder / values["net-file"]).resolve() != scenario.net:
+            why = f"its net-file {values['net-file']} is not the network of scenario.json"
+    if why is not None:
+        raise InputError(f"scenario {scenario.folder}: scenario.sumocfg is not as 'trafficgeo sumo-demand' wrote "
+                         f"it: {why}; run sumo-demand again", parameters=("scenario",))
 
 
 def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str], out_dir: str | os.PathLike[str],
@@ -150,6 +182,7 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
         TrafficgeoError: a SUMO tool failed.
     """
     from trafficgeo.io.atomic import write_csv_atomic, write_json_atomic, write_text_atomic
+    from trafficgeo.io.folder_lock import hold_folder
     from trafficgeo.io.run_manifest import COMPARE_MANIFEST, begin_outputs, check_writable_folder, publish_outputs
 
     started = time.perf_counter()
@@ -181,29 +214,31 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
         demand = place_departures(sampled, mapping.edge_lengths_m, observed, mapping, counts, seed=seed)
         offset = demand.time_offset_s
         out.mkdir(parents=True, exist_ok=True)
-        begin_outputs(out, SCENARIO_MANIFEST)
-        for stale in (*_SIMULATION_OUTPUTS, "candidates.rou.xml", COMPARE_MANIFEST):  # of an earlier scenario here
-            (out / stale).unlink(missing_ok=True)
-        net_rel = os.path.relpath(Path(net).resolve(), out.resolve())
-        files = {"scenario.sumocfg": _sumocfg(net_rel, e + offset, step_s, seed, max(0.0, b + offset - 5.0)),
-                 "demand.rou.xml": demand_xml(types, demand),
-                 "outputs.add.xml": _outputs_add("simulated.edgedata.xml", interval, b + offset, e + offset)}
-        for name, text in files.items():
-            write_text_atomic(out / name, text)
-        written = [out / n for n in files]
-        for name in ("counts.edgedata.xml", *(["candidates.rou.xml"] if routes is None else [])):
-            shutil.copyfile(work / name, work / f"{name}.copy")
-            os.replace(work / f"{name}.copy", out / name)
-            written.append(out / name)
-        write_csv_atomic(out / "mapping.csv", mapping.table, float_format="%.3f")
-        write_csv_atomic(out / "observed_lane_counts.csv", counts.lanes, float_format="%.3f")
-        written += [out / "mapping.csv", out / "observed_lane_counts.csv"]
-        scenario = SumoScenario(out, Path(run).resolve(), Path(net).resolve(), net_crs, interval, b, e, offset, step_s,
-                                 int(seed), len(demand.depart_s), [_type_doc(t) for t in types],
-                                 time.perf_counter() - started, mapping.warnings, run_fingerprint(observed.folder))
-        write_json_atomic(out / "scenario.json", _scenario_doc(scenario, net_rel, routes, counts, demand.max_lag_s))
-        written.append(out / "scenario.json")
-        publish_outputs(out, written, command="sumo-demand", name=SCENARIO_MANIFEST)
+        with hold_folder(out):  # one run at a time in a folder
+            begin_outputs(out, SCENARIO_MANIFEST)
+            for stale in (*_SIMULATION_OUTPUTS, "candidates.rou.xml", COMPARE_MANIFEST):  # of an earlier scenario here
+                (out / stale).unlink(missing_ok=True)
+            net_rel = os.path.relpath(Path(net).resolve(), out.resolve())
+            files = {"scenario.sumocfg": _sumocfg(net_rel, e + offset, step_s, seed, max(0.0, b + offset - 5.0)),
+                     "demand.rou.xml": demand_xml(types, demand),
+                     "outputs.add.xml": _outputs_add("simulated.edgedata.xml", interval, b + offset, e + offset)}
+            for name, text in files.items():
+                write_text_atomic(out / name, text)
+            written = [out / n for n in files]
+            for name in ("counts.edgedata.xml", *(["candidates.rou.xml"] if routes is None else [])):
+                shutil.copyfile(work / name, work / f"{name}.copy")
+                os.replace(work / f"{name}.copy", out / name)
+                written.append(out / name)
+            write_csv_atomic(out / "mapping.csv", mapping.table, float_format="%.3f")
+            write_csv_atomic(out / "observed_lane_counts.csv", counts.lanes, float_format="%.3f")
+            written += [out / "mapping.csv", out / "observed_lane_counts.csv"]
+            scenario = SumoScenario(out, Path(run).resolve(), Path(net).resolve(), net_crs, interval, b, e, offset,
+                                    step_s, int(seed), len(demand.depart_s), [_type_doc(t) for t in types],
+                                    time.perf_counter() - started, mapping.warnings,
+                                    run_fingerprint(observed.folder))
+            write_json_atomic(out / "scenario.json", _scenario_doc(scenario, net_rel, routes, counts, demand.max_lag_s))
+            written.append(out / "scenario.json")
+            publish_outputs(out, written, command="sumo-demand", name=SCENARIO_MANIFEST)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return scenario
@@ -275,6 +310,7 @@ def run_scenario(scenario: SumoScenario) -> SimulationOutputs:
     if not scenario.net.is_file():
         raise InputError(f"scenario {scenario.folder}: its network {scenario.net} is gone; give it back or run "
                          "'trafficgeo sumo-demand' again", parameters=("scenario",))
+    check_sumocfg(scenario)
     started = time.perf_counter()
     work = Path(tempfile.mkdtemp(prefix=".sumo-run-", dir=scenario.folder)).resolve()
     try:

@@ -335,30 +335,33 @@ def write_analysis(out_dir: str | Path, analysis: TrafficResult, camera: Camera,
     """Write the outputs (module docstring) into ``out_dir``; returns the paths written.
 
     The folder's run manifest (:mod:`trafficgeo.io.run_manifest`) is removed first and, with ``publish``, written
-    last; a caller that adds files of its own (``process``) passes ``publish=False`` and publishes them all."""
+    last; a caller that adds files of its own (``process``) passes ``publish=False`` and publishes them all. The
+    folder is locked while it is written (:func:`~trafficgeo.io.folder_lock.hold_folder`)."""
     from trafficgeo.io.atomic import write_csv_atomic
+    from trafficgeo.io.folder_lock import hold_folder
     from trafficgeo.io.gis import write_gis
     from trafficgeo.io.run_manifest import begin_outputs, publish_outputs
     from trafficgeo.io.tables import write_point_table
     from trafficgeo.traffic.run_folder import RunFolder
 
-    out = begin_outputs(out_dir)
-    crs = camera_crs(camera)
-    written = []
-    for name, table in (("vehicles.csv", analysis.vehicles), ("counts.csv", analysis.counts),
-                        ("crossings.csv", analysis.crossings)):
-        write_csv_atomic(out / name, table, float_format="%.4f")
-        written.append(out / name)
-    write_point_table(out / "trajectories.csv", analysis.points, crs)  # lon/lat to 1e-9 degrees
-    written.append(out / "trajectories.csv")
-    if crs is not None and len(analysis.points):
-        layers = gis_layers(analysis, crs)
-        write_gis(out / "trajectories.gpkg", layers, crs)
-        write_gis(out / "trajectories.parquet", layers[:1], crs)
-        written += [out / "trajectories.gpkg", out / "trajectories.parquet"]
-    written.append(RunFolder(out).write_summary(summary(analysis, crs)))
-    for stale in {out / n for n in OUTPUT_FILES} - set(written):  # e.g. no GeoPackage without a CRS
-        stale.unlink(missing_ok=True)
-    if publish:
-        publish_outputs(out, written, command="analyze")
-    return written
+    with hold_folder(out_dir):  # one run at a time in a folder
+        out = begin_outputs(out_dir)
+        crs = camera_crs(camera)
+        written = []
+        for name, table in (("vehicles.csv", analysis.vehicles), ("counts.csv", analysis.counts),
+                            ("crossings.csv", analysis.crossings)):
+            write_csv_atomic(out / name, table, float_format="%.4f")
+            written.append(out / name)
+        write_point_table(out / "trajectories.csv", analysis.points, crs)  # lon/lat to 1e-9 degrees
+        written.append(out / "trajectories.csv")
+        if crs is not None and len(analysis.points):
+            layers = gis_layers(analysis, crs)
+            write_gis(out / "trajectories.gpkg", layers, crs)
+            write_gis(out / "trajectories.parquet", layers[:1], crs)
+            written += [out / "trajectories.gpkg", out / "trajectories.parquet"]
+        written.append(RunFolder(out).write_summary(summary(analysis, crs)))
+        for stale in {out / n for n in OUTPUT_FILES} - set(written):  # e.g. no GeoPackage without a CRS
+            stale.unlink(missing_ok=True)
+        if publish:
+            publish_outputs(out, written, command="analyze")
+        return written

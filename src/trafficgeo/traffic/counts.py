@@ -145,14 +145,27 @@ def check_interval(interval_s: float) -> float:
     return float(interval_s)
 
 
+MAX_INTERVALS = 100_000  # counting intervals per run: 27.8 h at 1 s, 2.9 years at 15 min
+
+
 def interval_edges(start: float, end: float, interval_s: float) -> np.ndarray:
     """Interval boundaries (s) on multiples of ``interval_s`` covering [start, end); the first and last are
-    clipped to the observation period."""
+    clipped to the observation period. More than :data:`MAX_INTERVALS` intervals is an error (a time value far
+    from the others would otherwise make counts tables without bound)."""
     check_interval(interval_s)
     if not end > start:
         return np.array([start, start])
+    if not (np.isfinite(start) and np.isfinite(end)):
+        raise InputError(f"the observed period {start:g} to {end:g} s is not finite: check the time values of the "
+                         "tracks")
     k0 = np.floor(start / interval_s)
     k1 = np.ceil(end / interval_s - 1e-9)
+    if k1 - k0 > MAX_INTERVALS:
+        raise InputError(f"the observed period {start:g} to {end:g} s ({(end - start) / 3600.0:.4g} h) makes "
+                         f"{k1 - k0:.0f} counting intervals of {interval_s:g} s, more than {MAX_INTERVALS}: a time "
+                         "value far from the others (check the tracks' times, or their frames and `fps`) or an "
+                         "interval too short for so long a period (give a longer interval_s)",
+                         parameters=("interval_s", "fps"))
     edges = np.arange(k0, k1 + 1) * interval_s
     edges[0], edges[-1] = start, end
     return edges

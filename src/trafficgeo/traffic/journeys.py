@@ -364,8 +364,10 @@ def associate(ends: pd.DataFrame, cands: pd.DataFrame, options: JourneyOptions |
                     chosen.append(row)
                     taken_ends.add(a)
                     taken_starts.add(b)
-        # ends before keep_until are settled (linked or not); the rest are looked at again with what follows
-        start = keep_until if not final else np.inf
+        # ends before keep_until are settled (linked or not); the rest are looked at again with what follows,
+        # from the next end that has a candidate (hours without traffic are skipped, not stepped through)
+        ahead = cand_t[cand_t >= keep_until] if not final else cand_t[:0]
+        start = float(ahead.min()) if ahead.size else np.inf
     return cands.loc[sorted(chosen, key=lambda r: t1[int(cands.at[r, "a"])])]
 
 

@@ -324,19 +324,21 @@ class RunFolder:
         CSV, ``compare_summary.json``, then the comparison's manifest (``compare_run.json``); returns the paths
         written. Until the manifest is written, readers refuse the comparison."""
         from trafficgeo.io.atomic import write_csv_atomic
+        from trafficgeo.io.folder_lock import hold_folder
         from trafficgeo.io.run_manifest import begin_outputs, publish_outputs
 
         unknown = sorted(set(tables) - set(COMPARE_TABLES))
         if unknown:
             raise ValueError(f"{unknown}: not tables of a comparison; one of {', '.join(COMPARE_TABLES)}")
         self._comparison = None
-        begin_outputs(self.path, COMPARE_MANIFEST)
-        written = []
-        for name, table in tables.items():
-            write_csv_atomic(self.path / name, table, float_format="%.4f")
-            written.append(self.path / name)
-        written.append(self.write_compare_summary(summary))
-        publish_outputs(self.path, written, command="compare-sumo", name=COMPARE_MANIFEST)
+        with hold_folder(self.path):
+            begin_outputs(self.path, COMPARE_MANIFEST)
+            written = []
+            for name, table in tables.items():
+                write_csv_atomic(self.path / name, table, float_format="%.4f")
+                written.append(self.path / name)
+            written.append(self.write_compare_summary(summary))
+            publish_outputs(self.path, written, command="compare-sumo", name=COMPARE_MANIFEST)
         return written
 
     def write_compare_summary(self, summary: CompareSummary) -> Path:
@@ -348,13 +350,15 @@ class RunFolder:
         """Write ``compare_simulation.json`` beside the comparison written last (:meth:`write_comparison`) and
         publish the comparison's manifest again with it, its command ``sumo-validate``; returns the record's path.
         """
+        from trafficgeo.io.folder_lock import hold_folder
         from trafficgeo.io.run_manifest import publish_outputs
 
-        files = list(verify_outputs(self.path, name=COMPARE_MANIFEST).files)
-        self._comparison = None
-        path = self._write_json(SIMULATION_RECORD, record.to_dict())
-        publish_outputs(self.path, [*(f for f in files if f != SIMULATION_RECORD), SIMULATION_RECORD],
-                        command="sumo-validate", name=COMPARE_MANIFEST)
+        with hold_folder(self.path):
+            files = list(verify_outputs(self.path, name=COMPARE_MANIFEST).files)
+            self._comparison = None
+            path = self._write_json(SIMULATION_RECORD, record.to_dict())
+            publish_outputs(self.path, [*(f for f in files if f != SIMULATION_RECORD), SIMULATION_RECORD],
+                            command="sumo-validate", name=COMPARE_MANIFEST)
         return path
 
     def _write_json(self, name: str, doc: dict[str, Any]) -> Path:
@@ -366,9 +370,11 @@ class RunFolder:
 
     def publish(self, files: Iterable[str | Path], *, command: str) -> None:
         """Write the manifest listing ``files`` (names in the folder): the run is finished."""
+        from trafficgeo.io.folder_lock import hold_folder
         from trafficgeo.io.run_manifest import publish_outputs
 
-        publish_outputs(self.path, files, command=command)
+        with hold_folder(self.path):
+            publish_outputs(self.path, files, command=command)
         self._manifest = self._comparison = None
 
     # ------------------------------------------------------------------------------------------------ reading

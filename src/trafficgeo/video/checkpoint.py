@@ -14,14 +14,12 @@ means another run: its checkpoint is not resumed.
 
 from __future__ import annotations
 
-import contextlib
-import errno
 import hashlib
 import json
 import math
 import os
 import re
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -37,7 +35,6 @@ if TYPE_CHECKING:
 
 CHECKPOINT_DIR = ".checkpoint"
 STATE_FILE = "state.json"
-LOCK_FILE = ".lock"
 FORMAT = "trafficgeo-process-checkpoint"
 FORMAT_VERSION = 2
 _PART_NAME = re.compile(r"part\d{5}\.npz")
@@ -295,70 +292,6 @@ def load_checkpoint(folder: Path, key: str) -> Checkpoint:
     return Checkpoint(key=key, segment=_int(doc, "segment", 0), next_time_s=float(t),
                       next_frame=_int(doc, "next_frame", -1), frames_done=_int(doc, "frames_done", 0),
                       complete=doc["complete"], parts=parts)
-
-
-# ------------------------------------------------------------------------------------------------ lock
-_HELD: dict[Path, int] = {}
-
-
-@contextlib.contextmanager
-def hold_folder(folder: str | os.PathLike[str]) -> Iterator[None]:
-    """Hold an exclusive lock on an output folder (``folder/.lock``, created with the folder) for the block.
-
-    Another process holding it makes this raise :class:`InputError` at once, naming that process. Re-entrant within
-    one process. The lock goes with the process, however it ends (the file stays, unlocked; a folder this created
-    and that holds nothing else at the end is removed).
-    """
-    root = Path(folder)
-    ident = root.resolve()
-    if ident in _HELD:
-        _HELD[ident] += 1
-        try:
-            yield
-        finally:
-            _HELD[ident] -= 1
-        return
-    created = not root.exists()
-    root.mkdir(parents=True, exist_ok=True)
-    path = root / LOCK_FILE
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-    try:
-        try:
-            _lock(fd)
-        except OSError as exc:
-            if exc.errno not in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
-                raise
-            os.lseek(fd, 0, os.SEEK_SET)
-            holder = os.read(fd, 32).decode("ascii", "replace").strip()
-            who = f" (pid {holder})" if holder.isdigit() else ""
-            raise InputError(f"out_dir {root}: another trafficgeo run{who} is writing to this folder; wait for it to "
-                             "end or give another out_dir", parameters=("out_dir",)) from None
-        os.ftruncate(fd, 0)
-        os.lseek(fd, 0, os.SEEK_SET)
-        os.write(fd, f"{os.getpid()}\n".encode())
-        _HELD[ident] = 1
-        try:
-            yield
-        finally:
-            del _HELD[ident]
-            with contextlib.suppress(OSError):
-                os.ftruncate(fd, 0)
-                if created and [p.name for p in root.iterdir()] == [LOCK_FILE]:  # a run that wrote nothing
-                    path.unlink()
-                    root.rmdir()
-    finally:
-        os.close(fd)  # closing the file releases the lock
-
-
-def _lock(fd: int) -> None:
-    try:
-        import fcntl
-    except ImportError:  # Windows
-        import msvcrt
-
-        msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
-        return
-    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
 
 
 def read_detections(out_dir: str | os.PathLike[str]) -> DetectionFrames:

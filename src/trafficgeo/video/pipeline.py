@@ -21,7 +21,7 @@ A resumed run gives exactly the outputs of an uninterrupted one, by construction
 At the end the parts become ``detections.csv`` and ``tracks.csv``. A checkpoint whose detection is complete (the run
 was stopped during the analysis or while writing) goes straight to that. The caller runs ``analyze`` on the tracks
 (:mod:`trafficgeo.traffic.analyze`) and then removes the checkpoint (:func:`finish_run`). Every output is written
-atomically; the output folder is locked for the run (:func:`~trafficgeo.video.checkpoint.hold_folder`), and
+atomically; the output folder is locked for the run (:func:`~trafficgeo.io.folder_lock.hold_folder`), and
 temporary files left by a killed run are removed when the next one starts.
 
 Time chunks: ``start_s``/``end_s`` process one part of a video into its own folder;
@@ -44,6 +44,7 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.io.atomic import remove_stale_temporaries, write_csv_atomic
+from trafficgeo.io.folder_lock import hold_folder
 from trafficgeo.site.lanes import Lanes
 from trafficgeo.site.lines import CountLine
 from trafficgeo.video.checkpoint import (
@@ -51,7 +52,6 @@ from trafficgeo.video.checkpoint import (
     Checkpoint,
     Part,
     PartBuffer,
-    hold_folder,
     load_checkpoint,
     read_part,
     run_key,
