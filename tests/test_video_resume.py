@@ -119,6 +119,71 @@ def test_killed_anywhere_and_resumed_gives_the_uninterrupted_result(world: Path,
     assert len(pd.read_csv(full / "crossings.csv")) >= 2 and not (cut / CHECKPOINT_DIR).exists()
 
 
+@pytest.mark.slow
+def test_the_learned_detector_on_the_sparse_schedule_resumes_to_the_uninterrupted_result(world: Path,
+                                                                                        tmp_path: Path) -> None:
+    """Issue 43: with NanoDet and the sparse tile schedule a kill and a rerun gave other detections, vehicles and
+    speeds than the uninterrupted run: the schedule's memory (its frame counter, each tile's last run and thumbnail,
+    the tiles' last detections it gives again) was not in the checkpoint. It is now (schedule.npz), and a rerun
+    keeps the schedule the interrupted run chose."""
+    common = [world / "video.mp4", "--camera", world / "camera_truth.json", "--surface", "90", "--lanes",
+              world / "lanes.gpkg", "--lines", world / "count_lines.gpkg", "--checkpoint", CHECKPOINT_S,
+              "--tile-schedule", "sparse"]
+    full = tmp_path / "full"
+    code, stdout, stderr = invoke("process", *common, "--out", full)
+    assert code == 0, stderr
+    assert "tile schedule: each tile runs every" in stdout  # the schedule is what is tested
+    cut = tmp_path / "cut"
+    args = ["process", *common, "--out", cut]
+    assert _python(KILLED, 2.0, PRIME_S, *args).returncode == -signal.SIGKILL
+    state = json.loads((cut / CHECKPOINT_DIR / STATE_FILE).read_text())
+    assert state["schedule"]["used"] == "sparse" and state["schedule"]["name"] == "schedule.npz"
+    run = _python(KILLED, 4.0, PRIME_S, *args)
+    assert run.returncode == -signal.SIGKILL and "resuming from 1.5 s" in run.stdout, run.stderr
+    code, stdout, stderr = invoke(*args)
+    assert code == 0 and "resuming from 3.0 s" in stdout, stderr
+    _same_files(full, cut, ("detections.csv", "tracks.csv", "vehicles.csv", "crossings.csv", "counts.csv"))
+    a, b = (json.loads((d / "process.json").read_text())["detector"]["schedule"] for d in (full, cut))
+    assert a == b  # its counters carried over too
+
+
+@pytest.mark.slow
+def test_a_run_whose_runtime_changed_starts_again(world: Path, tmp_path: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 43: the run key held backend "auto", not the runtime the probe chose, so a changed probe cache resumed
+    an INT8 run with the float model. The chosen runtime is in the key now: a rerun where the probe chooses another
+    starts again (one model's detections throughout)."""
+    from dataclasses import replace
+
+    import trafficgeo.video.detectors.learned as learned
+    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.site.lanes import read_lanes
+    from trafficgeo.video.checkpoint import PartBuffer
+
+    cam = read_camera_json(world / "camera_truth.json")
+    surface = ConstantSurface(90.0)
+    lanes = read_lanes(world / "lanes.gpkg", crs=cam.crs)
+    opts = ProcessOptions(checkpoint_s=CHECKPOINT_S, end_s=3.5, tile_schedule="sparse")
+    out = tmp_path / "out"
+    real = learned.detector_backend
+    add = PartBuffer.add
+
+    def stop_at_2(self, index, time_s, *rest):
+        if time_s >= 2.0:
+            raise KeyboardInterrupt
+        add(self, index, time_s, *rest)
+
+    with monkeypatch.context() as m:  # the first attempt: the probe chose (say) the INT8 model, then Ctrl-C
+        m.setattr(learned, "detector_backend", lambda d: replace(real(d), backend="onnxruntime-int8"))
+        m.setattr(PartBuffer, "add", stop_at_2)
+        with pytest.raises(KeyboardInterrupt):
+            detect_and_track(world / "video.mp4", cam, surface, out, opts, lanes=lanes)
+    said: list[str] = []
+    detect_and_track(world / "video.mp4", cam, surface, out, opts, lanes=lanes, notice=said.append)
+    assert any("ignoring the checkpoint" in s and "other inputs or options" in s for s in said), said
+    assert not any(s.startswith("resuming") for s in said)
+
+
 def test_a_changed_roi_or_surface_is_another_run(world: Path, tmp_path: Path) -> None:
     from trafficgeo.camera.io import read_camera_json
 

@@ -36,7 +36,7 @@ if TYPE_CHECKING:
 CHECKPOINT_DIR = ".checkpoint"
 STATE_FILE = "state.json"
 FORMAT = "trafficgeo-process-checkpoint"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 _PART_NAME = re.compile(r"part\d{5}\.npz")
 _HEX64 = re.compile(r"[0-9a-f]{64}")
 _PART_ARRAYS = {  # name: (dtype kind, ndim)
@@ -241,14 +241,37 @@ class Checkpoint:
     frames_done: int = 0
     complete: bool = False
     parts: list[dict[str, Any]] = field(default_factory=list)
+    schedule: dict[str, Any] | None = None  # the tile schedule used ("all"/"sparse") and its state's file entry
 
 
 def save_checkpoint(folder: Path, state: Checkpoint) -> None:
     """Write ``state.json`` atomically (after the parts it names)."""
     doc = {"format": FORMAT, "version": FORMAT_VERSION, "key": state.key, "segment": state.segment,
            "next_time_s": state.next_time_s, "next_frame": state.next_frame, "frames_done": state.frames_done,
-           "complete": state.complete, "parts": state.parts}
+           "complete": state.complete, "parts": state.parts, "schedule": state.schedule}
     write_json_atomic(folder / STATE_FILE, doc)
+
+
+SCHEDULE_FILE = "schedule.npz"  # the tile schedule's and the tiled detector's memory at the last checkpoint
+
+
+def write_schedule_state(folder: Path, arrays: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """Write the schedule's state (numbers and strings only) atomically; returns its entry for ``state.json``."""
+    with atomic_open(folder / SCHEDULE_FILE, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+    return {"used": "sparse", "name": SCHEDULE_FILE, "sha256": sha256_file(folder / SCHEDULE_FILE)}
+
+
+def read_schedule_state(folder: Path, entry: Mapping[str, Any]) -> dict[str, np.ndarray]:
+    """The arrays of the schedule state named in ``state.json``; :class:`ValueError` says what is wrong."""
+    path = folder / SCHEDULE_FILE
+    if not path.is_file() or sha256_file(path) != entry.get("sha256"):
+        raise ValueError(f"{SCHEDULE_FILE} is missing or has changed since it was written")
+    try:
+        with np.load(path) as z:  # numbers and strings only: object arrays are refused
+            return {k: z[k] for k in z.files}
+    except (OSError, EOFError, ValueError) as exc:
+        raise ValueError(f"{SCHEDULE_FILE} cannot be read ({exc})") from None
 
 
 def _int(doc: Mapping[str, Any], name: str, least: int) -> int:
@@ -289,9 +312,23 @@ def load_checkpoint(folder: Path, key: str) -> Checkpoint:
             raise ValueError(f"{e['name']} is missing")
     if not isinstance(doc.get("complete"), bool):
         raise ValueError("complete is not true or false")
+    schedule = doc.get("schedule")
+    if schedule is not None and not _schedule_entry(schedule, bool(parts)):
+        raise ValueError("schedule is not a tile schedule entry")
     return Checkpoint(key=key, segment=_int(doc, "segment", 0), next_time_s=float(t),
                       next_frame=_int(doc, "next_frame", -1), frames_done=_int(doc, "frames_done", 0),
-                      complete=doc["complete"], parts=parts)
+                      complete=doc["complete"], parts=parts, schedule=schedule)
+
+
+def _schedule_entry(entry: object, has_parts: bool) -> bool:
+    """Whether ``entry`` is a tile schedule entry of ``state.json``: ``{"used": "all"}``, or ``{"used":
+    "sparse"}`` with the name and SHA-256 of its state (which a run without parts has not written yet)."""
+    if not isinstance(entry, dict) or entry.get("used") not in ("all", "sparse"):
+        return False
+    if set(entry) == {"used"}:
+        return entry["used"] == "all" or not has_parts
+    return (entry["used"] == "sparse" and set(entry) == {"used", "name", "sha256"} and entry["name"] == SCHEDULE_FILE
+            and isinstance(entry["sha256"], str) and _HEX64.fullmatch(entry["sha256"]) is not None)
 
 
 def read_detections(out_dir: str | os.PathLike[str]) -> DetectionFrames:

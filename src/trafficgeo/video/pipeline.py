@@ -155,6 +155,37 @@ def _prime_window(boundary_s: float, end_s: float, prime_s: float) -> tuple[floa
     return (boundary_s - prime_s, boundary_s) if boundary_s >= prime_s else (0.0, min(prime_s, end_s))
 
 
+def _resume_schedule(folder: Path, state: Checkpoint, sparse: TileSchedule | None,
+                     detector: object) -> TileSchedule | None:
+    """The tile schedule of the interrupted run ``state`` (None: every tile), with its memory and the tiled
+    detector's last detections put back as they were at its last checkpoint; :class:`ValueError` if that cannot be
+    done (then the run starts again)."""
+    from trafficgeo.video.checkpoint import read_schedule_state
+    from trafficgeo.video.detectors.learned import tiled_detector
+
+    entry = state.schedule
+    if sparse is None or entry is None:
+        if (sparse is None) != (entry is None):
+            raise ValueError("its tile schedule is not this run's")
+        return None
+    if entry["used"] == "all":
+        return None
+    if "sha256" in entry:
+        arrays = read_schedule_state(folder, entry)
+        sparse.restore(arrays)
+        tiled_detector(detector).restore_last(arrays)
+    return sparse
+
+
+def _save_schedule(folder: Path, state: Checkpoint, schedule: TileSchedule | None, detector: object) -> None:
+    """Keep the tile schedule's memory and the tiled detector's last detections with the checkpoint."""
+    from trafficgeo.video.checkpoint import write_schedule_state
+    from trafficgeo.video.detectors.learned import tiled_detector
+
+    if schedule is not None:
+        state.schedule = write_schedule_state(folder, {**schedule.state(), **tiled_detector(detector).last_state()})
+
+
 def _replay(folder: Path, state: Checkpoint, tracker: VehicleTracker, variable_rate: bool) -> None:
     """Feed the stored detections of ``state``'s parts to a fresh ``tracker``; :class:`ValueError` if the tracks do
     not come out as stored."""
@@ -246,10 +277,8 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     if plan is not None:
         for line in plan.summary_lines():
             tell(line)
-    schedule = _tile_schedule(detector, cam, plan, opts, info.fps)
-    cost, schedule, used = _announce_cost(detector, plan, video, info.fps, opts, end_s, tell, schedule)
-    if schedule is not None:
-        tiled_detector(detector).schedule = schedule  # after the cost's trial detection
+    sparse = _tile_schedule(detector, cam, plan, opts, info.fps)
+    cost, schedule, used = _announce_cost(detector, plan, video, info.fps, opts, end_s, tell, sparse)
     if detector_info is not None:
         detector_info({"tiling": plan.to_dict() if plan is not None else None,
                        **({"backend": cost[0].to_dict(), "estimate": cost[1].to_dict()} if cost else {}),
@@ -258,8 +287,12 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     tiles = plan.tiles.tolist() if plan is not None else None  # the lanes enter the detections through the tiles
     # not what tile_schedule="auto" chose: a resumed run may choose otherwise (the machine's load changed) and keeps
     # the segments already detected, which are the same video's detections either way
+    # the runtime the probe chose (the built-in model's INT8 or float version, OpenVINO) is part of the run: a run
+    # resumed where the probe chooses another starts again rather than mixing two models' detections
+    runtime = cost[0].backend if cost else None
     key = run_key(video, camera=camera, surface=surface, roi=roi,
-                  options={**asdict(opts), "prime_s": PRIME_S, "tile_boxes": tiles}, detector_file=model)
+                  options={**asdict(opts), "prime_s": PRIME_S, "tile_boxes": tiles, "runtime": runtime},
+                  detector_file=model)
     out = Path(out_dir)
     ck = out / CHECKPOINT_DIR
     fps = info.fps / opts.every
@@ -274,18 +307,31 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
                     tables = _write_tables(ck, state, out)
                     tell(f"resuming from {state.next_time_s:.1f} s: detection and tracking had finished")
                     return tables
+                resumed = _resume_schedule(ck, state, sparse, detector)
                 _replay(ck, state, tracker, info.variable_frame_rate)
+                if resumed != schedule:
+                    schedule = resumed
+                    tell(f"tile schedule: {'sparse' if schedule is not None else 'every tile'}, as the interrupted "
+                         "run chose")
+                    if detector_info is not None and used:
+                        detector_info({"tile_schedule": {**used, "used": "sparse" if schedule else "all"}})
             except ValueError as exc:
                 tell(f"ignoring the checkpoint in {ck}: {exc}; starting again")
                 state, tracker = None, VehicleTracker(fps, opts.tracker)
+                if sparse is not None:  # as new: what the failed restore may have put back is forgotten
+                    sparse = _tile_schedule(detector, cam, plan, opts, info.fps)
+                    schedule = sparse if schedule is not None else None
         if state is None:
             if ck.exists():
                 shutil.rmtree(ck)
             ck.mkdir(parents=True)
-            state = Checkpoint(key, segment=0, next_time_s=opts.start_s)
+            state = Checkpoint(key, segment=0, next_time_s=opts.start_s,
+                               schedule={"used": "sparse" if schedule is not None else "all"} if sparse else None)
             save_checkpoint(ck, state)
         elif state.parts:
             tell(f"resuming from {state.next_time_s:.1f} s")
+        if sparse is not None:
+            tiled_detector(detector).schedule = schedule  # after the cost's trial detection
         _run_segments(video, info, end_s, opts, ck, state, tracker, detector if not learns else None,
                       new_detector, _prime_seconds(detector), progress, schedule)
         if schedule is not None and detector_info is not None:
@@ -405,6 +451,7 @@ def _run_segments(video: Path, info, end_s: float, opts: ProcessOptions, ck: Pat
                 state.parts.append(write_part(ck, len(state.parts), buffer.to_part()))
                 buffer = PartBuffer()
                 state.segment, state.next_time_s, state.next_frame, state.frames_done = seg, t, frame.index, done
+                _save_schedule(ck, state, schedule, fixed_detector)
                 save_checkpoint(ck, state)
                 if fixed_detector is None:
                     learnt = pending.pop(seg, None)

@@ -186,6 +186,39 @@ class TileSchedule:
                       & (tiles[:, 1, None] <= cy) & (cy < tiles[:, 3, None]))
             self.forced |= inside.any(axis=1)
 
+    def state(self) -> dict[str, np.ndarray]:
+        """What the schedule remembers (frame counter, last runs, forced tiles, counters and each tile's last
+        thumbnail) as arrays of numbers, for a checkpoint; :meth:`restore` puts it back."""
+        k = len(self.periods)
+        shapes = np.array([t.shape if t is not None else (-1, -1) for t in self._thumbs], dtype=np.int64)
+        pixels = [t.ravel() for t in self._thumbs if t is not None]
+        return {"frame": np.array([self.frame], dtype=np.int64), "last_run": self.last_run.copy(),
+                "forced": self.forced.copy(), "runs": self.runs.copy(), "reused": self.reused.copy(),
+                "forced_runs": self.forced_runs.copy(), "thumb_shape": shapes.reshape(k, 2),
+                "thumb_pixels": np.concatenate(pixels).astype(np.uint8) if pixels else np.zeros(0, np.uint8)}
+
+    def restore(self, arrays: dict[str, np.ndarray]) -> None:
+        """Put back a :meth:`state` (of a schedule of the same tiles); :class:`ValueError` if it is not one."""
+        k = len(self.periods)
+        try:
+            shapes = np.asarray(arrays["thumb_shape"], dtype=np.int64).reshape(k, 2)
+            sizes = np.where(shapes[:, 0] >= 0, shapes[:, 0] * shapes[:, 1], 0)
+            pixels = np.asarray(arrays["thumb_pixels"])
+            counters = {n: np.asarray(arrays[n]) for n in ("last_run", "runs", "reused", "forced_runs")}
+            forced = np.asarray(arrays["forced"])
+            frame = int(np.asarray(arrays["frame"]).reshape(-1)[0])
+        except (KeyError, ValueError, IndexError, TypeError) as exc:
+            raise ValueError(f"the tile schedule's state is damaged ({exc})") from None
+        if (pixels.dtype != np.uint8 or pixels.size != sizes.sum() or forced.shape != (k,) or forced.dtype != bool
+                or any(c.shape != (k,) or c.dtype.kind != "i" for c in counters.values())):
+            raise ValueError("the tile schedule's state is not one of these tiles")
+        bounds = np.concatenate([[0], np.cumsum(sizes)])
+        self._thumbs = [pixels[bounds[j]:bounds[j + 1]].reshape(shapes[j]).copy() if shapes[j, 0] >= 0 else None
+                        for j in range(k)]
+        self.frame, self.forced = frame, forced.copy()
+        self.last_run, self.runs = counters["last_run"].astype(np.int64), counters["runs"].astype(np.int64)
+        self.reused, self.forced_runs = counters["reused"].astype(np.int64), counters["forced_runs"].astype(np.int64)
+
     def summary(self, frame_step_s: float) -> str:
         """The schedule in one line for the terminal (``frame_step_s``: seconds between detection frames)."""
         p = self.periods

@@ -99,6 +99,30 @@ class TiledDetector:
         self.schedule: TileSchedule | None = None  # None: every tile on every frame
         self._last: list[Detections] = [Detections.empty() for _ in range(len(plan.tiles))]
 
+    def last_state(self) -> dict[str, np.ndarray]:
+        """Each tile's last detections (those a still tile gives again), as arrays for a checkpoint."""
+        tiles = np.concatenate([np.full(len(d), t, dtype=np.int64) for t, d in enumerate(self._last)]
+                               or [np.zeros(0, dtype=np.int64)])
+        last = Detections.concatenate(self._last) if self._last else Detections.empty()
+        return {"last_tile": tiles, "last_box": last.boxes.astype(np.float64),
+                "last_score": last.scores.astype(np.float64), "last_class": np.asarray(last.classes, dtype=str)}
+
+    def restore_last(self, arrays: dict[str, np.ndarray]) -> None:
+        """Put back a :meth:`last_state`; :class:`ValueError` if it is not one of these tiles."""
+        try:
+            tiles = np.asarray(arrays["last_tile"], dtype=np.int64)
+            boxes = np.asarray(arrays["last_box"], dtype=np.float64).reshape(-1, 4)
+            scores = np.asarray(arrays["last_score"], dtype=np.float64)
+            classes = np.asarray(arrays["last_class"]).astype(object)
+        except (KeyError, ValueError, TypeError) as exc:
+            raise ValueError(f"the tiles' last detections are damaged ({exc})") from None
+        n = tiles.size
+        if boxes.shape[0] != n or scores.size != n or classes.size != n or (n and not (
+                0 <= tiles.min() and tiles.max() < len(self._last))):
+            raise ValueError("the tiles' last detections are not of these tiles")
+        self._last = [Detections(boxes[tiles == t], scores[tiles == t], classes[tiles == t])
+                      for t in range(len(self._last))]
+
     def detect(self, image: np.ndarray, time_s: float = 0.0) -> Detections:
         """Vehicles in ``image`` ((H, W, 3) uint8 BGR) at ``time_s`` s, boxes in full-frame px."""
         image = check_image(image)
