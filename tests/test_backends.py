@@ -311,3 +311,24 @@ def test_the_openvino_runtime_agrees_with_onnxruntime(tmp_path: Path, monkeypatc
     for a, b in zip(ort._runner.run(feeds), ov._runner.run(feeds), strict=True):
         assert a.shape == b.shape
         assert np.max(np.abs(a - b)) <= 0.02 + 0.02 * np.max(np.abs(a))  # bf16 where the CPU has it
+
+
+def test_a_fifo_in_the_cache_is_not_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 43: a FIFO where the cached choice belongs hung process (reading it blocks until someone writes). Only
+    a regular file is read; anything else is as no cache (the probe runs again)."""
+    import os
+    import threading
+
+    from trafficgeo.video.detectors.backends import _cache_file, load_choice
+
+    monkeypatch.setenv("TRAFFICGEO_CACHE_DIR", str(tmp_path))
+    key = {"model": "x", "cpu": "y"}
+    os.mkfifo(_cache_file(key))
+    got: list[object] = []
+    reader = threading.Thread(target=lambda: got.append(load_choice(key)), daemon=True)
+    reader.start()
+    reader.join(timeout=10)
+    if reader.is_alive():  # unblock the reader before failing
+        with open(_cache_file(key), "w") as fh:
+            fh.write("{}")
+    assert not reader.is_alive() and got == [None]

@@ -36,7 +36,24 @@ def cluster():
 
 
 def on(cluster, **kw) -> RunOptions:
-    return RunOptions(scheduler=cluster.scheduler_address, retries=2, **kw)
+    return RunOptions(scheduler=cluster.scheduler_address, security=cluster.security, retries=2, **kw)
+
+
+def test_the_local_cluster_takes_no_stranger(cluster) -> None:
+    """Issue 43: the local cluster listened on loopback only, but any local process could connect and run code in
+    its workers (a shared host is the normal case on a city's servers). It speaks TLS with credentials made for it:
+    a client without them is refused, one with them runs code."""
+    import distributed
+
+    assert cluster.scheduler_address.startswith("tls://127.0.0.1:")
+    with pytest.raises((OSError, TimeoutError, TypeError)):  # TypeError: TLS wants an SSL context it lacks
+        distributed.Client(cluster.scheduler_address, timeout="3s", set_as_default=False)
+    plain = "tcp://" + cluster.scheduler_address.removeprefix("tls://")
+    with pytest.raises((OSError, TimeoutError)):
+        distributed.Client(plain, timeout="3s", set_as_default=False)
+    with distributed.Client(cluster.scheduler_address, security=cluster.security, timeout="10s",
+                            set_as_default=False) as client:
+        assert client.submit(sum, [1, 2]).result(timeout=30) == 3
 
 
 def status_rows(dataset: Path) -> list[dict[str, str]]:

@@ -165,3 +165,20 @@ def test_a_hand_written_json_pose_at_a_geodetic_origin(tmp_path: Path) -> None:
     conv = pyproj.Proj(UTM).get_factors(LON0, LAT0).meridian_convergence  # deg, grid north -> true north
     o = cam.orientation
     assert abs(((o.heading_deg + conv + 180) % 360) - 180) < 0.01 and abs(o.tilt_deg) < 0.01
+
+
+def test_an_origin_outside_the_crs_area_is_refused() -> None:
+    """Issue 43: a swapped lat/lon origin put the camera 11,000 km away with exit 0. An origin outside the target
+    CRS's area of use (2 degrees of margin) is refused, and a swap is suggested when the numbers fit the other way."""
+    from trafficgeo.camera.pose_file import camera_from_pose
+
+    K = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
+    cam = camera_from_pose((640, 480), K, np.zeros(5), np.eye(3), [0.0, 0.0, 10.0], crs="EPSG:32633",
+                           origin=(52.5, 13.4, 40.0))  # Berlin, in UTM 33N
+    assert 3e5 < cam.position[0] < 5e5 and 5.8e6 < cam.position[1] < 5.9e6
+    with pytest.raises(InputError, match="swapped"):
+        camera_from_pose((640, 480), K, np.zeros(5), np.eye(3), [0.0, 0.0, 10.0], crs="EPSG:32633",
+                         origin=(13.4, 52.5, 40.0))
+    with pytest.raises(InputError, match="outside the area of"):
+        camera_from_pose((640, 480), K, np.zeros(5), np.eye(3), [0.0, 0.0, 10.0], crs="EPSG:32633",
+                         origin=(-33.9, 151.2, 40.0))  # Sydney

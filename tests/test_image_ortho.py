@@ -132,3 +132,32 @@ def test_the_command_writes_the_orthophoto(tmp_path: Path, geotiff: Path) -> Non
     code, _out, stderr = invoke("ortho-from-image", img, "--crs", CRS, "-o", tmp_path / "o2.tif",
                                 "--corners", tmp_path / "nope.csv")
     assert code == 2 and "--corners" in stderr
+
+
+def test_an_image_too_large_once_decoded_is_refused_before_it_is_decoded(tmp_path: Path) -> None:
+    """Issue 43: a 437 kB PNG made ortho-from-image use 7.2 GB. The decoded size is read from the header first: an
+    image over MAX_IMAGE_BYTES is refused (exit 2, one line) without decoding it."""
+    import resource
+    import struct
+    import zlib
+
+    from trafficgeo.geo.image_ortho import MAX_IMAGE_BYTES
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    w, h = 20000, 17000  # RGB: 1.02 GB decoded, about 1 MB of zeros on disk
+    assert 3 * w * h > MAX_IMAGE_BYTES
+    z = zlib.compressobj(9)
+    row = b"\x00" * (1 + 3 * w)
+    idat = b"".join(z.compress(row) for _ in range(h)) + z.flush()
+    bomb = tmp_path / "bomb.png"
+    bomb.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+                     + chunk(b"IDAT", idat) + chunk(b"IEND", b""))
+    (tmp_path / "bomb.pgw").write_text("1\n0\n0\n-1\n500000\n5000000\n")
+    assert bomb.stat().st_size < 2_000_000
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    code, _stdout, stderr = invoke("ortho-from-image", bomb, "--crs", "EPSG:32633", "-o", tmp_path / "out.tif")
+    assert code == 2 and "GB decoded" in stderr and len(stderr.strip().splitlines()) == 1, stderr
+    assert not (tmp_path / "out.tif").exists()
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 500_000  # kB: it was never decoded

@@ -350,3 +350,24 @@ def test_write_bad_targets(tmp_path: Path) -> None:
     folder.mkdir()
     with pytest.raises(InputError, match="directory"):
         write_intrinsics_yaml(folder, intr)
+
+
+@pytest.mark.parametrize("shape", ["brackets", "indentation", "xml"])
+def test_a_file_nested_too_deep_is_refused_before_opencv_parses_it(tmp_path: Path, shape: str) -> None:
+    """Issue 43: a YAML nested 100,000 deep killed the process (OpenCV's recursive parser overflows its stack:
+    exit 139, no message). Such files are refused with a one-line InputError; a real camera file still reads."""
+    n = 100_000 if shape == "brackets" else 2_000
+    text = {
+        "brackets": "%YAML:1.0\n---\ncamera_matrix: " + "[" * n + "]" * n + "\n",
+        "indentation": "%YAML:1.0\n---\n" + "".join(" " * (2 * i) + f"k{i}:\n" for i in range(n)) + " " * 2 * n
+                       + "x: 1\n",
+        "xml": '<?xml version="1.0"?>\n<opencv_storage>' + "<a>" * n + "1" + "</a>" * n + "</opencv_storage>\n",
+    }[shape]
+    path = tmp_path / ("deep.xml" if shape == "xml" else "deep.yml")
+    path.write_text(text)
+    with pytest.raises(InputError, match="nested more than 64 levels"):
+        read_intrinsics_yaml(path)
+    ok = tmp_path / "ok.yml"
+    write_intrinsics_yaml(ok, Intrinsics(np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]]), np.zeros(5),
+                                         (640, 480)))
+    assert read_intrinsics_yaml(ok).K[0, 0] == 800.0

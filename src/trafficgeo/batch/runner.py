@@ -4,7 +4,8 @@
 :class:`trafficgeo.batch.manifest.BatchPlan`) and a dataset folder and runs each task once:
 
 - **Where**: ``RunOptions.workers`` worker processes of a :class:`distributed.LocalCluster` on the loopback
-  interface (``threads_per_worker`` task threads each, ``memory_limit`` each), or the running cluster at
+  interface (``threads_per_worker`` task threads each, ``memory_limit`` each; TLS with credentials made for it, so
+  that no other local process can connect and run code in its workers), or the running cluster at
   ``RunOptions.scheduler`` (``tcp://host:8786``), or, with ``workers=0`` and no scheduler, **serially in this
   process** without Dask (same order rules, same report; for debugging and to measure Dask's overhead).
 - **Threads**: every worker process gets ``OMP_NUM_THREADS``, ``MKL_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``,
@@ -74,9 +75,10 @@ class RunOptions:
     ``workers``: worker processes of the local cluster (0: run serially in this process, without Dask);
     ``threads_per_worker``: tasks a worker runs at once, and the thread count of OpenCV, BLAS, numba and onnxruntime
     in each worker; ``memory_limit``: per worker (Dask's text, ``"4GiB"``); ``scheduler``: address of a running Dask
-    scheduler (``tcp://host:8786``) to use instead of a local cluster; ``window``: tasks submitted and not finished
-    at most (default 2 x the cluster's task threads, i.e. 2 x ``workers`` at one thread each); ``retries``: extra
-    attempts of a task that raised or whose worker died."""
+    scheduler (``tcp://host:8786``) to use instead of a local cluster, with its ``security`` (a
+    :class:`distributed.Security`) when it takes TLS clients only, as :func:`start_local_cluster`'s does;
+    ``window``: tasks submitted and not finished at most (default 2 x the cluster's task threads, i.e. 2 x
+    ``workers`` at one thread each); ``retries``: extra attempts of a task that raised or whose worker died."""
 
     workers: int = 2
     threads_per_worker: int = 1
@@ -84,6 +86,7 @@ class RunOptions:
     scheduler: str | None = None
     window: int | None = None
     retries: int = 2
+    security: Any = None
 
     def __post_init__(self) -> None:
         for name in ("workers", "threads_per_worker", "retries"):
@@ -415,7 +418,8 @@ def start_local_cluster(options: RunOptions = RunOptions()) -> Any:
     """A :class:`distributed.LocalCluster` of ``options.workers`` processes on 127.0.0.1 with the thread limits
     of ``options.threads_per_worker`` (environment before spawn, cv2 plugin) and ``allowed-failures`` =
     ``options.retries``. :func:`run_batch` starts one itself; start one here to run several batches on it (pass
-    its ``scheduler_address`` as ``RunOptions.scheduler``); close it when done."""
+    its ``scheduler_address`` as ``RunOptions.scheduler`` and its ``security`` as ``RunOptions.security``: it takes
+    TLS clients with its own temporary credentials only); close it when done."""
     distributed = _import_distributed()
     import dask
 
@@ -427,11 +431,13 @@ def start_local_cluster(options: RunOptions = RunOptions()) -> Any:
     try:
         with _quiet(), environment(env), dask.config.set(config):
             with sigint_ignored():  # the workers ignore Ctrl-C: this process handles it
+                # TLS with credentials made for this cluster (security=True): on a shared host another local
+                # process could otherwise connect to the loopback scheduler and run code in the workers
                 cluster = distributed.LocalCluster(n_workers=max(1, options.workers),
                                                    threads_per_worker=options.threads_per_worker,
                                                    memory_limit=options.memory_limit, processes=True,
                                                    host="127.0.0.1", dashboard_address=f"127.0.0.1:{_DASH_PORT}",
-                                                   silence_logs=logging.CRITICAL, env=env)
+                                                   silence_logs=logging.CRITICAL, env=env, security=True)
             with distributed.Client(cluster, set_as_default=False) as client:
                 client.register_plugin(_plugin(options.threads_per_worker, ignore_sigint=True))
     except BaseException:  # Ctrl-C while starting: no cluster left behind
@@ -457,7 +463,8 @@ def _run_dask(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options
             interrupt.holding = True  # a Ctrl-C while the cluster starts takes effect once it is up
             if options.scheduler:
                 try:
-                    client = distributed.Client(options.scheduler, timeout="10s", set_as_default=False)
+                    client = distributed.Client(options.scheduler, timeout="10s", set_as_default=False,
+                                                security=options.security)
                 except (OSError, TimeoutError) as exc:
                     raise InputError(f"could not reach the Dask scheduler at {options.scheduler} ({_one_line(exc)});"
                                      " start it or check the address", parameters=("scheduler",)) from None

@@ -275,6 +275,45 @@ def cv_error_detail(exc: BaseException) -> str:
     return (m.group(1) if m else text)[:200]
 
 
+MAX_STORAGE_BYTES = 16 << 20  # a camera file is a few kB
+MAX_NESTING = 64  # levels of [ ], { } or XML elements; a camera file needs 3
+
+
+def check_storage_file(path: Path) -> None:
+    """Refuse a FileStorage file that OpenCV's parser cannot take safely: larger than :data:`MAX_STORAGE_BYTES`,
+    or nested deeper than :data:`MAX_NESTING` (OpenCV's recursive parser overflows its stack and the process dies
+    at about 100,000 levels), by brackets, XML elements or YAML indentation (2 columns a level)."""
+    if path.stat().st_size > MAX_STORAGE_BYTES:
+        raise InputError(f"{path}: {path.stat().st_size / 1e6:.0f} MB is too large for a camera file; give an OpenCV "
+                         ".yml with camera_matrix")
+    text = path.read_bytes()
+    depth = deepest = 0
+    for ch in text.translate(None, _NOT_NESTING):
+        depth += 1 if ch in b"[{" else -1
+        deepest = max(deepest, depth)
+    indent = max((len(line) - len(line.lstrip(b" ")) for line in text.splitlines()), default=0)
+    if max(deepest, _xml_depth(text) if b"<" in text else 0, indent // 2) > MAX_NESTING:
+        raise InputError(f"{path}: nested more than {MAX_NESTING} levels deep, which no camera file is; give an "
+                         "OpenCV .yml with camera_matrix")
+
+
+_NOT_NESTING = bytes(b for b in range(256) if b not in b"[]{}")
+
+
+def _xml_depth(text: bytes) -> int:
+    """The deepest nesting of XML elements in ``text`` (0 for a file without tags)."""
+    import re
+
+    depth = deepest = 0
+    for m in re.finditer(rb"<(/?)[A-Za-z_][^>]*?(/?)>", text):
+        if m.group(1):
+            depth -= 1
+        elif not m.group(2):
+            depth += 1
+            deepest = max(deepest, depth)
+    return deepest
+
+
 def read_intrinsics_yaml(path: str | os.PathLike[str]) -> Intrinsics:
     """Read camera intrinsics from an OpenCV FileStorage file (``.yml``/``.yaml``, also ``.xml``/``.json``).
 
@@ -291,6 +330,7 @@ def read_intrinsics_yaml(path: str | os.PathLike[str]) -> Intrinsics:
         )
     if not p.is_file():
         raise InputError(f"{src}: is not a file; give an OpenCV .yml with camera_matrix")
+    check_storage_file(p)
     try:
         fs = cv2.FileStorage(src, cv2.FILE_STORAGE_READ)
         opened = fs.isOpened()

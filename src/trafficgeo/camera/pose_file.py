@@ -140,6 +140,7 @@ def camera_from_pose(image_size: tuple[int, int], K: ArrayLike, dist: ArrayLike,
         raise InputError("`crs`: a camera posed at a geodetic origin needs a projected target CRS, e.g. "
                          "EPSG:32633 (the UTM zone of the site)", parameters=("crs",))
     lat, lon, alt = _check_origin(origin)
+    _check_origin_in_area(lat, lon, alt, target)
     centre = -Rm.T @ tv
     position = local_to_crs(centre, (lat, lon, alt), target, frame)[0]
     if not np.all(np.isfinite(position)):
@@ -159,6 +160,26 @@ def _check_origin(origin: ArrayLike) -> tuple[float, float, float]:
         raise InputError(f"origin {lat:g}, {lon:g}, {alt:g}: latitude must be within +/-90 and longitude within "
                          "+/-180 degrees (lat first)", parameters=("origin",))
     return lat, lon, alt
+
+
+AREA_MARGIN_DEG = 2.0  # degrees around a CRS's area of use still taken as inside it
+
+
+def _check_origin_in_area(lat: float, lon: float, alt: float, crs: pyproj.CRS) -> None:
+    """Refuse a geodetic origin outside the target CRS's area of use (with :data:`AREA_MARGIN_DEG`): latitude and
+    longitude given the other way round put the camera thousands of km away, where the CRS does not hold."""
+    area = crs.area_of_use
+    if area is None:
+        return
+    west, south, east, north = area.west, area.south, area.east, area.north
+    inside_lon = (west - AREA_MARGIN_DEG <= lon <= east + AREA_MARGIN_DEG if west <= east
+                  else lon >= west - AREA_MARGIN_DEG or lon <= east + AREA_MARGIN_DEG)  # across the antimeridian
+    if not (inside_lon and south - AREA_MARGIN_DEG <= lat <= north + AREA_MARGIN_DEG):
+        swapped = " (latitude and longitude swapped?)" if -90 <= lon <= 90 and (
+            west - AREA_MARGIN_DEG <= lat <= east + AREA_MARGIN_DEG) else ""
+        raise InputError(f"origin {lat:g}, {lon:g}, {alt:g}: outside the area of {crs.name} (lat {south:g} to "
+                         f"{north:g}, lon {west:g} to {east:g}){swapped}; give the origin as lat, lon, alt and the "
+                         "CRS of the site", parameters=("origin", "crs"))
 
 
 def _file_origin(fs: Any, src: str) -> tuple[float, float, float] | None:

@@ -131,6 +131,9 @@ def read_control_points(path: str | os.PathLike[str], image_size: tuple[int, int
     return np.array(uv, dtype=np.float64), np.array(xy, dtype=np.float64)
 
 
+MAX_IMAGE_BYTES = 1_000_000_000  # decoded size of an image read whole (a PNG of a few hundred kB can hold GBs)
+
+
 def read_image_ortho(image: str | os.PathLike[str], crs: object, *, world_file: str | os.PathLike[str] | None = None,
                      control: str | os.PathLike[str] | None = None) -> tuple[GeoRaster, ControlFit | None]:
     """The orthophoto of ``image`` in the projected ``crs``: georeferenced by ``world_file``, or by the control-point
@@ -155,6 +158,11 @@ def read_image_ortho(image: str | os.PathLike[str], crs: object, *, world_file: 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             with rasterio.open(p) as ds:
+                need = ds.count * ds.width * ds.height * np.dtype(ds.dtypes[0]).itemsize
+                if need > MAX_IMAGE_BYTES:  # told by the header, before a small compressed file decodes to GBs
+                    raise InputError(f"image {p}: {ds.width} x {ds.height} px x {ds.count} bands would take "
+                                     f"{need / 1e9:.1f} GB decoded, more than {MAX_IMAGE_BYTES / 1e9:g} GB; give a "
+                                     "smaller image (e.g. cut to the camera's view) or a tiled GeoTIFF")
                 data = ds.read()
                 nodata = ds.nodata
     except RasterioError as exc:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import stat
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -271,10 +272,17 @@ def _cache_file(key: dict) -> Path:
     return cache_dir() / f"backend-{name}.json"
 
 
+MAX_CACHE_BYTES = 1 << 20  # a cached choice is a few hundred bytes
+
+
 def load_choice(key: dict) -> BackendChoice | None:
     """The cached choice for ``key``, or None (no file, or a damaged or foreign one)."""
+    path = _cache_file(key)
     try:
-        doc = json.loads(_cache_file(key).read_text(encoding="utf-8"))
+        # a regular file of a sane size only: a FIFO (or a device) put there would block the read for ever
+        if not stat.S_ISREG(path.stat().st_mode) or path.stat().st_size > MAX_CACHE_BYTES:
+            return None
+        doc = json.loads(path.read_text(encoding="utf-8"))
         if doc.get("key") != key:
             return None
         c = doc["choice"]
