@@ -167,6 +167,28 @@ def test_a_second_run_skips_everything_and_a_changed_option_reruns_only_its_task
         (city / "cameras.csv").write_text(cameras, encoding="utf-8")
 
 
+def test_a_second_batch_on_the_same_dataset_is_refused_at_once(city: Path, dataset: Path) -> None:
+    """Issue 43: two concurrent runs on one dataset both exited 1 with a confusing message. The dataset is locked
+    for a run: a second one exits 2 at once, naming the first one's pid, and changes nothing."""
+    import os
+
+    src = Path(__file__).resolve().parents[1] / "src"
+    hold = ("import sys\nfrom trafficgeo.io.folder_lock import hold_folder\nwith hold_folder(sys.argv[1]):\n"
+            "    print('held', flush=True)\n    sys.stdin.read()\n")
+    before = (dataset / "status.csv").read_bytes()
+    holder = subprocess.Popen([sys.executable, "-c", hold, str(dataset)], env={**os.environ, "PYTHONPATH": str(src)},
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        code, _stdout, err = invoke("batch", "run", city / "tasks.csv", "--out", dataset, "--workers", 2)
+        assert code == 2 and len(err.strip().splitlines()) == 1, err
+        assert f"another trafficgeo run (pid {holder.pid}) is writing to this folder" in err
+    finally:
+        holder.kill()
+        holder.wait(timeout=30)
+    assert (dataset / "status.csv").read_bytes() == before
+
+
 def test_a_corrupt_video_fails_only_its_own_tasks(city: Path, dataset: Path) -> None:
     broken = city.parent / "broken"
     shutil.copytree(city, broken)

@@ -359,10 +359,13 @@ def run_batch(plan: Any, dataset: str | os.PathLike[str], options: RunOptions = 
         from trafficgeo.batch.tasks import BatchContext
 
         execute = _RunTask(BatchContext.from_plan(plan, folder))
-    book = _Book(tasks, folder, progress)  # status.csv is first written once the run can start: a bad scheduler
-    if options.serial:                      # address leaves no dataset folder behind
-        return _run_serial(book, execute, options)
-    return _run_dask(book, execute, options)
+    from trafficgeo.io.folder_lock import hold_folder
+
+    with hold_folder(folder):  # one batch at a time in a dataset: a second is refused at once, naming the first
+        book = _Book(tasks, folder, progress)  # status.csv is first written once the run can start: a bad
+        if options.serial:                      # scheduler address leaves no dataset folder behind
+            return _run_serial(book, execute, options)
+        return _run_dask(book, execute, options)
 
 
 def _run_serial(book: _Book, execute: Callable[[Task, Path], TaskOutcome], options: RunOptions) -> BatchReport:
