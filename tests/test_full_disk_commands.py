@@ -42,6 +42,15 @@ def inputs(small_world: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[
                                    "--surface", small_world / "cloud.laz", "--lines", small_world / "count_lines.gpkg",
                                    "--lanes", small_world / "lanes.gpkg", "--detector", "background", "--out", run)
     assert code == 0, stderr
+    for name, span in (("chunk_a", ["--end", 5]), ("chunk_b", ["--start", 3])):
+        code, _stdout, stderr = invoke("process", small_world / "video.mp4", "--camera",
+                                       small_world / "camera_truth.json", "--surface", 90, "--detector", "background",
+                                       *span, "--out", root / name)
+        assert code == 0, stderr
+    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.camera.pose_file import write_pose_file
+
+    write_pose_file(root / "pose.yml", read_camera_json(small_world / "camera_truth.json"))
     (root / "pixels.csv").write_text("u,v\n320,300\n100,250\n500,280\n")
     (root / "points.csv").write_text("x,y,z\n244985.0,5182580.0,90.0\n244990.0,5182600.0,90.0\n")
     return {"world": small_world, "run": run, "root": root}
@@ -62,9 +71,15 @@ COMMANDS: dict[str, tuple[W, str]] = {  # argv (inputs, output path), what the o
     "process": (lambda i, o: ["process", i["world"] / "video.mp4", "--camera", i["world"] / "camera_truth.json",
                               "--surface", "90", "--detector", "background", "--out", o], "folder"),
     "compare-sumo": (lambda i, o: ["compare-sumo", i["run"], i["world"] / "sumo" / "fcd.xml", "--out", o], "folder"),
+    "stitch": (lambda i, o: ["stitch", i["root"] / "chunk_a", i["root"] / "chunk_b", "--camera",
+                             i["world"] / "camera_truth.json", "--surface", "90", "--out", o], "folder"),
+    "import-camera": (lambda i, o: ["import-camera", i["root"] / "pose.yml", "-o", o], "file"),
+    "intrinsics": (lambda i, o: ["intrinsics", *sorted(CHESSBOARD.glob("left0[1-6].jpg")), "--pattern", "9x6", "-o",
+                                 o], "file"),
 }
-SUFFIX = {"calibrate": ".json", "georef": ".csv", "project": ".csv", "gcp-z": ".csv", "frame": ".png",
-          "export-fcd": ".xml", "report": ".html", "sumo-net": ".net.xml"}
+CHESSBOARD = Path(__file__).parent / "data" / "opencv-chessboard"
+SUFFIX = {"calibrate": ".json", "import-camera": ".json", "intrinsics": ".yml", "georef": ".csv", "project": ".csv",
+          "gcp-z": ".csv", "frame": ".png", "export-fcd": ".xml", "report": ".html", "sumo-net": ".net.xml"}
 
 
 def _limited(*args: object) -> subprocess.CompletedProcess:

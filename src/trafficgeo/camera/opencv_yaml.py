@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,7 +30,6 @@ import cv2
 import numpy as np
 
 from trafficgeo.errors import InputError
-from trafficgeo.io.atomic import atomic_path
 
 CAMERA_MATRIX_KEYS = ("camera_matrix", "cameraMatrix", "K", "M", "M1")
 DISTORTION_KEYS = ("distortion_coefficients", "dist_coeffs", "distCoeffs", "dist", "D", "D1")
@@ -411,33 +411,34 @@ def write_intrinsics_yaml(path: str | os.PathLike[str], intr: Intrinsics) -> Non
         raise InputError(f"{p}: is a directory; give a file name such as camera_intrinsics.yml")
     if not isinstance(intr, Intrinsics):
         raise TypeError(f"write_intrinsics_yaml expects an Intrinsics, got {type(intr).__name__}")
+    def write(fs: cv2.FileStorage) -> None:
+        if p.suffix.lower() != ".json":  # OpenCV would write a // comment, which is not JSON
+            fs.writeComment("camera intrinsics (OpenCV pinhole + [k1, k2, p1, p2, k3]), written by trafficgeo")
+        if intr.image_size is not None:
+            fs.write("image_width", int(intr.image_size[0]))
+            fs.write("image_height", int(intr.image_size[1]))
+        fs.write("camera_matrix", np.ascontiguousarray(intr.K, dtype=np.float64))
+        fs.write("distortion_coefficients", np.ascontiguousarray(intr.dist, dtype=np.float64).reshape(5, 1))
+        if intr.rms_px is not None:
+            fs.write("avg_reprojection_error", float(intr.rms_px))
+
+    write_storage(p, write)
+
+
+def write_storage(path: Path, write: Callable[[cv2.FileStorage], None]) -> None:
+    """Write an OpenCV FileStorage file (its format from ``path``'s suffix) atomically: ``write(fs)`` fills it in
+    memory and Python writes the text, so that a disk that refuses it (full) raises
+    :class:`~trafficgeo.errors.OutputError` (OpenCV's own file writer ignores failed writes: a truncated file
+    looked written)."""
+    from trafficgeo.io.atomic import write_text_atomic
+
+    fs = cv2.FileStorage(f"storage{path.suffix.lower()}", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
     try:
-        with atomic_path(p) as tmp:
-            fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
-            if not fs.isOpened():
-                raise InputError(
-                    f"{p}: cannot be written (OpenCV FileStorage failed to open a file in "
-                    f"{p.parent}); check that the folder is writable"
-                )
-            try:
-                if p.suffix.lower() != ".json":  # OpenCV would write a // comment, which is not JSON
-                    fs.writeComment(
-                        "camera intrinsics (OpenCV pinhole + [k1, k2, p1, p2, k3]), written by trafficgeo"
-                    )
-                if intr.image_size is not None:
-                    fs.write("image_width", int(intr.image_size[0]))
-                    fs.write("image_height", int(intr.image_size[1]))
-                fs.write("camera_matrix", np.ascontiguousarray(intr.K, dtype=np.float64))
-                fs.write(
-                    "distortion_coefficients", np.ascontiguousarray(intr.dist, dtype=np.float64).reshape(5, 1)
-                )
-                if intr.rms_px is not None:
-                    fs.write("avg_reprojection_error", float(intr.rms_px))
-            finally:
-                fs.release()
-            with open(tmp, "rb") as fh:
-                os.fsync(fh.fileno())
+        write(fs)
+    finally:
+        text = fs.releaseAndGetString()
+    try:
+        write_text_atomic(path, text)
     except OSError as exc:
-        raise InputError(
-            f"{p}: cannot be written ({exc.strerror or exc}); check that the folder exists and is writable"
-        ) from None
+        raise InputError(f"{path}: cannot be written ({exc.strerror or exc}); check that the folder exists and is "
+                         "writable") from None

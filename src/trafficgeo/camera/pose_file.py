@@ -49,10 +49,10 @@ from trafficgeo.camera.opencv_yaml import (
     node_array,
     node_scalar,
     read_intrinsics_yaml,
+    write_storage,
 )
 from trafficgeo.crs import is_geographic, metres_per_unit, parse_crs
 from trafficgeo.errors import InputError
-from trafficgeo.io.atomic import atomic_path
 
 ROTATION_KEYS = ("R", "rotation_matrix", "rmat", "rot_CF_F", "rvec", "rotation_vector", "rot_vec")
 TRANSLATION_KEYS = ("t", "tvec", "T", "translation_vector", "trans_CF_F")
@@ -274,21 +274,18 @@ def write_pose_file(path: str | os.PathLike[str], camera: Camera, *, rotation: s
     if p.suffix.lower() not in (".yml", ".yaml", ".xml", ".json"):
         raise InputError(f"{p}: unsupported pose file suffix '{p.suffix}'; use .yml (or .yaml, .xml, .json)")
     rvec, tvec = camera.rvec_tvec()
-    with atomic_path(p) as tmp:
-        fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
-        if not fs.isOpened():
-            raise InputError(f"{p}: cannot be written; check that the folder exists and is writable")
-        try:
-            fs.write("image_width", int(camera.width))
-            fs.write("image_height", int(camera.height))
-            fs.write("camera_matrix", np.ascontiguousarray(camera.K))
-            fs.write("dist_coeffs", np.ascontiguousarray(camera.dist).reshape(5, 1))
-            if rotation == "rvec":
-                fs.write("rvec", np.ascontiguousarray(rvec).reshape(3, 1))
-            else:
-                fs.write("R", np.ascontiguousarray(camera.R))
-            fs.write("t", np.ascontiguousarray(tvec).reshape(3, 1))
-            if camera.crs_text is not None:
-                fs.write("crs", camera.crs_text)
-        finally:
-            fs.release()
+
+    def write(fs: cv2.FileStorage) -> None:
+        fs.write("image_width", int(camera.width))
+        fs.write("image_height", int(camera.height))
+        fs.write("camera_matrix", np.ascontiguousarray(camera.K))
+        fs.write("dist_coeffs", np.ascontiguousarray(camera.dist).reshape(5, 1))
+        if rotation == "rvec":
+            fs.write("rvec", np.ascontiguousarray(rvec).reshape(3, 1))
+        else:
+            fs.write("R", np.ascontiguousarray(camera.R))
+        fs.write("t", np.ascontiguousarray(tvec).reshape(3, 1))
+        if camera.crs_text is not None:
+            fs.write("crs", camera.crs_text)
+
+    write_storage(p, write)
