@@ -189,6 +189,23 @@ def test_a_second_batch_on_the_same_dataset_is_refused_at_once(city: Path, datas
     assert (dataset / "status.csv").read_bytes() == before
 
 
+def test_a_full_disk_under_batch_plan_and_run(city: Path, tmp_path: Path) -> None:
+    """Issue 43: a full disk under batch plan or batch run stops with one line and exit code 1, with no task
+    manifest written and no temporary file left."""
+    from cli_support import invoke_on_a_full_disk
+
+    cut = invoke_on_a_full_disk(200, "batch", "plan", city / "cameras.csv", "--videos",
+                                str(city / "videos" / "*.mp4"), "-o", tmp_path / "tasks.csv")
+    lines = [ln for ln in cut.stderr.splitlines() if ln.startswith("trafficgeo")]
+    assert cut.returncode == 1 and len(lines) == 1 and "could not write" in lines[0], cut.stderr
+    assert list(tmp_path.iterdir()) == []
+    out = tmp_path / "dataset"
+    cut = invoke_on_a_full_disk(200, "batch", "run", city / "tasks.csv", "--out", out, "--workers", 0)
+    lines = [ln for ln in cut.stderr.splitlines() if ln.startswith("trafficgeo")]
+    assert cut.returncode == 1 and len(lines) == 1 and "Traceback" not in cut.stderr, cut.stderr
+    assert not any(".tmp" in p.name for p in out.rglob("*")) if out.exists() else True
+
+
 def test_a_corrupt_video_fails_only_its_own_tasks(city: Path, dataset: Path) -> None:
     broken = city.parent / "broken"
     shutil.copytree(city, broken)

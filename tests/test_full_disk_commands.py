@@ -74,12 +74,17 @@ COMMANDS: dict[str, tuple[W, str]] = {  # argv (inputs, output path), what the o
     "stitch": (lambda i, o: ["stitch", i["root"] / "chunk_a", i["root"] / "chunk_b", "--camera",
                              i["world"] / "camera_truth.json", "--surface", "90", "--out", o], "folder"),
     "import-camera": (lambda i, o: ["import-camera", i["root"] / "pose.yml", "-o", o], "file"),
+    "synth": (lambda i, o: ["synth", "--out", o, "--duration", 2, "--image-size", "320x180", "--seed", 1], "folder"),
+    "refine": (lambda i, o: ["refine", i["world"] / "camera_truth.json", "--ortho", i["world"] / "ortho.tif",
+                             "--surface", i["world"] / "cloud.laz", "--video", i["world"] / "video.mp4", "--gcps",
+                             i["world"] / "gcps.csv", "-o", o], "file"),
     "intrinsics": (lambda i, o: ["intrinsics", *sorted(CHESSBOARD.glob("left0[1-6].jpg")), "--pattern", "9x6", "-o",
                                  o], "file"),
 }
 CHESSBOARD = Path(__file__).parent / "data" / "opencv-chessboard"
-SUFFIX = {"calibrate": ".json", "import-camera": ".json", "intrinsics": ".yml", "georef": ".csv", "project": ".csv",
-          "gcp-z": ".csv", "frame": ".png", "export-fcd": ".xml", "report": ".html", "sumo-net": ".net.xml"}
+SUFFIX = {"calibrate": ".json", "import-camera": ".json", "refine": ".json", "intrinsics": ".yml", "georef": ".csv",
+          "project": ".csv", "gcp-z": ".csv", "frame": ".png", "export-fcd": ".xml", "report": ".html",
+          "sumo-net": ".net.xml"}
 
 
 def _limited(*args: object) -> subprocess.CompletedProcess:
@@ -111,3 +116,12 @@ def test_a_full_disk_under_a_command_is_one_line_exit_1_and_nothing_half_written
         assert left == [], left  # neither the output nor a temporary file
     else:  # a run folder: no output listed as written (no manifest), no temporary file
         assert "run.json" not in left and not any(Path(p).name.startswith(".") and ".tmp" in p for p in left), left
+
+
+def test_a_full_disk_under_the_demo_is_one_line_exit_1(tmp_path: Path) -> None:
+    """The demo under a full disk (its whole run is too long for a test: only the refused one runs)."""
+    cut = _limited("demo", "--quick", "--out", tmp_path / "demo")
+    lines = [ln for ln in cut.stderr.splitlines() if ln.startswith("trafficgeo")]
+    assert cut.returncode == 1 and len(lines) == 1 and "could not write" in lines[0], (cut.stdout, cut.stderr)
+    assert "Traceback" not in cut.stderr
+    assert not any(".tmp" in p.name for p in (tmp_path / "demo").rglob("*"))

@@ -101,6 +101,31 @@ def test_a_run_in_another_crs_than_the_network(world: dict[str, Path], tmp_path:
     _check_fit(loop)
 
 
+def test_a_full_disk_under_sumo_demand_and_sumo_validate(world: dict[str, Path], tmp_path: Path) -> None:
+    """Issue 43: a full disk under sumo-demand or sumo-validate stops with one line and exit code 1, and leaves no
+    scenario or comparison looking written (no manifest) and no temporary file."""
+    from cli_support import invoke_on_a_full_disk
+
+    run = tmp_path / "run"
+    shutil.copytree(world["run"], run)
+    cut = invoke_on_a_full_disk(200, "sumo-demand", run, "--net", world["net"], "--out", tmp_path / "cut",
+                                "--interval", 300, "--seed", 3)
+    lines = [ln for ln in cut.stderr.splitlines() if ln.startswith("trafficgeo")]
+    assert cut.returncode == 1 and len(lines) == 1 and "could not write" in lines[0], cut.stderr
+    left = [p.name for p in (tmp_path / "cut").rglob("*")] if (tmp_path / "cut").exists() else []
+    assert "scenario_run.json" not in left and not any(".tmp" in n for n in left), left
+    code, _stdout, stderr = invoke("sumo-demand", run, "--net", world["net"], "--out", tmp_path / "sc", "--interval",
+                                   300, "--seed", 3)
+    assert code == 0, stderr
+    before = sorted(p.name for p in run.iterdir())
+    cut = invoke_on_a_full_disk(200, "sumo-validate", tmp_path / "sc", run, "--out", run)
+    lines = [ln for ln in cut.stderr.splitlines() if ln.startswith("trafficgeo")]
+    assert cut.returncode == 1 and len(lines) == 1, cut.stderr
+    assert "Traceback" not in cut.stderr
+    after = sorted(p.name for p in run.iterdir())
+    assert "compare_run.json" not in after and not any(".tmp" in n for n in after), (before, after)
+
+
 def test_sumo_validate_feeds_the_report_of_a_run_folder(world: dict[str, Path], tmp_path: Path) -> None:
     from trafficgeo.report.inputs import find_inputs
 
