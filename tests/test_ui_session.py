@@ -353,3 +353,46 @@ def test_input_errors_for_the_ortho_and_ground(tmp_path, scene):
         load_ground(dem=tmp_path / "dem32633.tif", ortho_crs=scene.ortho_raster.crs)
     with pytest.raises(InputError, match="not both"):
         load_ground(dem=scene.dem, cloud=scene.cloud)
+
+
+FULL_DISK_SESSION = """
+import resource, signal, sys
+from pathlib import Path
+from trafficgeo.ui.session import SessionError
+from trafficgeo.ui.startup import open_session
+work = Path(sys.argv[1])
+session, _ = open_session(frame=work / "frame.png", ortho=work / "ortho.tif", gcps=work / "gcps.csv",
+                          dem=work / "dem.tif")
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, (60, 60))  # a full disk: the GCP CSV's header fits, its rows do not
+session.add_pair(float(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5]))
+print("autosave:", session.state()["autosave"]["error"])
+try:
+    session.save_csv("other.csv")
+    print("saved")
+except SessionError as exc:
+    print("refused:", exc)
+print("pairs:", len(session.pairs))
+"""
+
+
+def test_a_full_disk_under_the_web_app_is_an_answer(work, scene):
+    """Issue 43: a full disk while the web app autosaves or saves the GCPs raised OutputError, which the session did
+    not catch (the disk-full error is not an OSError): the request failed. Now autosave reports it in the state and
+    save answers with a SessionError; the pair is kept and no partial file is left."""
+    import os
+    import subprocess
+    import sys
+
+    src = Path(__file__).resolve().parents[1] / "src"
+    u, v = scene.truth_pixels[0]
+    x, y = scene.truth_ortho[0]
+    run = subprocess.run([sys.executable, "-c", FULL_DISK_SESSION, str(work), str(u), str(v), str(x), str(y)],
+                         env={**os.environ, "PYTHONPATH": str(src)}, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    lines = dict(line.split(": ", 1) for line in run.stdout.splitlines())
+    assert "failed" in lines["autosave"] and "could not write" in lines["autosave"], run.stdout
+    assert lines["refused"].startswith("cannot write") and "free space" in lines["refused"], run.stdout
+    assert lines["pairs"] == "1"
+    assert not (work / "other.csv").exists()
+    assert not any(".tmp" in p.name for p in work.iterdir())

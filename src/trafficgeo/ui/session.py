@@ -29,7 +29,7 @@ from trafficgeo.calibration.gcp_table import ROLE_CHECK, ROLE_CONTROL, ROLES
 from trafficgeo.calibration.pipeline import required_points
 from trafficgeo.calibration.run import CalibrationRun, calibrated_camera
 from trafficgeo.crs import crs_label
-from trafficgeo.errors import InputError
+from trafficgeo.errors import InputError, OutputError
 from trafficgeo.io.atomic import to_json_safe
 from trafficgeo.ui import live
 from trafficgeo.ui.inputs import FrameImage, Ground, GroundSample, Orthophoto
@@ -418,8 +418,9 @@ class Session:
     def _autosave(self) -> None:
         try:
             self._table(self._pairs).to_csv(self.autosave_path)
-        except OSError as exc:
-            self.autosave_error = (f"autosave to {self.autosave_path} failed ({exc.strerror or exc}); save the GCPs "
+        except (OSError, OutputError) as exc:  # OutputError: the disk full (the partial file is already removed)
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+            self.autosave_error = (f"autosave to {self.autosave_path} failed ({why}); save the GCPs "
                                    "under another name")
             log.warning(self.autosave_error)
         else:
@@ -466,9 +467,10 @@ class Session:
             table = self._table(self._pairs)
             try:
                 table.to_csv(path)
-            except OSError as exc:
-                raise SessionError(f"cannot write {path} ({exc.strerror or exc}); check the folder's "
-                                   "permissions or give another name") from None
+            except (OSError, OutputError) as exc:
+                why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+                raise SessionError(f"cannot write {path} ({why}); check the folder's permissions and free space, "
+                                   "or give another name") from None
             self.last_saved = self.display_name(path)
             return {"path": self.last_saved, "n": table.n}
 
@@ -487,8 +489,9 @@ class Session:
             raise ConflictError(f"no calibrated camera to save: {payload['message']}")
         try:
             calibrated_camera(run.calibration, run.report).write(path)
-        except OSError as exc:
-            raise SessionError(f"cannot write {path} ({exc.strerror or exc}); check the folder's permissions or "
+        except (OSError, OutputError) as exc:
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+            raise SessionError(f"cannot write {path} ({why}); check the folder's permissions and free space, or "
                                "give another name") from None
         return {"path": self.display_name(path), "revision": payload["revision"]}
 
