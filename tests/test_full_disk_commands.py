@@ -7,31 +7,16 @@ tests/test_run_outputs.py.)"""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-import textwrap
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
-from cli_support import invoke
+from cli_support import invoke, invoke_on_a_full_disk
 
 pytestmark = pytest.mark.slow  # a background-subtraction run and a command per case in their own processes
 
-SRC = Path(__file__).resolve().parents[1] / "src"
 LIMIT = 200  # bytes: below every output written here
-
-LIMITED = """
-    import resource, signal, sys
-    limit = int(sys.argv[1])
-    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
-    from trafficgeo.cli import main
-    main(sys.argv[2:])
-"""
-
 
 @pytest.fixture(scope="module")
 def inputs(small_world: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
@@ -87,12 +72,6 @@ SUFFIX = {"calibrate": ".json", "import-camera": ".json", "refine": ".json", "in
           "sumo-net": ".net.xml"}
 
 
-def _limited(*args: object) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(SRC), "PYTHONDONTWRITEBYTECODE": "1"}
-    return subprocess.run([sys.executable, "-c", textwrap.dedent(LIMITED), str(LIMIT), *map(str, args)], env=env,
-                          capture_output=True, text=True, timeout=600)
-
-
 @pytest.mark.parametrize("command", sorted(COMMANDS))
 def test_a_full_disk_under_a_command_is_one_line_exit_1_and_nothing_half_written(command: str,
                                                                                   inputs: dict[str, Path],
@@ -107,7 +86,7 @@ def test_a_full_disk_under_a_command_is_one_line_exit_1_and_nothing_half_written
     assert written.exists() and (kind == "folder" or written.stat().st_size > LIMIT)
     full = tmp_path / "full"
     full.mkdir()
-    cut = _limited(*argv(inputs, full / name))
+    cut = invoke_on_a_full_disk(LIMIT, *argv(inputs, full / name))
     lines = [ln for ln in cut.stderr.splitlines() if ln.startswith("trafficgeo")]
     assert cut.returncode == 1 and len(lines) == 1 and "could not write" in lines[0], (cut.stdout, cut.stderr)
     assert "Traceback" not in cut.stderr
@@ -120,7 +99,7 @@ def test_a_full_disk_under_a_command_is_one_line_exit_1_and_nothing_half_written
 
 def test_a_full_disk_under_the_demo_is_one_line_exit_1(tmp_path: Path) -> None:
     """The demo under a full disk (its whole run is too long for a test: only the refused one runs)."""
-    cut = _limited("demo", "--quick", "--out", tmp_path / "demo")
+    cut = invoke_on_a_full_disk(LIMIT, "demo", "--quick", "--out", tmp_path / "demo")
     lines = [ln for ln in cut.stderr.splitlines() if ln.startswith("trafficgeo")]
     assert cut.returncode == 1 and len(lines) == 1 and "could not write" in lines[0], (cut.stdout, cut.stderr)
     assert "Traceback" not in cut.stderr
