@@ -17,6 +17,7 @@ from trafficgeo.camera.model import Camera
 DATA = Path(__file__).parent / "data" / "autzen"
 LIMIT = 16 * 1024  # bytes: below every GeoTIFF written here
 
+
 def _camera(tmp: Path) -> Path:
     cam = Camera.from_orientation((1280, 720), 1000.0, [500000.0, 5000000.0, 10.0], 0.0, 15.0, crs="EPSG:32633")
     write_camera_json(tmp / "camera.json", cam)
