@@ -18,6 +18,7 @@ pytestmark = pytest.mark.slow  # a background-subtraction run and a command per 
 
 LIMIT = 200  # bytes: below every output written here
 
+
 @pytest.fixture(scope="module")
 def inputs(small_world: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """The small world and a finished process run of it (background subtraction)."""
