@@ -141,7 +141,8 @@ def near_surface_edge(camera: Camera, surface: Surface, uv: np.ndarray, shift_px
 
 
 def ground_points(camera: Camera, surface: Surface, uv: np.ndarray, **kwargs) -> GroundPoints:
-    """:func:`pixels_to_world` (without lon/lat) over pixels (N, 2) block by block (:data:`BLOCK_POINTS`)."""
+    """:func:`pixels_to_world` (without lon/lat) over pixels (N, 2) block by block
+    (:data:`trafficgeo.traffic.measurements.BLOCK_POINTS`)."""
     parts = [pixels_to_world(camera, uv[sl], surface, with_lonlat=False, **kwargs) for sl in blocks(uv.shape[0])]
     if not parts:
         return pixels_to_world(camera, uv, surface, with_lonlat=False, **kwargs)
@@ -363,16 +364,18 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     named = []
     no_size = (float("nan"), float("nan"))
     for k, ((tid, rows, segs), extra) in enumerate(zip(pass1, attached, strict=True), start=len(slices) + 1):
-        rows_in = [rows[idx[ok[rows[idx]]]] for idx, _ in segs]
-        rows = np.unique(np.concatenate([rows] + extra)) if extra else rows
-        parts = [np.searchsorted(rows, np.union1d(r, a)) for r, a in zip(rows_in, extra, strict=True)]
+        parts = [idx[ok[rows[idx]]] for idx, _ in segs]
+        if any(a.size for a in extra):  # the part's rows and the top-edge rows attached to it, in time order
+            kept_rows = [rows[p] for p in parts]
+            rows = np.unique(np.concatenate([rows, *extra]))
+            parts = [np.searchsorted(rows, np.union1d(r, a)) for r, a in zip(kept_rows, extra, strict=True)]
         segs = _smooth_segments(tracks.time[rows], xy2_m[rows], cov2[rows], opts, segments=parts)
         # points fitted by their top edge only extend a track: a part made of them alone (they did not fit the
         # rest of their track) is dropped
         segs = [(idx, sm) for idx, sm in segs if not clipped[rows[idx]].all()]
         used = np.zeros(len(tracks), dtype=bool)
         for j, (idx, sm) in enumerate(segs, start=1):
-            whole = good[rows[idx]] & (status[rows[idx]] == "ok") & ~clipped[rows[idx]]
+            whole = good[rows[idx]] & ~clipped[rows[idx]]  # boxes the frame does not cut off
             size = vehicle_length(camera, surface, heading[rows[idx]], tracks.box[rows[idx]], dims[rows[idx]],
                                    whole, opts.pixel_sigma) if use_boxes and opts.estimate_length else no_size
             named.append((tid if len(segs) == 1 else f"{tid}.{j}", tid, rows[idx], sm, size))

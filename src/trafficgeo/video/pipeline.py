@@ -297,8 +297,7 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     ck = out / CHECKPOINT_DIR
     fps = info.fps / opts.every
     with hold_folder(out):
-        for folder in (out, ck):
-            remove_stale_temporaries(folder)
+        remove_stale_temporaries(ck)  # the output folder's own: hold_folder removed them
         state, tracker = None, VehicleTracker(fps, opts.tracker)
         if ck.exists() and not restart:
             try:
