@@ -1,0 +1,194 @@
+"""Turning movements from trajectories and junction gates (trafficgeo.site.gates, trafficgeo.traffic.movements), on
+paths whose movements are known by construction: a four-arm junction turned to any bearing, far from the CRS origin."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from trafficgeo.errors import InputError
+from trafficgeo.site.gates import Gate, Junction, turn_deg
+from trafficgeo.traffic.movements import (
+    MOVEMENT_COLUMNS,
+    gate_crossings,
+    movement_counts,
+    peak_hour,
+    turning_movement_table,
+    vehicle_movements,
+)
+
+GATE_M = 30.0  # gate distance from the centre
+ARM_BEARINGS = {"N": 0.0, "E": 90.0, "S": 180.0, "W": 270.0}
+
+
+def unit(bearing_deg: float) -> np.ndarray:
+    b = np.radians(bearing_deg)
+    return np.array([np.sin(b), np.cos(b)])
+
+
+def junction(rotation_deg: float = 0.0, centre=(0.0, 0.0), gate_m: float = GATE_M) -> Junction:
+    c = np.asarray(centre, dtype=float)
+    gates = []
+    for arm, b in ARM_BEARINGS.items():
+        u = unit(b + rotation_deg)
+        n = np.array([u[1], -u[0]])
+        m = c + gate_m * u
+        gates.append(Gate(arm, shapely.LineString([m - 8 * n, m + 8 * n])))
+    return Junction.from_gates(gates)
+
+
+def path(origin: str, destination: str, *, rotation_deg: float = 0.0, centre=(0.0, 0.0), start_m: float = 60.0,
+         end_m: float = 60.0, t0: float = 0.0, speed_mps: float = 10.0, stop_s: float = 0.0, dt: float = 0.1,
+         tid: str = "1", cls: str = "car") -> pd.DataFrame:
+    """A right-hand-traffic path in from arm ``origin`` (from ``start_m`` out, 1.75 m right of the axis) to the
+    centre, then out along arm ``destination`` to ``end_m`` out (negative distances: start/end inside the gates).
+    ``stop_s`` seconds standing 10 m before the centre."""
+    c = np.asarray(centre, dtype=float)
+    ui = unit(ARM_BEARINGS[origin] + rotation_deg)
+    uo = unit(ARM_BEARINGS[destination] + rotation_deg)
+    right_in = np.array([-ui[1], ui[0]])  # right of travel when heading into the junction (-ui)
+    right_out = np.array([uo[1], -uo[0]])
+    pieces = [c + np.outer(np.linspace(start_m, 10.0, 50), ui) + 1.75 * right_in]
+    if origin == destination:
+        arc = [c + 10.0 * ui + 1.75 * right_in, c + 5.0 * ui + 0.0 * right_in, c + 10.0 * uo + 1.75 * right_out]
+        pieces.append(np.array(arc))
+    else:
+        pieces.append(np.array([c + 0.0 * ui]))
+    pieces.append(c + np.outer(np.linspace(10.0, end_m, 50), uo) + 1.75 * right_out)
+    xy = np.vstack(pieces)
+    seg = np.hypot(*np.diff(xy, axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    keep = np.concatenate([[True], seg > 1e-9])
+    xy, s = xy[keep], s[keep]
+    ts = np.arange(0.0, s[-1] / speed_mps, dt)
+    d = ts * speed_mps
+    pts = np.column_stack([np.interp(d, s, xy[:, 0]), np.interp(d, s, xy[:, 1])])
+    speed = np.full(len(ts), speed_mps * 3.6)
+    if stop_s > 0:  # stand at the point 10 m before the centre
+        k = int(np.searchsorted(d, start_m - 10.0)) if start_m > 10 else 0
+        n = int(round(stop_s / dt))
+        pts = np.vstack([pts[:k], np.repeat(pts[k:k + 1], n, axis=0), pts[k:]])
+        speed = np.concatenate([speed[:k], np.zeros(n), speed[k:]])
+        ts = np.arange(len(pts)) * dt
+    return pd.DataFrame({"track_id": tid, "time": t0 + ts, "x": pts[:, 0], "y": pts[:, 1], "speed_kmh": speed,
+                         "class": cls})
+
+
+def run(paths: list[pd.DataFrame], j: Junction) -> pd.DataFrame:
+    pts = pd.concat(paths, ignore_index=True)
+    veh = pts.groupby("track_id", as_index=False).agg(**{"class": ("class", "first")})
+    return vehicle_movements(pts, veh, j)
+
+
+def test_every_movement_of_a_four_arm_junction() -> None:
+    j = junction()
+    expected = {("S", "N"): "through", ("S", "W"): "left", ("S", "E"): "right", ("S", "S"): "U",
+                ("E", "W"): "through", ("E", "S"): "left", ("E", "N"): "right", ("N", "E"): "left"}
+    paths = [path(o, d, tid=f"{o}{d}") for o, d in expected]
+    mv = run(paths, j).set_index("track_id")
+    assert list(run(paths, j).columns) == MOVEMENT_COLUMNS
+    for (o, d), kind in expected.items():
+        row = mv.loc[f"{o}{d}"]
+        assert (row.origin, row.destination, row.movement) == (o, d, kind)
+        assert row.origin_by == row.destination_by == "gate" and bool(row.complete)
+        assert row.entry_time < row.exit_time
+        assert row.travel_time_s == pytest.approx(row.exit_time - row.entry_time)
+
+
+def test_entry_and_exit_times_are_the_gate_crossings_and_stops_are_timed() -> None:
+    j = junction()
+    p = path("S", "N", start_m=60.0, speed_mps=10.0, stop_s=12.0)
+    row = run([p], j).iloc[0]
+    assert row.entry_time == pytest.approx(3.0, abs=0.11)  # 30 m to the gate at 10 m/s
+    assert row.stopped_s == pytest.approx(12.0, abs=0.25)
+    assert row.travel_time_s == pytest.approx(6.0 + 12.0, abs=0.3)
+    crossings = gate_crossings(p, j)
+    assert list(crossings["arm"]) == ["S", "N"] and list(crossings["entering"]) == [True, False]
+
+
+def test_first_or_last_seen_inside_is_assigned_by_the_path_or_left_incomplete() -> None:
+    j = junction()
+    queued = path("E", "W", start_m=20.0, tid="queued")  # first seen inside the gate, on the east approach
+    leaving = path("N", "S", end_m=20.0, tid="leaving")  # last seen inside the gate, heading out south
+    middle = path("S", "N", start_m=4.0, end_m=60.0, tid="middle")  # first seen in the middle of the junction
+    lost = path("W", "E", start_m=60.0, end_m=2.0, tid="lost")  # lost in the middle
+    mv = run([queued, leaving, middle, lost], j).set_index("track_id")
+    assert (mv.loc["queued", "origin"], mv.loc["queued", "origin_by"]) == ("E", "path")
+    assert np.isnan(mv.loc["queued", "entry_time"]) and mv.loc["queued", "movement"] == "through"
+    assert (mv.loc["leaving", "destination"], mv.loc["leaving", "destination_by"]) == ("S", "path")
+    assert (mv.loc["middle", "origin"], bool(mv.loc["middle", "complete"])) == ("", False)
+    assert (mv.loc["lost", "destination"], bool(mv.loc["lost", "complete"])) == ("", False)
+    assert mv.loc["lost", "origin"] == "W"
+
+
+def test_vehicles_only_on_an_arm_and_stationary_ones_are_not_movements() -> None:
+    j = junction()
+    outside = path("S", "S", start_m=200.0, end_m=200.0, tid="outside")
+    outside = outside[np.hypot(outside["x"], outside["y"]) > 100.0]  # its part beyond the gates only
+    parked = path("S", "N", tid="parked")
+    pts = pd.concat([outside, parked], ignore_index=True)
+    veh = pd.DataFrame({"track_id": ["outside", "parked"], "class": ["car", "car"], "stationary": [False, True]})
+    assert len(vehicle_movements(pts, veh, j)) == 0
+
+
+@settings(max_examples=40, deadline=None)
+@given(rotation=st.floats(-180.0, 180.0), x0=st.floats(-5e6, 5e6), y0=st.floats(0.0, 5e6),
+       pair=st.sampled_from([("S", "N", "through"), ("S", "W", "left"), ("S", "E", "right"), ("W", "S", "right"),
+                             ("W", "N", "left"), ("N", "N", "U")]))
+def test_movements_hold_for_any_bearing_and_far_coordinates(rotation, x0, y0, pair) -> None:
+    o, d, kind = pair
+    c = (x0, y0)
+    j = junction(rotation, c)
+    assert np.allclose(j.centre, c, atol=1e-6 * max(1.0, abs(x0), abs(y0)))
+    row = run([path(o, d, rotation_deg=rotation, centre=c)], j).iloc[0]
+    assert (row.origin, row.destination, row.movement) == (o, d, kind)
+
+
+@given(a=st.floats(0.0, 360.0), turn=st.floats(-179.0, 179.0))
+def test_turn_angle_is_the_clockwise_change_of_heading(a, turn) -> None:
+    destination = (a + 180.0 + turn) % 360.0
+    assert turn_deg(a, destination) == pytest.approx(turn, abs=1e-9)
+
+
+def test_counts_table_peak_hour_and_phf() -> None:
+    j = junction()
+    # 2 h of traffic: per 15 min, S->N through 10 + k, S->W left 2, one truck E->W every interval
+    paths, n = [], 0
+    for k in range(8):
+        for i in range(10 + k):
+            paths.append(path("S", "N", t0=900.0 * k + 45.0 * i, tid=f"v{n}"))
+            n += 1
+        for i in range(2):
+            paths.append(path("S", "W", t0=900.0 * k + 30.0 + 200.0 * i, tid=f"v{n}"))
+            n += 1
+        paths.append(path("E", "W", t0=900.0 * k + 400.0, tid=f"v{n}", cls="truck"))
+        n += 1
+    mv = run(paths, j)
+    assert mv["complete"].all() and len(mv) == n
+    counts = movement_counts(mv, j, 900.0, 0.0, 7200.0)
+    assert counts["count"].sum() == n
+    sn = counts[(counts.origin == "S") & (counts.destination == "N")].groupby("interval_start")["count"].sum()
+    assert list(sn) == [10 + k for k in range(8)]
+    table = turning_movement_table(counts, j)
+    assert list(table["S_through"]) == [10 + k for k in range(8)]
+    assert list(table["S_left"]) == [2] * 8 and list(table["E_through"]) == [1] * 8 and list(table["N_U"]) == [0] * 8
+    assert list(table["heavy"]) == [1] * 8
+    peak = peak_hour(table, 900.0)
+    assert peak is not None and (peak.start, peak.end) == (3600.0, 7200.0)
+    volumes = [13 + k for k in range(4, 8)]
+    assert peak.volume == sum(volumes)
+    assert peak.phf == pytest.approx(sum(volumes) / (4 * max(volumes)))
+    assert peak.heavy_pct == pytest.approx(100.0 * 4 / sum(volumes))
+    assert peak_hour(table.iloc[:3], 900.0) is None  # less than an hour observed
+
+
+def test_bad_gates_are_refused() -> None:
+    g = junction().gates
+    with pytest.raises(InputError, match="at least two arms"):
+        Junction.from_gates(g[:1])
+    with pytest.raises(InputError, match="unique"):
+        Junction.from_gates([g[0], Gate(g[0].arm, g[1].geometry)])
