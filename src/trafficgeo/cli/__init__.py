@@ -270,7 +270,8 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "begin_s": "--begin", "seed": "--seed", "scenario": "SCENARIO",
          "n_frames": "--frames", "duration_s": "--duration", "search_px": "--search",
          "report_path": "--report", "refine_report": "--refine-report", "origin": "--origin",
-         "world_file": "--world-file", "control": "--corners"}
+         "world_file": "--world-file", "control": "--corners", "gates": "--gates",
+         "movement_interval_s": "--movement-interval"}
 
 
 def main(argv: list[str] | None = None) -> Any:

@@ -11,7 +11,15 @@ import typer
 
 from trafficgeo.cli import app, console
 from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt
-from trafficgeo.cli.traffic import IntervalOpt, LanesOpt, LinesOpt, ReportHtmlOpt, check_out_dir
+from trafficgeo.cli.traffic import (
+    GatesOpt,
+    IntervalOpt,
+    LanesOpt,
+    LinesOpt,
+    MovementIntervalOpt,
+    ReportHtmlOpt,
+    check_out_dir,
+)
 from trafficgeo.video.detectors.names import DETECTOR_HELP
 from trafficgeo.video.detectors.onnx_formats import FORMAT_HELP
 
@@ -25,7 +33,9 @@ def process(
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder")],
     lanes: LanesOpt = None,
     lines: LinesOpt = None,
+    gates: GatesOpt = None,
     interval: IntervalOpt = 60.0,
+    movement_interval: MovementIntervalOpt = 900.0,
     detector: Annotated[str, typer.Option(help=DETECTOR_HELP)] = "nanodet",
     detector_format: Annotated[str, typer.Option(help=FORMAT_HELP)] = "auto",
     start: Annotated[float, typer.Option(help="start time (s)")] = 0.0,
@@ -97,7 +107,7 @@ def process(
                 bar.update(task, completed=done, total=total, rate=rate, t=f"{t:.1f} s")
 
             run = process_video(video, camera, surface, out, lanes, lines, options=opts, interval_s=interval, roi=roi,
-                                journeys=journeys,
+                                journeys=journeys, gates=gates, movement_interval_s=movement_interval,
                                 restart=restart, resolution_m=resolution, surface_crs=surface_crs, annotate=annotate,
                                 progress=tick, notice=lambda text: console.print(text, markup=False),
                                 annotate_progress=lambda d, n: bar.update(drawn, completed=d, total=n,
@@ -131,7 +141,9 @@ def stitch(
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder")],
     lanes: LanesOpt = None,
     lines: LinesOpt = None,
+    gates: GatesOpt = None,
     interval: IntervalOpt = 60.0,
+    movement_interval: MovementIntervalOpt = 900.0,
     surface_crs: SurfaceCrsOpt = None,
     resolution: ResolutionOpt = 0.25,
 ) -> None:
@@ -141,7 +153,7 @@ def stitch(
 
     check_out_dir(out)
     result = stitch_runs(chunks, camera, surface, out, lanes, lines, interval_s=interval, resolution_m=resolution,
-                         surface_crs=surface_crs,
+                         surface_crs=surface_crs, gates=gates, movement_interval_s=movement_interval,
                          notice=lambda text: console.print(text, markup=False, highlight=False))
     print_analysis(result, console)
     console.print(f"stitched {len(chunks)} chunks: {len(result.vehicles)} vehicles; wrote {out}")

@@ -15,6 +15,12 @@ from trafficgeo.errors import InputError
 LanesOpt = Annotated[Path | None, typer.Option(help="lane polygons or boundary lines (GIS), or boundary lines drawn "
                                                "in the image (CSV line,u,v)")]
 LinesOpt = Annotated[Path | None, typer.Option(help="counting lines (GIS file, or CSV line,u,v in the image)")]
+GatesOpt = Annotated[Path | None, typer.Option(help="a junction's gates for turning movements: one line across each "
+                                               "arm with an 'arm' attribute (GIS file in any CRS, or CSV line,u,v "
+                                               "in the image: the line name is the arm); writes movements.csv, "
+                                               "movement_counts.csv and turning_movements.csv")]
+MovementIntervalOpt = Annotated[float, typer.Option(help="interval of the turning-movement counts (s); 900 = the "
+                                                    "15 minutes of junction studies")]
 IntervalOpt = Annotated[float, typer.Option(help="counting interval (s), e.g. 60 or 900")]
 ReportHtmlOpt = Annotated[Path | None, typer.Option(help="also write an HTML report of the run (figures and tables, "
                                                     "see 'trafficgeo report')")]
@@ -38,7 +44,9 @@ def analyze(
     fps: Annotated[float | None, typer.Option(help="frame rate when the tracks have no time column")] = None,
     lanes: LanesOpt = None,
     lines: LinesOpt = None,
+    gates: GatesOpt = None,
     interval: IntervalOpt = 60.0,
+    movement_interval: MovementIntervalOpt = 900.0,
     pixel_sigma: Annotated[float, typer.Option(help="noise of a track's ground point in the image (px)")] = 2.0,
     accel_sigma: Annotated[float, typer.Option(help="how hard vehicles may accelerate/turn in the smoother "
                                                "(m/s^2)")] = 1.5,
@@ -54,7 +62,8 @@ def analyze(
     resolution: ResolutionOpt = 0.25,
     report_html: ReportHtmlOpt = None,
 ) -> None:
-    """Image tracks to world trajectories, true speeds (km/h), lanes and counts at counting lines."""
+    """Image tracks to world trajectories, true speeds (km/h), lanes, counts at counting lines and, with --gates,
+    turning movements."""
     from rich.progress import Progress
 
     from trafficgeo.cli.report import check_html_path
@@ -64,6 +73,7 @@ def analyze(
     from trafficgeo.traffic.analyze import analyze_tracks
     from trafficgeo.traffic.counts import check_interval
     from trafficgeo.traffic.journeys import JourneyOptions
+    from trafficgeo.traffic.movements import check_movement_interval
     from trafficgeo.traffic.run_folder import RunFolder
     from trafficgeo.traffic.speed import ScaleKnowledge
     from trafficgeo.traffic.tracks import read_tracks
@@ -72,6 +82,7 @@ def analyze(
     check_out_dir(out)
     check_html_path(report_html)
     check_interval(interval)
+    check_movement_interval(movement_interval)
     check_resolution(resolution)
     journeys = JourneyOptions.with_gap(join_gap)  # before any work
     opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
@@ -87,7 +98,8 @@ def analyze(
             task = progress.add_task("tracks", total=len(image_tracks.track_ids))
             analysis = analyze_tracks(cam, surf, image_tracks, lanes, lines, interval_s=interval, options=opts,
                                       progress=lambda i, n: progress.update(task, completed=i),
-                                      knowledge=knowledge, journeys=journeys)
+                                      knowledge=knowledge, journeys=journeys, gates=gates,
+                                      movement_interval_s=movement_interval)
         written = RunFolder(out).write_traffic(analysis, cam)
     print_analysis(analysis, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")

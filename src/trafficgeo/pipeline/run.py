@@ -24,13 +24,15 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.pipeline.stages import analyze
+from trafficgeo.site.gates import Gate
 from trafficgeo.site.lanes import Lanes
 from trafficgeo.site.lines import CountLine
 from trafficgeo.site.site import Site
 from trafficgeo.site.surface import check_resolution
-from trafficgeo.traffic.analyze import TrafficResult
+from trafficgeo.traffic.analyze import MOVEMENT_INTERVAL_S, TrafficResult
 from trafficgeo.traffic.counts import check_interval
 from trafficgeo.traffic.journeys import JourneyOptions
+from trafficgeo.traffic.movements import check_movement_interval
 from trafficgeo.traffic.run_folder import RunFolder
 from trafficgeo.traffic.trajectories import TrajectoryOptions
 from trafficgeo.video.pipeline import ProcessOptions
@@ -142,7 +144,8 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
                   lines: Sequence[CountLine] | PathLike | None = None, *, options: ProcessOptions | None = None,
                   interval_s: float = 60.0, trajectory: TrajectoryOptions | None = None,
                   roi: np.ndarray | PathLike | None = None, restart: bool = False, resolution_m: float = 0.25,
-                  journeys: JourneyOptions | None = None,
+                  journeys: JourneyOptions | None = None, gates: Sequence[Gate] | PathLike | None = None,
+                  movement_interval_s: float = MOVEMENT_INTERVAL_S,
                   surface_crs: str | None = None, annotate: PathLike | None = None,
                   progress: Callable[[int, int, float], None] | None = None,
                   notice: Callable[[str], None] | None = None,
@@ -151,13 +154,14 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
     the run folder ``out_dir`` (:mod:`trafficgeo.traffic.run_folder`). Resumes from the folder's checkpoint when run
     again with the same inputs (``restart`` to start over).
 
-    ``camera``, ``surface``, ``lanes``, ``lines``: objects or paths (:class:`trafficgeo.site.Site`; the surface
-    of a point cloud gridded at ``resolution_m`` m, ``surface_crs`` for a file without a CRS); ``options``: the
-    detector, time range, frame step and checkpoints (:class:`~trafficgeo.video.pipeline.ProcessOptions`); counts
-    per ``interval_s`` s; ``trajectory``: the smoother's options; ``journeys``: how the pieces of one vehicle's
-    track are joined (:mod:`trafficgeo.traffic.journeys`); ``roi``: a bool mask (H, W) or a mask image / CSV
-    polygon; ``annotate``: also write an annotated ``.mp4``. ``progress(frames_done, frames_total, time_s)`` per
-    frame, ``notice(line)`` for the tile plan and checkpoint news, ``annotate_progress(done, total)``.
+    ``camera``, ``surface``, ``lanes``, ``lines``: objects or paths (:class:`trafficgeo.site.Site`; the surface of a
+    point cloud gridded at ``resolution_m`` m, ``surface_crs`` for a file without a CRS); ``options``: the detector,
+    time range, frame step and checkpoints (:class:`~trafficgeo.video.pipeline.ProcessOptions`); counts per
+    ``interval_s`` s; ``trajectory``: the smoother's options; ``journeys``: how the pieces of one vehicle's track are
+    joined (:mod:`trafficgeo.traffic.journeys`); ``gates``: a junction's gates (objects or a file,
+    :mod:`trafficgeo.site.gates`) for turning movements per ``movement_interval_s`` s; ``roi``: a bool mask (H, W) or a
+    mask image / CSV polygon; ``annotate``: also write an annotated ``.mp4``. ``progress(frames_done, frames_total,
+    time_s)`` per frame, ``notice(line)`` for the tile plan and checkpoint news, ``annotate_progress(done, total)``.
 
     >>> import trafficgeo as tg
     >>> run = tg.process_video(world / "video.mp4", world / "camera_truth.json", world / "cloud.laz", out / "run",
@@ -175,10 +179,11 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
     out = Path(out_dir)
     check_writable_folder(out, "out_dir")
     check_interval(interval_s)
+    check_movement_interval(movement_interval_s)
     if annotate is not None and Path(annotate).suffix.lower() != ".mp4":
         raise InputError(f"annotate {annotate}: write the annotated video as .mp4", parameters=("annotate",))
     video = Path(video)
-    site = Site.load(camera, surface, lanes, lines, surface_crs=surface_crs, resolution_m=resolution_m)
+    site = Site.load(camera, surface, lanes, lines, gates=gates, surface_crs=surface_crs, resolution_m=resolution_m)
     cam, surf, lane_set, count_lines = site.camera.camera, site.surface, site.lanes, site.count_lines
     opts = settled_options(options or ProcessOptions(), video_info(video).fps)
     mask = roi
@@ -212,7 +217,7 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
         from trafficgeo.traffic.tracks import tracks_from_table
 
         result = analyze(tracks_from_table(tracks), site, interval_s=interval_s, options=trajectory,
-                         journeys=journeys)
+                         journeys=journeys, movement_interval_s=movement_interval_s)
         plan_doc = detector_doc.get("tiling") or {}
         if plan_doc.get("line_warnings"):  # the counting lines too far for the detector: in summary.json too
             result = replace(result, warnings=[*plan_doc["line_warnings"], *result.warnings])
@@ -252,12 +257,15 @@ def stitch(chunks: Sequence[PathLike], camera: CalibratedCamera | Camera | PathL
            surface: Surface | float | PathLike, out_dir: PathLike, lanes: Lanes | PathLike | None = None,
            lines: Sequence[CountLine] | PathLike | None = None, *, interval_s: float = 60.0,
            resolution_m: float = 0.25, surface_crs: str | None = None,
-           notice: Callable[[str], None] | None = None, journeys: JourneyOptions | None = None) -> TrafficResult:
+           notice: Callable[[str], None] | None = None, journeys: JourneyOptions | None = None,
+           gates: Sequence[Gate] | PathLike | None = None, movement_interval_s: float = MOVEMENT_INTERVAL_S
+           ) -> TrafficResult:
     """Join the tracks of the runs of overlapping time chunks of one video (``process_video`` with ``start_s`` /
     ``end_s``, e.g. on several machines; folders in any order) and analyse them into the run folder ``out_dir``
     (``trafficgeo stitch``). ``notice(line)`` gets a warning per gap or unequal overlap between chunks. The pieces of
     one vehicle's track are joined across the chunks as within one (``journeys``:
-    :mod:`trafficgeo.traffic.journeys`)."""
+    :mod:`trafficgeo.traffic.journeys`); ``gates``: a junction's gates for turning movements, as in
+    :func:`process_video`."""
     from trafficgeo.io.folder_lock import hold_folder
     from trafficgeo.io.run_manifest import check_writable_folder
     from trafficgeo.video.stitch import plan_chunks, stitch_tracks
@@ -265,6 +273,7 @@ def stitch(chunks: Sequence[PathLike], camera: CalibratedCamera | Camera | PathL
     out = Path(out_dir)
     check_writable_folder(out, "out_dir")
     check_interval(interval_s)
+    check_movement_interval(movement_interval_s)
     check_resolution(resolution_m)
     seen: dict[Path, Path] = {}
     for folder in map(Path, chunks):
@@ -281,12 +290,14 @@ def stitch(chunks: Sequence[PathLike], camera: CalibratedCamera | Camera | PathL
         for text in problems:
             if notice is not None:
                 notice(f"warning: {text}")
-        site = Site.load(camera, surface, lanes, lines, surface_crs=surface_crs, resolution_m=resolution_m)
+        site = Site.load(camera, surface, lanes, lines, gates=gates, surface_crs=surface_crs,
+                         resolution_m=resolution_m)
         joined = stitch_tracks([read[k][0] for k in order])
         joined["class"] = joined["class"].fillna("")
         from trafficgeo.traffic.tracks import tracks_from_table
 
-        result = analyze(tracks_from_table(joined), site, interval_s=interval_s, journeys=journeys)
+        result = analyze(tracks_from_table(joined), site, interval_s=interval_s, journeys=journeys,
+                         movement_interval_s=movement_interval_s)
         folder = RunFolder(out)
         written = folder.write_traffic(result, site.camera.camera, publish=False)
         written.append(folder.write_table("tracks.csv", joined))

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.site.site import Site
-from trafficgeo.traffic.analyze import TrafficResult
+from trafficgeo.traffic.analyze import MOVEMENT_INTERVAL_S, TrafficResult
 from trafficgeo.traffic.analyze import analyze as analyze_world
 from trafficgeo.traffic.journeys import JourneyOptions
 from trafficgeo.traffic.speed import ScaleKnowledge
@@ -69,12 +69,15 @@ def track(frames: DetectionFrames, fps: float, options: TrackerOptions | None = 
 
 def analyze(tracks: ImageTracks | pd.DataFrame | str | os.PathLike, site: Site, *, interval_s: float = 60.0,
             options: TrajectoryOptions | None = None, fps: float | None = None, progress: Any = None,
-            knowledge: ScaleKnowledge | None = None, journeys: JourneyOptions | None = None) -> TrafficResult:
+            knowledge: ScaleKnowledge | None = None, journeys: JourneyOptions | None = None,
+            movement_interval_s: float = MOVEMENT_INTERVAL_S) -> TrafficResult:
     """Image tracks (a table or file, see :func:`~trafficgeo.traffic.tracks.load_tracks`) on ``site`` -> world
     trajectories, fragments joined into vehicles (``journeys``: :mod:`trafficgeo.traffic.journeys`), speeds
-    (km/h), lanes and counts per ``interval_s`` s; the headline speeds placed by what the site's calibrated camera
+    (km/h), lanes and counts per ``interval_s`` s (with the site's gates: turning movements per
+    ``movement_interval_s`` s); the headline speeds placed by what the site's calibrated camera
     knows of its ground scale (``knowledge`` overrides it)."""
     return analyze_world(site.camera.camera, site.surface, load_tracks(tracks, fps=fps), lanes=site.lanes,
                          lines=site.count_lines, interval_s=interval_s, options=options, progress=progress,
                          knowledge=knowledge if knowledge is not None else ScaleKnowledge.from_camera(site.camera),
-                         journeys=journeys)
+                         journeys=journeys, gates=list(site.gates) if site.gates else None,
+                         movement_interval_s=movement_interval_s)

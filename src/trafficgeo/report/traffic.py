@@ -57,6 +57,40 @@ def print_analysis(analysis: TrafficResult, console: Console) -> None:
         if s.hidden_crossings:
             console.print(f"{s.hidden_crossings} of these crossings are of vehicles hidden behind a nearer one at "
                           "the line, carried on from where they vanished ('hidden' in crossings.csv; --coast-hidden)")
+    if s.junction is not None:
+        print_movements(analysis, s.junction, console)
+
+
+def print_movements(analysis: TrafficResult, junction: dict, console: Console) -> None:
+    """The turning movements of a run with gates: per approach, left/through/right/U over the whole run, the
+    incomplete movements and the peak hour."""
+    from trafficgeo.site.gates import MOVEMENTS
+
+    j, mv = analysis.junction, analysis.movements
+    if j is None or mv is None:
+        return
+    done = mv[mv["complete"].astype(bool)]
+    table = Table(title="turning movements (vehicles entering by each arm)")
+    for col in ("approach", "from arm", *MOVEMENTS, "total", "heavy %"):
+        table.add_column(col, justify="right")
+    for arm in j.arms:
+        sel = done[done["origin"] == arm]
+        n = [int((sel["movement"] == m).sum()) for m in MOVEMENTS]
+        heavy = f"{100.0 * sel['class'].isin(('truck', 'bus')).mean():.0f}" if len(sel) else "-"
+        table.add_row(j.approach_bound(arm), arm, *map(str, n), str(len(sel)), heavy)
+    console.print(table)
+    by_path = junction["by_path"]
+    console.print(f"{junction['complete']} complete movements ({by_path} with an end judged from the path: first or "
+                  f"last seen inside the gates); {junction['incomplete']} incomplete (origin or destination unknown: "
+                  "listed in movements.csv with complete=false, not counted)")
+    peak = junction.get("peak_hour")
+    interval = junction["interval_s"]
+    if peak is None:
+        console.print(f"no peak hour: less than an hour of whole {interval:g} s intervals was observed "
+                      "(movement_counts.csv and turning_movements.csv hold the counts per interval)")
+    else:
+        console.print(f"peak hour {peak['start_s']:.0f}-{peak['end_s']:.0f} s: {peak['volume']} vehicles, "
+                      f"PHF {peak['phf']:.2f}, heavy vehicles {peak['heavy_pct']:.1f} %")
 
 
 def print_comparison(comparison: Comparison, console: Console) -> None:

@@ -1,4 +1,5 @@
-"""A site: the calibrated camera, the road surface, the lanes and the counting lines, loaded once.
+"""A site: the calibrated camera, the road surface, the lanes, the counting lines and a junction's gates, loaded
+once.
 
 Each input is an object or what a user gives on the command line (a path, a number): ``Site.load("camera.json",
 "cloud.laz", lanes="lanes.gpkg", lines="lines.gpkg")`` and the same call with loaded objects build the same site.
@@ -6,8 +7,9 @@ Each input is an object or what a user gives on the command line (a path, a numb
 * ``camera`` - a :class:`~trafficgeo.camera.calibrated.CalibratedCamera`, a bare
   :class:`~trafficgeo.camera.model.Camera` (knowing nothing of its calibration) or a camera JSON;
 * ``surface`` - see :func:`trafficgeo.site.surface.load_surface` (``"plane"`` needs the calibration's GCPs);
-* ``lanes``, ``lines`` - objects, a GIS file in world coordinates, or a CSV of lines drawn in the image
-  (``line,u,v``; mapped to the ground through the camera and surface).
+* ``lanes``, ``lines``, ``gates`` - objects, a GIS file in world coordinates, or a CSV of lines drawn in the image
+  (``line,u,v``; mapped to the ground through the camera and surface). Gates are lines across a junction's arms
+  with an ``arm`` attribute (:mod:`trafficgeo.site.gates`).
 
 World geometry is in the camera's CRS and its units.
 """
@@ -24,6 +26,7 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface, camera_crs
 from trafficgeo.site.checks import check_camera_above_surface
+from trafficgeo.site.gates import Gate, read_gates
 from trafficgeo.site.lanes import Lanes, read_lanes
 from trafficgeo.site.lines import CountLine, read_count_lines
 from trafficgeo.site.surface import load_surface
@@ -35,17 +38,18 @@ CameraLike = CalibratedCamera | Camera | PathLike
 @dataclass(frozen=True, eq=False)
 class Site:
     """What a camera looks at: the calibrated ``camera``, the road ``surface`` (in the camera's CRS), and, when
-    given, the ``lanes`` and counting ``lines``."""
+    given, the ``lanes``, counting ``lines`` and the ``gates`` of a junction's arms."""
 
     camera: CalibratedCamera
     surface: Surface
     lanes: Lanes | None = None
     lines: tuple[CountLine, ...] | None = None
+    gates: tuple[Gate, ...] | None = None
 
     @classmethod
     def load(cls, camera: CameraLike, surface: Surface | float | PathLike, lanes: Lanes | PathLike | None = None,
-             lines: Sequence[CountLine] | PathLike | None = None, *, surface_crs: str | None = None,
-             resolution_m: float = 0.25) -> Site:
+             lines: Sequence[CountLine] | PathLike | None = None, *, gates: Sequence[Gate] | PathLike | None = None,
+             surface_crs: str | None = None, resolution_m: float = 0.25) -> Site:
         """The site from objects or paths (see the module docstring), having checked that the camera is above the
         surface (a surface in feet read as metres would map nothing). A point cloud is gridded at ``resolution_m``
         m; ``surface_crs`` for a surface file without a CRS."""
@@ -53,8 +57,9 @@ class Site:
         surf = load_surface(surface, calibrated, surface_crs=surface_crs, resolution_m=resolution_m)
         check_camera_above_surface(calibrated.camera, surf)
         found = load_lines(lines, calibrated.camera, surf)
+        arms = load_gates(gates, calibrated.camera, surf)
         return cls(calibrated, surf, load_lanes(lanes, calibrated.camera, surf),
-                   None if found is None else tuple(found))
+                   None if found is None else tuple(found), None if arms is None else tuple(arms))
 
     @property
     def count_lines(self) -> list[CountLine] | None:
@@ -88,4 +93,20 @@ def load_lines(lines: Sequence[CountLine] | PathLike | None, camera: Camera, sur
     out = list(lines)
     if not all(isinstance(ln, CountLine) for ln in out):
         raise InputError("lines: give CountLine objects or the path of a counting lines file", parameters=("lines",))
+    return out
+
+
+def load_gates(gates: Sequence[Gate] | PathLike | None, camera: Camera, surface: Surface | None = None
+               ) -> list[Gate] | None:
+    """Junction gates as they are, or read from a GIS file or an image CSV (see :func:`load_lanes`)."""
+    if gates is None:
+        return None
+    if isinstance(gates, str | os.PathLike):
+        return read_gates(Path(gates), crs=camera_crs(camera), camera=camera, surface=surface)
+    out = list(gates)
+    if not all(isinstance(g, Gate) for g in out):
+        raise InputError("gates: give Gate objects or the path of a gates file", parameters=("gates",))
+    from trafficgeo.site.gates import Junction
+
+    Junction.from_gates(out)
     return out

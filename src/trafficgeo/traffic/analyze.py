@@ -13,7 +13,13 @@ Outputs of :func:`write_analysis` (all written atomically):
   (:mod:`trafficgeo.traffic.occlusion`, ``TrajectoryOptions.coast_hidden_s``);
 * ``trajectories.csv``, ``trajectories.parquet`` (GeoParquet points) and ``trajectories.gpkg`` (layers ``points``,
   ``paths`` - one line per vehicle - and, when given, ``lanes`` and ``count_lines``);
-* ``summary.json`` - totals and the options used.
+* with a junction's gates (:mod:`trafficgeo.site.gates`): ``movements.csv`` (one row per vehicle through the
+  junction: origin and destination arm, movement, entry/exit times, travel and stopped time),
+  ``movement_counts.csv`` (complete movements per interval, origin, destination and class) and
+  ``turning_movements.csv`` (the turning-movement table per interval: approach x left/through/right/U, total and
+  heavy vehicles) - :mod:`trafficgeo.traffic.movements`; the gates are a layer of ``trajectories.gpkg``;
+* ``summary.json`` - totals and the options used (with gates: the junction's arms, complete and incomplete
+  movements, the peak hour and its PHF).
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.geo.mapping import Surface, camera_crs
+from trafficgeo.site.gates import Gate, Junction
 from trafficgeo.site.lanes import Lanes
 from trafficgeo.site.lines import CountLine
 from trafficgeo.traffic.counts import aggregate_counts, find_crossings
@@ -43,7 +50,8 @@ from trafficgeo.traffic.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions, WorldTracks, world_trajectories
 
 OUTPUT_FILES = ("vehicles.csv", "counts.csv", "crossings.csv", "trajectories.csv", "trajectories.parquet",
-                "trajectories.gpkg", "summary.json")
+                "trajectories.gpkg", "movements.csv", "movement_counts.csv", "turning_movements.csv", "summary.json")
+MOVEMENT_INTERVAL_S = 900.0  # s: turning movements are counted per 15 minutes
 
 
 @dataclass(frozen=True)
@@ -51,7 +59,9 @@ class TrafficResult:
     """Everything ``analyze`` computes from one set of image tracks: the tables of
     :mod:`trafficgeo.traffic.run_folder` (``points`` is ``trajectories.csv``), the ``period`` (s) the tracks span,
     the points dropped per reason, the lanes and lines used, the options, the warnings and ``links``, the pieces of
-    track joined into vehicles (:class:`trafficgeo.traffic.journeys.Journeys`; not written to the run folder)."""
+    track joined into vehicles (:class:`trafficgeo.traffic.journeys.Journeys`; not written to the run folder).
+    With gates: the ``junction``, its ``movements``, ``movement_counts`` and ``turning`` table
+    (:mod:`trafficgeo.traffic.movements`)."""
 
     points: pd.DataFrame
     vehicles: pd.DataFrame
@@ -64,6 +74,10 @@ class TrafficResult:
     options: dict[str, object] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     links: pd.DataFrame | None = None
+    junction: Junction | None = None
+    movements: pd.DataFrame | None = None
+    movement_counts: pd.DataFrame | None = None
+    turning: pd.DataFrame | None = None
 
 
 Analysis = TrafficResult  # the former name
@@ -169,11 +183,13 @@ def uncrossed_warnings(lines: list[CountLine], crossings: pd.DataFrame, period: 
 def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lanes | None = None,
             lines: list[CountLine] | None = None, interval_s: float = 60.0,
             options: TrajectoryOptions | None = None, progress=None, knowledge: ScaleKnowledge | None = None,
-            speed_options: SpeedOptions | None = None, journeys: JourneyOptions | None = None) -> TrafficResult:
+            speed_options: SpeedOptions | None = None, journeys: JourneyOptions | None = None,
+            gates: list[Gate] | None = None, movement_interval_s: float = MOVEMENT_INTERVAL_S) -> TrafficResult:
     """The whole analysis of one set of image tracks (see the module docstring). ``knowledge``: what the
     calibration knows of its ground scale (:meth:`ScaleKnowledge.from_camera` of the calibrated camera; None for
     a camera made by hand), which places each vehicle's headline speed (:mod:`trafficgeo.traffic.speed`);
-    ``journeys``: how the fragments of one vehicle are joined (:mod:`trafficgeo.traffic.journeys`)."""
+    ``journeys``: how the fragments of one vehicle are joined (:mod:`trafficgeo.traffic.journeys`); ``gates``: a
+    junction's gates, for turning movements counted per ``movement_interval_s`` s."""
     from trafficgeo.site.checks import check_camera_above_surface
     from trafficgeo.traffic.counts import interval_edges
     from trafficgeo.traffic.plausibility import lanes_warning
@@ -182,6 +198,11 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
     opts = options or TrajectoryOptions()
     period = (float(tracks.time.min()), float(tracks.time.max())) if len(tracks) else (0.0, 0.0)
     interval_edges(*period, interval_s)  # checks the interval before the work
+    junction = Junction.from_gates(gates) if gates else None
+    if junction is not None:
+        from trafficgeo.traffic.movements import check_movement_interval
+
+        interval_edges(*period, check_movement_interval(movement_interval_s))
     speed_opts = speed_options or SpeedOptions()
     world = world_trajectories(camera, surface, tracks, opts, progress=progress, knowledge=knowledge,
                                speed_options=speed_opts)
@@ -219,12 +240,29 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
     drift = scale_drift_warning(camera, world.points, world.vehicles, speed_opts)
     if drift is not None:
         warnings.append(drift)
+    movements = movement_counts = turning = None
+    if junction is not None:
+        movements, movement_counts, turning = _movements(world, junction, movement_interval_s, period, mpu)
+    options = {**asdict(opts), "interval_s": interval_s,
+               "speed_scale_knowledge": knowledge.describe() if knowledge is not None else "none",
+               "journeys": asdict(journey_opts)}
+    if junction is not None:
+        options["movement_interval_s"] = movement_interval_s
     return TrafficResult(points=world.points, vehicles=world.vehicles, crossings=crossings, counts=counts,
-                    period=period, dropped=world.dropped, lanes=lanes, lines=list(lines or []),
-                    options={**asdict(opts), "interval_s": interval_s,
-                             "speed_scale_knowledge": knowledge.describe() if knowledge is not None else "none",
-                             "journeys": asdict(journey_opts)},
-                    warnings=warnings, links=joined.links)
+                         period=period, dropped=world.dropped, lanes=lanes, lines=list(lines or []),
+                         options=options, warnings=warnings, links=joined.links, junction=junction,
+                         movements=movements, movement_counts=movement_counts, turning=turning)
+
+
+def _movements(world: WorldTracks, junction: Junction, interval_s: float, period: tuple[float, float],
+               metres_per_unit: float) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """The movements, their counts per interval and the turning-movement table (:mod:`trafficgeo.traffic.movements`)."""
+    from trafficgeo.traffic.movements import movement_counts, turning_movement_table, vehicle_movements
+
+    moves = vehicle_movements(world.points, world.vehicles, junction, metres_per_unit=metres_per_unit)
+    first_seen = world.vehicles.set_index(world.vehicles["track_id"].astype(str))["first_time"]
+    counts = movement_counts(moves, junction, interval_s, *period, first_seen=first_seen)
+    return moves, counts, turning_movement_table(counts, junction)
 
 
 def _moving_points(world: WorldTracks) -> pd.DataFrame:
@@ -242,16 +280,17 @@ def analyze_tracks(camera: CalibratedCamera | Camera | str | os.PathLike, surfac
                    lines: list[CountLine] | str | os.PathLike | None = None, *, interval_s: float = 60.0,
                    options: TrajectoryOptions | None = None, fps: float | None = None, resolution_m: float = 0.25,
                    progress=None, knowledge: ScaleKnowledge | None = None,
-                   journeys: JourneyOptions | None = None) -> TrafficResult:
+                   journeys: JourneyOptions | None = None, gates: list[Gate] | str | os.PathLike | None = None,
+                   movement_interval_s: float = MOVEMENT_INTERVAL_S) -> TrafficResult:
     """Image tracks -> world trajectories, true speeds (km/h), lanes and counts at counting lines (``trafficgeo
-    analyze``). Each input is an object or a path (:class:`trafficgeo.site.Site`): ``camera`` (camera JSON),
-    ``surface`` (number, ``"plane"``, DEM or point cloud gridded at ``resolution_m`` m), ``tracks`` (table, tracks
-    CSV or MOT file; ``fps`` when it has no time column), ``lanes`` and ``lines`` (GIS files or image CSVs). Counts
-    per ``interval_s`` seconds; ``options`` for the trajectory smoother, ``journeys`` for joining the fragments of
-    one vehicle (:mod:`trafficgeo.traffic.journeys`). What the calibration knows of its ground
-    scale (``knowledge``, which places the headline speeds) comes from a calibrated camera (its JSON or
-    :class:`~trafficgeo.camera.calibrated.CalibratedCamera`); give it for a bare Camera. Nothing is written: see
-    :meth:`trafficgeo.traffic.run_folder.RunFolder.write_traffic`.
+    analyze``). Each input is an object or a path (:class:`trafficgeo.site.Site`): ``camera`` (camera JSON), ``surface``
+    (number, ``"plane"``, DEM or point cloud gridded at ``resolution_m`` m), ``tracks`` (table, tracks CSV or MOT file;
+    ``fps`` when it has no time column), ``lanes``, ``lines`` and a junction's ``gates`` (GIS files or image CSVs).
+    Counts per ``interval_s`` seconds, turning movements per ``movement_interval_s``; ``options`` for the trajectory
+    smoother, ``journeys`` for joining the fragments of one vehicle (:mod:`trafficgeo.traffic.journeys`). What the
+    calibration knows of its ground scale (``knowledge``, which places the headline speeds) comes from a calibrated
+    camera (its JSON or :class:`~trafficgeo.camera.calibrated.CalibratedCamera`); give it for a bare Camera. Nothing is
+    written: see :meth:`trafficgeo.traffic.run_folder.RunFolder.write_traffic`.
 
     >>> import pandas as pd, trafficgeo as tg
     >>> boxes = pd.read_csv(world / "truth_tracks.csv").dropna(subset=["x1"]).rename(columns={"vehicle": "track_id"})
@@ -264,12 +303,13 @@ def analyze_tracks(camera: CalibratedCamera | Camera | str | os.PathLike, surfac
     from trafficgeo.site.site import Site
     from trafficgeo.traffic.tracks import load_tracks
 
-    site = Site.load(camera, surface, lanes, lines, resolution_m=resolution_m)
+    site = Site.load(camera, surface, lanes, lines, gates=gates, resolution_m=resolution_m)
     if knowledge is None:
         knowledge = ScaleKnowledge.from_camera(site.camera)
     return analyze(site.camera.camera, site.surface, load_tracks(tracks, fps=fps), lanes=site.lanes,
                    lines=site.count_lines, interval_s=interval_s, options=options, progress=progress,
-                   knowledge=knowledge, journeys=journeys)
+                   knowledge=knowledge, journeys=journeys, gates=list(site.gates) if site.gates else None,
+                   movement_interval_s=movement_interval_s)
 
 
 # ------------------------------------------------------------------------------------------------ writing
@@ -299,6 +339,11 @@ def gis_layers(analysis: TrafficResult, crs: pyproj.CRS) -> list:
         layers.append(Layer("count_lines", [ln.geometry for ln in analysis.lines],
                             {"name": [ln.name for ln in analysis.lines],
                              "lanes": [",".join(ln.lanes) for ln in analysis.lines]}))
+    if analysis.junction is not None:
+        j = analysis.junction
+        layers.append(Layer("gates", [g.geometry for g in j.gates],
+                            {"arm": j.arms, "bearing_deg": [j.bearings_deg[a] for a in j.arms],
+                             "approach": [j.approach_bound(a) for a in j.arms]}))
     return layers
 
 
@@ -327,7 +372,35 @@ def summary(analysis: TrafficResult, crs: pyproj.CRS | None = None) -> RunSummar
         crs=crs.to_wkt() if crs is not None else None,
         fragments=int(veh["fragments"].sum()) if "fragments" in veh.columns else None,
         stationary_vehicles=int(veh["stationary"].sum()) if "stationary" in veh.columns else 0,
+        junction=junction_summary(analysis),
     )
+
+
+def junction_summary(analysis: TrafficResult) -> dict[str, object] | None:
+    """The junction part of ``summary.json``: the arms (bearing, approach bound), the vehicles through it, the
+    complete movements (and how many had an end assigned by their path), the incomplete ones, and the peak hour
+    (None when less than an hour of whole intervals was observed)."""
+    from trafficgeo.traffic.movements import HEAVY_CLASSES, peak_hour
+
+    j, mv = analysis.junction, analysis.movements
+    if j is None or mv is None:
+        return None
+    done = mv[mv["complete"].astype(bool)]
+    interval = float(analysis.options.get("movement_interval_s", MOVEMENT_INTERVAL_S))
+    peak = peak_hour(analysis.turning, interval) if analysis.turning is not None else None
+    return {
+        "arms": {a: {"bearing_deg": round(j.bearings_deg[a], 3), "approach": j.approach_bound(a)} for a in j.arms},
+        "centre": [float(j.centre[0]), float(j.centre[1])],
+        "vehicles": len(mv),
+        "complete": len(done),
+        "by_path": int(((done["origin_by"] == "path") | (done["destination_by"] == "path")).sum()),
+        "incomplete": int(len(mv) - len(done)),
+        "movements": {k: int(v) for k, v in done["movement"].value_counts().sort_index().items()},
+        "heavy_pct": float(100.0 * done["class"].isin(HEAVY_CLASSES).mean()) if len(done) else None,
+        "interval_s": interval,
+        "peak_hour": None if peak is None else {"start_s": peak.start, "end_s": peak.end, "volume": peak.volume,
+                                                "phf": round(peak.phf, 4), "heavy_pct": round(peak.heavy_pct, 3)},
+    }
 
 
 def write_analysis(out_dir: str | Path, analysis: TrafficResult, camera: Camera, *, publish: bool = True
@@ -354,6 +427,16 @@ def write_analysis(out_dir: str | Path, analysis: TrafficResult, camera: Camera,
             written.append(out / name)
         write_point_table(out / "trajectories.csv", analysis.points, crs)  # lon/lat to 1e-9 degrees
         written.append(out / "trajectories.csv")
+        if analysis.movements is not None:
+            from trafficgeo.traffic.run_folder import SCHEMAS
+
+            for name in ("movements.csv", "movement_counts.csv"):
+                SCHEMAS[name].check(getattr(analysis, name.removesuffix(".csv")))
+            for name, table in (("movements.csv", analysis.movements),
+                                ("movement_counts.csv", analysis.movement_counts),
+                                ("turning_movements.csv", analysis.turning)):
+                write_csv_atomic(out / name, table, float_format="%.4f")
+                written.append(out / name)
         if crs is not None and len(analysis.points):
             layers = gis_layers(analysis, crs)
             write_gis(out / "trajectories.gpkg", layers, crs)

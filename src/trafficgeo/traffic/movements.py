@@ -27,8 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from trafficgeo.errors import InputError
 from trafficgeo.site.gates import MOVEMENTS, Junction
-from trafficgeo.traffic.counts import interval_edges, segment_crossings
+from trafficgeo.traffic.counts import MIN_INTERVAL_S, interval_edges, segment_crossings
 
 APPROACH_SHARE = 0.5  # a first/last position at least this share of the centre-to-gate distance out is on the arm
 HEADING_TOLERANCE_DEG = 45.0  # travel within this of straight into (out of) the junction along the arm
@@ -37,6 +38,16 @@ STOPPED_KMH = 5.0  # km/h: slower than this is stopped
 HEAVY_CLASSES = ("truck", "bus")
 MOVEMENT_COLUMNS = ["track_id", "class", "origin", "destination", "movement", "entry_time", "exit_time",
                     "travel_time_s", "stopped_s", "origin_by", "destination_by", "complete"]
+
+
+def check_movement_interval(movement_interval_s: float) -> float:
+    """``movement_interval_s`` (s) if it is a usable interval for movement counts (finite, at least
+    :data:`~trafficgeo.traffic.counts.MIN_INTERVAL_S`)."""
+    if not (np.isfinite(movement_interval_s) and movement_interval_s >= MIN_INTERVAL_S):
+        raise InputError(f"movement_interval_s {float(movement_interval_s):g}: the interval of the turning-movement "
+                         f"counts must be a finite number of seconds, at least {MIN_INTERVAL_S:g}; 900 (15 min) is "
+                         "what junction studies use", parameters=("movement_interval_s",))
+    return float(movement_interval_s)
 
 
 def gate_crossings(points: pd.DataFrame, junction: Junction) -> pd.DataFrame:

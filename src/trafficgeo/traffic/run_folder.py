@@ -256,6 +256,35 @@ TRAJECTORIES = TableSchema("trajectories.csv", (
            added="2026-12-06"),
 ), what="one row per vehicle and frame")
 
+MOVEMENTS = TableSchema("movements.csv", (
+    Column("track_id", "str", "", "vehicle id (vehicles.csv)"),
+    Column("class", "str", "", "vehicle class"),
+    Column("origin", "str", "", "the arm it came in by ('' unknown)"),
+    Column("destination", "str", "", "the arm it left by ('' unknown)"),
+    Column("movement", "str", "", "left, through, right or U from the arms' bearings ('' when an end is unknown)"),
+    Column("entry_time", "float", S, "when it crossed its origin's gate inwards (empty: not seen there)"),
+    Column("exit_time", "float", S, "when it crossed its destination's gate outwards (empty: not seen there)"),
+    Column("travel_time_s", "float", S, "exit_time - entry_time"),
+    Column("stopped_s", "float", S, "time at a speed below 5 km/h between entering (else first seen) and leaving "
+           "(else last seen)"),
+    Column("origin_by", "str", "", "how the origin is known: gate, path (first seen inside the gates, on that "
+           "arm's approach, heading in) or '' (unknown)"),
+    Column("destination_by", "str", "", "how the destination is known: gate, path or ''"),
+    Column("complete", "bool", "", "origin and destination known: counted in movement_counts.csv"),
+), what="one row per vehicle through the junction")
+
+MOVEMENT_COUNTS = TableSchema("movement_counts.csv", (
+    Column("interval_start", "float", S, "interval start"),
+    Column("interval_end", "float", S, "interval end"),
+    Column("observed_s", "float", S, "seconds of the interval observed"),
+    Column("origin", "str", "", "arm the vehicles came in by"),
+    Column("destination", "str", "", "arm they left by"),
+    Column("movement", "str", "", "left, through, right or U"),
+    Column("class", "str", "", "vehicle class"),
+    Column("count", "int", "", "complete movements that entered in the interval (by the entry crossing, else "
+           "the time first seen)"),
+), what="per interval, origin, destination and class")
+
 _BOX = (Column("frame", "int", "", "video frame index"), Column("time", "float", S, "frame time"),
         Column("x1", "float", PX, "box left"), Column("y1", "float", PX, "box top"),
         Column("x2", "float", PX, "box right"), Column("y2", "float", PX, "box bottom"))
@@ -268,7 +297,7 @@ TRACKS = TableSchema("tracks.csv", (
 ), what="one row per tracked box")
 
 SCHEMAS: dict[str, TableSchema] = {s.file: s for s in (VEHICLES, CROSSINGS, COUNTS, TRAJECTORIES, DETECTIONS,
-                                                      TRACKS)}
+                                                      TRACKS, MOVEMENTS, MOVEMENT_COUNTS)}
 RUN_HINT = "give the output folder of 'trafficgeo analyze' or 'trafficgeo process'"
 COMPARE_TABLES = ("compare_counts.csv", "compare_speeds.csv", "simulated_crossings.csv")  # compare-sumo's tables
 COMPARE_TEXT_COLUMNS = ("track_id", "class", "lane", "line", "source_track")  # read as text ("" where empty)
@@ -488,3 +517,21 @@ class RunFolder:
 
     def detections(self) -> pd.DataFrame:
         return self.table("detections.csv")
+
+    def movements(self) -> pd.DataFrame:
+        """``movements.csv`` of a run with a junction's gates."""
+        return self.table("movements.csv")
+
+    def movement_counts(self) -> pd.DataFrame:
+        """``movement_counts.csv`` of a run with a junction's gates."""
+        return self.table("movement_counts.csv")
+
+    def turning_movements(self) -> pd.DataFrame:
+        """``turning_movements.csv`` of a run with a junction's gates: ``interval_start, interval_end``, then
+        ``<arm>_left, <arm>_through, <arm>_right, <arm>_U`` per approach arm, ``total``, ``heavy``, ``heavy_pct``."""
+        p = self._require("turning_movements.csv")
+        try:
+            return pd.read_csv(p)
+        except (UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+            raise InputError(f"{p}: not a readable turning_movements.csv ({type(exc).__name__}); run trafficgeo "
+                             "again to write it") from None

@@ -183,7 +183,8 @@ class RunSummary(_Record):
     ``lane_changes``; ``crossings`` per line, lane and direction; ``hidden_crossings`` (of vehicles hidden at the
     line); ``options`` (the trajectory options, ``interval_s`` and ``speed_scale_knowledge``, as a JSON object);
     ``warnings``; ``crs`` (WKT, None without a CRS); ``fragments`` (world tracks before they were joined into
-    vehicles: :mod:`trafficgeo.traffic.journeys`) and ``stationary_vehicles`` (objects that never moved).
+    vehicles: :mod:`trafficgeo.traffic.journeys`), ``stationary_vehicles`` (objects that never moved) and, for a run
+    with a junction's gates, ``junction`` (:func:`trafficgeo.traffic.analyze.junction_summary`; None otherwise).
     ``hidden_crossings``, ``warnings``, ``crs``, ``fragments`` and ``stationary_vehicles`` joined the format later:
     0, none, None, None and 0 in a file written before them.
     """
@@ -203,6 +204,13 @@ class RunSummary(_Record):
     crs: str | None = None
     fragments: int | None = None
     stationary_vehicles: int = 0
+    junction: dict[str, Any] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        doc = super().to_dict()
+        if doc.get("junction") is None:  # a run without gates writes no junction key
+            doc.pop("junction", None)
+        return doc
 
     @property
     def interval_s(self) -> float | None:
@@ -236,7 +244,8 @@ class RunSummary(_Record):
                    hidden_crossings=o.integer("hidden_crossings", 0), options=o.object("options"),
                    warnings=tuple(warnings), crs=o.text("crs", None, nullable=True),
                    fragments=o.integer("fragments", None, nullable=True),
-                   stationary_vehicles=o.integer("stationary_vehicles", 0))
+                   stationary_vehicles=o.integer("stationary_vehicles", 0),
+                   junction=o.object("junction", None, nullable=True))
 
 
 # ------------------------------------------------------------------------------------------------ process.json
