@@ -54,7 +54,7 @@ from trafficgeo.synth.junction_sumo import (
     unit,
 )
 
-__all__ = ["JunctionOptions", "build_junction_world", "gate_lines", "ground_z", "junction_camera",
+__all__ = ["build_junction_world", "gate_lines", "ground_z", "junction_camera",
            "truth_movements"]
 
 EDGE_LINE = 0.15
@@ -178,7 +178,7 @@ def _render_ortho(opts: JunctionOptions, net_path: Path, stop: dict[str, float])
 
     from trafficgeo.crs import parse_crs
     from trafficgeo.geo.raster import GeoRaster
-    from trafficgeo.synth.orthophoto import ASPHALT, GRASS, SHOULDER, WHITE, YELLOW, _texture
+    from trafficgeo.synth.orthophoto import ASPHALT, GRASS, SHOULDER, WHITE, YELLOW, texture
 
     res, half = opts.ortho_resolution, opts.view_half_size
     ox, oy, _ = opts.origin
@@ -213,7 +213,7 @@ def _render_ortho(opts: JunctionOptions, net_path: Path, stop: dict[str, float])
     img[:] = GRASS
     img += (SHOULDER - GRASS).astype(np.float32) * verge[..., None]
     img += (ASPHALT - SHOULDER).astype(np.float32) * road[..., None]
-    tex = _texture(rng, (n, n), 1.0).astype(np.float32)
+    tex = texture(rng, (n, n), 1.0).astype(np.float32)
     img += tex[..., None] * (14.0 - 8.0 * verge)[..., None]
     white, yellow, stop_pts, dash_pts = _markings(opts, stop)
     for polys, colour in ((yellow, YELLOW), (white, WHITE)):
@@ -359,13 +359,15 @@ def build_junction_world(out_dir: str | Path, opts: JunctionOptions | None = Non
     from trafficgeo.geo.surface import DEMSurface
     from trafficgeo.io.gis import write_gis
     from trafficgeo.io.tables import write_point_table
-    from trafficgeo.synth.world import pick_gcps, render_video
+    from trafficgeo.synth.world import pick_gcps, render_video, resample_trajectories
 
     opts = opts or JunctionOptions()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     run = run_junction_sumo(out / "sumo", opts)
     traj = run.trajectories
+    if abs(opts.sumo_step * opts.fps - 1.0) > 1e-9:  # e.g. 30 fps simulated at 10 ms: positions at the frame times
+        traj = resample_trajectories(traj, opts.fps, opts.duration_s)
     z = ground_z(opts, traj.x, traj.y)
     camera = junction_camera(opts)
     write_camera_json(out / "camera_truth.json", camera)
