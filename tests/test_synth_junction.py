@@ -171,3 +171,26 @@ def test_turning_shares_follow_the_options(tmp_path) -> None:
     assert n > 300 and len(bearings) == 4
     for m, share in turning.items():
         assert counts[m] / n == pytest.approx(share, abs=0.06), (m, counts)
+
+
+def test_sloped_ground_and_30_fps(tmp_path) -> None:
+    """Vehicles, camera and DEM stand on the same (sloped) ground; 30 fps is simulated at 10 ms and resampled."""
+    import rasterio
+
+    opts = JunctionOptions(duration_s=2.0, fps=30.0, ground_slope=0.02, ground_slope_bearing_deg=60.0,
+                           ortho_resolution=0.5, seed=2)
+    summary = build_junction_world(tmp_path, opts, video=False)
+    assert summary["frames"] == 60
+    tracks = pd.read_csv(tmp_path / "truth_tracks.csv")
+    assert np.allclose(np.diff(np.unique(tracks["time"])), 1 / 30, atol=1e-3)
+    assert tracks["frame"].between(0, 59).all()
+    cam = read_camera_json(tmp_path / "camera_truth.json")
+    with rasterio.open(tmp_path / "dem.tif") as dem:
+        z = np.array([v[0] for v in dem.sample(zip(tracks["x"], tracks["y"], strict=True))])
+        zc = next(dem.sample([tuple(cam.position[:2])]))[0]
+    half = opts.view_half_size - 1.0
+    inside = (np.abs(tracks["x"] - opts.origin[0]) < half) & (np.abs(tracks["y"] - opts.origin[1]) < half)
+    assert inside.all()  # the rasters cover the arms
+    assert np.abs(z - tracks["z"]).max() < 0.01
+    assert cam.position[2] - zc == pytest.approx(opts.camera_height, abs=0.01)
+    assert tracks["z"].std() > 0.1  # the ground does slope

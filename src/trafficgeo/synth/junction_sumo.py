@@ -109,7 +109,7 @@ class JunctionOptions:
     ground_slope: float = 0.0  # rise per metre of the ground plane towards ground_slope_bearing_deg (0.01 = 1 %)
     ground_slope_bearing_deg: float = 0.0
     ortho_resolution: float = 0.05
-    view_half_size: float = 100.0  # orthophoto, DEM and lidar cover the centre +- this (m)
+    view_half_size: float = 130.0  # orthophoto, DEM and lidar cover the centre +- this (m): the arms and more
     pixel_sigma: float = 1.0
     survey_sigma: float = 0.02
     n_outliers: int = 0
