@@ -1,4 +1,5 @@
-"""``trafficgeo synth``: build a demo world (a thin wrapper over :func:`trafficgeo.synth.world.build_world`)."""
+"""``trafficgeo synth``: build a demo world (a thin wrapper over :func:`trafficgeo.synth.world.build_world`; with
+``--junction`` over :func:`trafficgeo.synth.junction_world.build_junction_world`)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from trafficgeo.cli import app, console, parse_image_size
 from trafficgeo.errors import InputError
 
 
-def _mix(text: str) -> dict[str, float]:
+def _mix(text: str, flag: str = "--mix", example: str = "car=0.8,van=0.1,truck=0.1") -> dict[str, float]:
     """'car=0.8,van=0.1,truck=0.07,bus=0.03' -> dict."""
     out: dict[str, float] = {}
     for part in text.split(","):
@@ -19,8 +20,7 @@ def _mix(text: str) -> dict[str, float]:
         try:
             out[name.strip()] = float(value)
         except ValueError:
-            raise InputError(f"--mix '{text}': '{part}' is not CLASS=SHARE; "
-                             "e.g. --mix car=0.8,van=0.1,truck=0.1") from None
+            raise InputError(f"{flag} '{text}': '{part}' is not NAME=SHARE; e.g. {flag} {example}") from None
     return out
 
 
@@ -35,13 +35,15 @@ def synth(
     crossfall: Annotated[float, typer.Option(help="crossfall each way from the crown, e.g. 0.02")] = 0.02,
     crest_radius: Annotated[float, typer.Option(help="vertical crest radius (m); 0 = none")] = 0.0,
     curve_radius: Annotated[float, typer.Option(help="horizontal curve radius (m): > 0 right, < 0 left")] = 0.0,
-    camera_height: Annotated[float, typer.Option(help="camera height above the road (m)")] = 8.0,
+    camera_height: Annotated[float | None, typer.Option(
+        help="camera height above the road (m); default 8 (road), 12 (junction)")] = None,
     heading: Annotated[float | None, typer.Option(help="camera heading (deg from north)")] = None,
     tilt: Annotated[float | None, typer.Option(help="camera tilt below the horizon (deg)")] = None,
     focal_px: Annotated[float | None, typer.Option(help="focal length (px); default 0.9 x width")] = None,
     image_size: Annotated[str, typer.Option(help="WIDTHxHEIGHT")] = "1920x1080",
     k1: Annotated[float, typer.Option(help="radial distortion k1")] = -0.06,
-    demand: Annotated[float, typer.Option(help="vehicles per hour per lane")] = 600.0,
+    demand: Annotated[float | None, typer.Option(
+        help="vehicles per hour per lane (default 600); with --junction per arm (default 400)")] = None,
     mix: Annotated[str, typer.Option(help="class shares, e.g. car=0.8,van=0.1,truck=0.07,bus=0.03")] =
         "car=0.8,van=0.1,truck=0.07,bus=0.03",
     duration: Annotated[float, typer.Option(help="video length (s)")] = 60.0,
@@ -54,6 +56,18 @@ def synth(
         "into files in videos/ and a cameras.csv for trafficgeo batch plan")] = None,
     file_s: Annotated[float | None, typer.Option(
         "--file-s", help="with --cameras: length of each video file (whole s; default the whole video)")] = None,
+    junction: Annotated[bool, typer.Option(
+        "--junction", help="build a signalised four-arm junction instead of a road (gates.gpkg, "
+        "truth_movements.csv)")] = False,
+    turning: Annotated[str, typer.Option(help="with --junction: turning shares per arm")] =
+        "left=0.2,through=0.6,right=0.2",
+    azimuth: Annotated[float, typer.Option(help="with --junction: bearing of the northern arm (deg)")] = 20.0,
+    camera_corner: Annotated[str, typer.Option(help="with --junction: the camera's corner, NE, SE, SW or NW")] =
+        "SE",
+    camera_distance: Annotated[float, typer.Option(
+        help="with --junction: camera pole distance from the centre (m)")] = 45.0,
+    gate_distance: Annotated[float, typer.Option(help="with --junction: gates this far from the centre (m)")] =
+        30.0,
 ) -> None:
     """Generate a demo world: SUMO traffic, orthophoto, lidar, GCPs, true camera, H.264 video and truth
     (with --cameras: a city of several cameras and their cameras.csv)."""
@@ -64,6 +78,29 @@ def synth(
 
     check_writable_folder(out, "--out")
     size = parse_image_size(image_size)
+    junction_only = {"--turning": turning != "left=0.2,through=0.6,right=0.2", "--azimuth": azimuth != 20.0,
+                     "--camera-corner": camera_corner != "SE", "--camera-distance": camera_distance != 45.0,
+                     "--gate-distance": gate_distance != 30.0}
+    if junction:
+        road_only = {"--one-way": one_way, "--length": length != 300.0, "--grade": grade != 0.0,
+                     "--crossfall": crossfall != 0.02, "--crest-radius": crest_radius != 0.0,
+                     "--curve-radius": curve_radius != 0.0, "--heading": heading is not None,
+                     "--tilt": tilt is not None, "--count-stations": count_stations != "0",
+                     "--cameras": cameras is not None, "--file-s": file_s is not None}
+        given = [flag for flag, on in road_only.items() if on]
+        if given:
+            raise InputError(f"{given[0]} applies to the road world only; leave it out with --junction")
+        _junction(out, seed=seed, lanes=lanes, camera_height=12.0 if camera_height is None else camera_height,
+                  focal_px=focal_px, size=size, k1=k1, demand=400.0 if demand is None else demand, mix=_mix(mix),
+                  duration=duration, fps=fps, outliers=outliers, no_video=no_video,
+                  turning=_mix(turning, "--turning", "left=0.2,through=0.6,right=0.2"), azimuth=azimuth,
+                  camera_corner=camera_corner, camera_distance=camera_distance, gate_distance=gate_distance)
+        return
+    given = [flag for flag, on in junction_only.items() if on]
+    if given:
+        raise InputError(f"{given[0]} applies to the junction world only; add --junction")
+    camera_height = 8.0 if camera_height is None else camera_height
+    demand = 600.0 if demand is None else demand
     for name, value in (("--length", length), ("--camera-height", camera_height), ("--duration", duration),
                         ("--fps", fps)):
         if not value > 0:
@@ -95,6 +132,38 @@ def synth(
         summary = build_world(out, opts, video=not no_video,
                               progress=lambda i, n: progress.update(task, completed=i, total=n))
     console.print(f"{summary['vehicles']} vehicles, {summary['frames']} frames, {summary['gcps']} GCPs "
+                  f"(SUMO {summary['sumo_version']}) -> {out}")
+
+
+_JUNCTION_FLAGS = {"seed": "--seed", "lanes": "--lanes", "camera_height": "--camera-height", "focal_px": "--focal-px",
+                   "image_size": "--image-size", "dist": "--k1", "veh_per_hour_per_arm": "--demand", "mix": "--mix",
+                   "duration_s": "--duration", "fps": "--fps", "n_outliers": "--outliers", "turning": "--turning",
+                   "azimuth_deg": "--azimuth", "camera_corner": "--camera-corner",
+                   "camera_distance_m": "--camera-distance", "gate_distance_m": "--gate-distance"}
+
+
+def _junction(out: Path, *, seed, lanes, camera_height, focal_px, size, k1, demand, mix, duration, fps, outliers,
+              no_video, turning, azimuth, camera_corner, camera_distance, gate_distance) -> None:
+    """``synth --junction``: the signalised four-arm junction world."""
+    from rich.progress import BarColumn, Progress, TimeRemainingColumn
+
+    from trafficgeo.synth.junction_sumo import JunctionOptions
+    from trafficgeo.synth.junction_world import build_junction_world
+
+    try:  # every option is checked before anything is written
+        opts = JunctionOptions(seed=seed, lanes=lanes, camera_height=camera_height, focal_px=focal_px,
+                               image_size=size, dist=(k1, 0.0, 0.0, 0.0, 0.0), veh_per_hour_per_arm=demand,
+                               mix=mix, duration_s=duration, fps=fps, n_outliers=outliers, turning=turning,
+                               azimuth_deg=azimuth, camera_corner=camera_corner, camera_distance_m=camera_distance,
+                               gate_distance_m=gate_distance)
+    except InputError as exc:
+        raise InputError(exc.in_terms_of(_JUNCTION_FLAGS)) from None
+    with Progress("[progress.description]{task.description}", BarColumn(), "{task.completed}/{task.total} frames",
+                  TimeRemainingColumn(), console=console, transient=True) as progress:
+        task = progress.add_task("rendering", total=None)
+        summary = build_junction_world(out, opts, video=not no_video,
+                                       progress=lambda i, n: progress.update(task, completed=i, total=n))
+    console.print(f"junction: {summary['vehicles']} vehicles, {summary['frames']} frames, {summary['gcps']} GCPs "
                   f"(SUMO {summary['sumo_version']}) -> {out}")
 
 

@@ -76,7 +76,7 @@ class RoadMarkings:
         return np.mod(station - self.dash_phase, self.period) < self.dash
 
 
-def _texture(rng: np.random.Generator, shape: tuple[int, int], scale: float) -> np.ndarray:
+def texture(rng: np.random.Generator, shape: tuple[int, int], scale: float) -> np.ndarray:
     """Fine grain plus a blotchy low-frequency component (values around 0, std ~ scale)."""
     from scipy.ndimage import gaussian_filter
 
@@ -106,7 +106,7 @@ def render_orthophoto(road: RoadSurface, markings: RoadMarkings, bounds: tuple[f
     img[:] = GRASS
     img[paved] = SHOULDER
     img[carriageway] = ASPHALT
-    tex = _texture(rng, (rows, cols), 1.0)
+    tex = texture(rng, (rows, cols), 1.0)
     img += tex[..., None] * np.where(carriageway | paved, 6.0, 14.0)[..., None]
     # Markings (anti-aliased by pixel coverage across the line).
     half_px = 0.5 * resolution

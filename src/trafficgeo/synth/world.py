@@ -111,6 +111,16 @@ def make_gcps(camera: Camera, road: RoadSurface, markings: RoadMarkings, opts: W
     bases = road.points(poles_s, np.full(poles_s.shape, markings.left_edge - markings.shoulder - 1.0))
     tops = bases + np.array([0.0, 0.0, 5.0])
     world = np.vstack([corners, bases, tops])
+    return pick_gcps(camera, world, lambda x, y: road.z(x, y), opts, rng)
+
+
+def pick_gcps(camera: Camera, world: np.ndarray, ground_z, opts, rng: np.random.Generator,
+              ) -> tuple[list[dict[str, object]], np.ndarray]:
+    """GCP rows from candidate world points (N, 3): those in the frame (10 px margin) within 90 m of the camera,
+    up to 24 spread by farthest-point sampling in the image, with pixel (``opts.pixel_sigma``) and survey
+    (``opts.survey_sigma``) noise, every fifth a check point, ``opts.n_outliers`` control points given a gross
+    pixel error and ``opts.n_z_outliers`` control points on the ground (``ground_z(x, y)``) a Z 3-8 m too high.
+    Returns the rows and the true world points."""
     uv = camera.project(world)
     ok = camera.in_image(uv, margin=10)
     dist = np.linalg.norm(world - camera.position, axis=1)
@@ -140,7 +150,7 @@ def make_gcps(camera: Camera, road: RoadSurface, markings: RoadMarkings, opts: W
         rows[k]["u"] = round(float(rows[k]["u"]) + size * np.cos(angle), 2)
         rows[k]["v"] = round(float(rows[k]["v"]) + size * np.sin(angle), 2)
     on_ground = [k for k in picked[opts.n_outliers:]
-                 if abs(world[idx[k], 2] - road.z(world[idx[k], 0], world[idx[k], 1])) < 0.05]
+                 if abs(world[idx[k], 2] - ground_z(world[idx[k], 0], world[idx[k], 1])) < 0.05]
     for k in on_ground[: opts.n_z_outliers]:
         rows[k]["z"] = round(float(rows[k]["z"]) + rng.uniform(3.0, 8.0), 3)
     return rows, world[idx]
@@ -198,7 +208,7 @@ def build_world(out_dir: str | Path, opts: WorldOptions | None = None, *, video:
     tracks = _truth_tracks(traj, z, camera, opts)
     counts = _truth_counts(traj, opts.count_stations)
     if video:
-        tracks = _render_video(out / "video.mp4", camera, dem, ortho, traj, z, tracks, opts, progress)
+        tracks = render_video(out / "video.mp4", camera, dem, ortho, traj, z, tracks, opts, progress)
     write_csv_atomic(out / "truth_tracks.csv", tracks, float_format="%.4f")
     write_csv_atomic(out / "truth_counts.csv", counts)
     from trafficgeo.io.tables import write_point_table
@@ -224,7 +234,7 @@ def resample_trajectories(traj: Trajectories, fps: float, duration_s: float) -> 
     """Trajectories at the frame times k / fps (linear in position, speed and unwrapped heading; lane, class and
     size from the sample before), for each vehicle within the span it was observed."""
     times = np.arange(_frame_count(WorldOptions(fps=fps, duration_s=duration_s))) / fps
-    parts: dict[str, list[np.ndarray]] = {name: [] for name in Trajectories.__dataclass_fields__}
+    parts: dict[str, list[np.ndarray]] = {name: [] for name in type(traj).__dataclass_fields__}
     for vid in np.unique(traj.vehicle):
         idx = np.flatnonzero(traj.vehicle == vid)
         idx = idx[np.argsort(traj.time[idx])]
@@ -247,7 +257,7 @@ def resample_trajectories(traj: Trajectories, fps: float, duration_s: float) -> 
         return traj
     cols = {name: np.concatenate(v) for name, v in parts.items()}
     order = np.lexsort((cols["vehicle"], cols["time"]))
-    return Trajectories(**{name: v[order] for name, v in cols.items()})
+    return type(traj)(**{name: v[order] for name, v in cols.items()})
 
 
 def _truth_tracks(traj: Trajectories, z: np.ndarray, camera: Camera, opts: WorldOptions):
@@ -317,9 +327,14 @@ def lanes_layer(spec: RoadSpec):
                                   "bearing": [spec.heading_deg(d) for d, _ in keys]})
 
 
-def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z: np.ndarray, tracks,
-                  opts: WorldOptions, progress):
-    """Render and encode the frames (H.264 via PyAV); adds the truth image boxes to ``tracks``."""
+def render_video(path: Path, camera: Camera, dem, ortho, traj, z: np.ndarray, tracks, opts, progress):
+    """Render and encode the frames (H.264 via PyAV); adds the truth image boxes to ``tracks``.
+
+    ``traj`` is any trajectory table with the fields of :class:`Trajectories` used here (``time`` sorted, ``vehicle``,
+    ``vclass``, ``x``, ``y``, ``heading_deg``, ``length``, ``width``, ``height``), ``z`` (m) the ground height of
+    each row and ``tracks`` the truth table with one row per trajectory row (``frame``, ``u``, ``v``). ``opts``
+    gives ``seed``, ``fps``, ``duration_s``, ``sensor_noise``, ``shake_px``, ``illumination_drift`` and ``shadows``
+    (:class:`WorldOptions` or :class:`~trafficgeo.synth.junction_sumo.JunctionOptions`)."""
     import av
     import cv2
 
@@ -410,4 +425,5 @@ def _render_video(path: Path, camera: Camera, dem, ortho, traj: Trajectories, z:
     return tracks
 
 
-__all__ = ["VEHICLE_CLASSES", "WorldOptions", "build_world", "make_gcps", "world_camera"]
+__all__ = ["VEHICLE_CLASSES", "WorldOptions", "build_world", "make_gcps", "pick_gcps", "render_video",
+           "world_camera"]
