@@ -70,7 +70,7 @@ def path(origin: str, destination: str, *, rotation_deg: float = 0.0, centre=(0.
     speed = np.full(len(ts), speed_mps * 3.6)
     if stop_s > 0:  # stand at the point 10 m before the centre
         k = int(np.searchsorted(d, start_m - 10.0)) if start_m > 10 else 0
-        n = int(round(stop_s / dt))
+        n = round(stop_s / dt)
         pts = np.vstack([pts[:k], np.repeat(pts[k:k + 1], n, axis=0), pts[k:]])
         speed = np.concatenate([speed[:k], np.zeros(n), speed[k:]])
         ts = np.arange(len(pts)) * dt
