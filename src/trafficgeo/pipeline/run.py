@@ -207,7 +207,8 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", VideoReadWarning)
             detections, tracks = detect_and_track(video, cam, surf, out, opts, roi=mask, restart=restart,
-                                                  lanes=lane_set, lines=count_lines, progress=tick, notice=notice,
+                                                  lanes=lane_set, lines=site.tiling_lines, progress=tick,
+                                                  notice=notice,
                                                   detector_info=detector_doc.update)
         elapsed = time.perf_counter() - t0
         read, said = _keep_what_was_read(out / CHECKPOINT_DIR, read, _reader_said(caught))

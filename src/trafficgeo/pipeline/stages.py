@@ -42,13 +42,14 @@ def detect(video: str | os.PathLike, site: Site, work_dir: str | os.PathLike, op
            progress: Callable[[int, int, float], None] | None = None,
            notice: Callable[[str], None] | None = None) -> DetectionFrames:
     """Detect the vehicles of ``video`` (the time window and detector of ``options``, settled for the video with
-    :func:`~trafficgeo.video.pipeline.settled_options`) on ``site`` (its camera and surface size the boxes, its
-    lanes, else its lines, plan the tiles), resumably in ``work_dir``; the detections over time of the window."""
+    :func:`~trafficgeo.video.pipeline.settled_options`) on ``site`` (its camera and surface size the boxes, its lanes,
+    else its counting lines, else its gates, plan the tiles), resumably in ``work_dir``; the detections over time of the
+    window."""
     from trafficgeo.video.checkpoint import read_detections
     from trafficgeo.video.pipeline import detect_and_track
 
     detect_and_track(video, site.camera.camera, site.surface, work_dir, options, roi=roi, restart=restart,
-                     lanes=site.lanes, lines=site.count_lines, progress=progress, notice=notice)
+                     lanes=site.lanes, lines=site.tiling_lines, progress=progress, notice=notice)
     return read_detections(Path(work_dir))
 
 

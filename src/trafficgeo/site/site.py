@@ -66,6 +66,16 @@ class Site:
         """The counting lines as a list (None without lines)."""
         return None if self.lines is None else list(self.lines)
 
+    @property
+    def tiling_lines(self) -> list[CountLine] | None:
+        """The lines the detector's tiles are planned around when there are no lanes: the counting lines, else the
+        junction's gates (named ``gate <arm>``), else None."""
+        if self.lines:
+            return list(self.lines)
+        if self.gates:
+            return [CountLine(f"gate {g.arm}", g.geometry) for g in self.gates]
+        return None
+
 
 def load_camera(camera: CameraLike) -> Camera:
     """A :class:`Camera` as it is, the camera of a CalibratedCamera, or read from the camera JSON at ``camera``."""
