@@ -10,6 +10,8 @@ Per world, side by side on the same truth:
 
 * ``ideal`` - the true footprint centres of every vehicle in the frame, every frame, through ``analyze --gates``:
   the ceiling set by the gates, the path rules and the journeys (a vehicle hidden by another is still "seen");
+* ``ideal detector`` - the true boxes of every vehicle at least 50 % visible, exactly, through the default tracker
+  (ByteTrack) and ``analyze --gates``: what the tracker, occlusion and the movement rules lose;
 * ``process`` - the default ``trafficgeo process --gates`` (learned detector, its default schedule and backend) on
   the rendered video.
 
@@ -19,9 +21,10 @@ Scored over the vehicles that entered and left during the video (truth_movements
   >= 95 %), the complete movements counted by the run over the same time window (entry time, else first seen,
   within the video);
 * heavy-vehicle share (trucks and buses) of those movements, true against counted (target: within 3 points);
-* what became of each true vehicle: counted with its true arms, counted with a wrong destination/origin,
-  incomplete (an end unknown: not counted), or missed (no run vehicle entered by its arm within 2 s of its true
-  entry); and the run's extra complete movements that match no true vehicle;
+* what became of each true vehicle (the run's vehicles are matched to the true ones by their trajectories: the
+  true vehicle within 3 m at most of its points): counted with its true arms, counted with a wrong arm, incomplete
+  (an end unknown: not counted), or missed (no run vehicle); and the run's duplicates (a second complete movement
+  of one vehicle) and phantoms (complete movements of no true vehicle);
 * x real time of ``process`` and the CPU it ran on.
 
 Run ``python benchmarks/bench_junction.py [--seeds 41,42] [--seconds 180] [--cameras pole12,pole18]``.
@@ -48,7 +51,7 @@ CAMERAS = {  # name -> JunctionOptions fields
     "pole18": {"camera_height": 18.0, "camera_corner": "NW", "azimuth_deg": -10.0},
 }
 HEAVY = ("truck", "bus")
-MATCH_S = 2.0  # s: a run vehicle entering by the same arm within this of a true entry is that vehicle
+NEAR_M = 3.0  # m: a run trajectory point this close to a true vehicle's position at the same time is of it
 
 
 def cpu_flags() -> str:
@@ -82,7 +85,8 @@ def build(seed: int, camera: str, seconds: float) -> Path:
 
 def trafficgeo(*args: object) -> float:
     t = time.perf_counter()
-    done = subprocess.run([sys.executable, "-m", "trafficgeo.cli", *map(str, args)], capture_output=True, text=True)
+    done = subprocess.run([str(Path(sys.executable).with_name("trafficgeo")), *map(str, args)], capture_output=True,
+                          text=True)
     if done.returncode != 0:
         raise SystemExit(f"trafficgeo {' '.join(map(str, args[:2]))} failed:\n{done.stderr[-2000:]}")
     return time.perf_counter() - t
@@ -102,6 +106,29 @@ def ideal_run(world: Path) -> Path:
     return run
 
 
+def ideal_detector_run(world: Path) -> Path:
+    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.synth.detections import ideal_detections
+    from trafficgeo.video.pipeline import TRACK_COLUMNS, ProcessOptions, settled_options
+    from trafficgeo.video.track import VehicleTracker
+
+    run = world / "run-ideal-detector"
+    if not (run / "movements.csv").is_file():
+        truth = pd.read_csv(world / "truth_tracks.csv")
+        camera = read_camera_json(world / "camera_truth.json")
+        fps = json.loads((world / "world.json").read_text())["options"]["fps"]
+        tracker = VehicleTracker(fps, settled_options(ProcessOptions(), fps).tracker)
+        rows = []
+        for frame, time_s, dets in ideal_detections(truth, camera.image_size, min_visible=0.5):
+            tracked = tracker.update(dets)
+            rows += [(frame, time_s, int(i), *b, sc, c) for i, b, sc, c in
+                     zip(tracked.ids, tracked.boxes, tracked.scores, tracked.classes, strict=True)]
+        pd.DataFrame(rows, columns=TRACK_COLUMNS).to_csv(world / "ideal_detector_tracks.csv", index=False)
+        trafficgeo("analyze", world / "camera_truth.json", world / "ideal_detector_tracks.csv", "--surface",
+                   world / "dem.tif", "--gates", world / "gates.gpkg", "-o", run)
+    return run
+
+
 def process_run(world: Path) -> tuple[Path, float | None]:
     run = world / "run-process"
     seconds = None
@@ -111,20 +138,32 @@ def process_run(world: Path) -> tuple[Path, float | None]:
     return run, seconds
 
 
+def truth_of_run_vehicles(world: Path, run: Path) -> dict[str, str]:
+    """The true vehicle of each run vehicle: the one within :data:`NEAR_M` of most of its trajectory points at the
+    same times ('' for none: a phantom)."""
+    truth = pd.read_csv(world / "truth_tracks.csv", usecols=["time", "vehicle", "x", "y"])
+    pts = pd.read_csv(run / "trajectories.csv", usecols=["track_id", "time", "x", "y"], dtype={"track_id": str})
+    truth["t"] = np.rint(truth["time"] * 1000).astype(np.int64)
+    pts["t"] = np.rint(pts["time"] * 1000).astype(np.int64)
+    m = pts.merge(truth, on="t", suffixes=("", "_true"))
+    m = m[np.hypot(m["x"] - m["x_true"], m["y"] - m["y_true"]) < NEAR_M]
+    votes = m.groupby(["track_id", "vehicle"]).size().rename("n").reset_index()
+    best = votes.sort_values("n", ascending=False).drop_duplicates("track_id")
+    return dict(zip(best["track_id"], best["vehicle"], strict=True))
+
+
 def score(world: Path, run: Path) -> dict[str, object]:
+    """Per-movement counts and outcomes (module docstring). Each run vehicle is matched to a true vehicle by its
+    trajectory; run movements of true vehicles that did not both enter and leave during the video are left out of
+    the comparison (their true movement is not in the video), those of no true vehicle count as extra."""
     truth = pd.read_csv(world / "truth_movements.csv", keep_default_na=False)
-    both = truth[(truth["entry_time"] != "") & (truth["exit_time"] != "")].copy()
-    both["entry"] = both["entry_time"].astype(float)
-    moves = pd.read_csv(run / "movements.csv", keep_default_na=False)
-    vehicles = pd.read_csv(run / "vehicles.csv", keep_default_na=False)
-    first = dict(zip(vehicles["track_id"].astype(str), vehicles["first_time"].astype(float), strict=True))
-    moves["entry"] = [float(e) if e != "" else first.get(str(t), np.nan)
-                      for e, t in zip(moves["entry_time"], moves["track_id"], strict=True)]
+    both = truth[(truth["entry_time"] != "") & (truth["exit_time"] != "")]
+    in_video = set(both["vehicle"])
+    moves = pd.read_csv(run / "movements.csv", keep_default_na=False, dtype={"track_id": str})
     moves["complete"] = moves["complete"].astype(str).str.lower() == "true"
-    duration = json.loads((world / "world.json").read_text())["options"]["duration_s"]
-    done = moves[moves["complete"] & (moves["entry"] >= 0) & (moves["entry"] < duration)]
-    # only the run's movements of vehicles that also left during the video compare with `both`: a run movement
-    # needs its exit seen, as the true ones do
+    of = truth_of_run_vehicles(world, run)
+    moves["vehicle"] = moves["track_id"].map(of).fillna("")
+    done = moves[moves["complete"] & (moves["vehicle"].isin(in_video) | (moves["vehicle"] == ""))]
     key = ["origin", "destination"]
     true_n = both.groupby(key).size()
     got_n = done.groupby(key).size()
@@ -133,27 +172,23 @@ def score(world: Path, run: Path) -> dict[str, object]:
     acc = 1.0 - diff / max(int(true_n.sum()), 1)
     heavy_true = 100.0 * both["class"].isin(HEAVY).mean() if len(both) else float("nan")
     heavy_got = 100.0 * done["class"].isin(HEAVY).mean() if len(done) else float("nan")
-    # outcomes per true vehicle: the run vehicle entering by its arm nearest in time
     outcomes = {"counted": 0, "wrong arm": 0, "incomplete": 0, "missed": 0}
-    used: set[str] = set()
-    for _, t in both.sort_values("entry").iterrows():
-        cand = moves[(moves["origin"] == t["origin"]) & ~moves["track_id"].astype(str).isin(used)]
-        dt = np.abs(cand["entry"].to_numpy(dtype=float) - t["entry"])
-        if len(cand) == 0 or not np.nanmin(np.where(np.isfinite(dt), dt, np.inf)) <= MATCH_S:
-            outcomes["missed"] += 1
-            continue
-        m = cand.iloc[int(np.nanargmin(np.where(np.isfinite(dt), dt, np.inf)))]
-        used.add(str(m["track_id"]))
-        if not m["complete"]:
-            outcomes["incomplete"] += 1
-        elif m["destination"] == t["destination"]:
+    for _, t in both.iterrows():
+        mine = moves[moves["vehicle"] == t["vehicle"]]
+        complete = mine[mine["complete"]]
+        right = (complete["origin"] == t["origin"]) & (complete["destination"] == t["destination"])
+        if len(complete) and right.any():
             outcomes["counted"] += 1
-        else:
+        elif len(complete):
             outcomes["wrong arm"] += 1
-    extra = int((~done["track_id"].astype(str).isin(used)).sum())
+        elif len(mine):
+            outcomes["incomplete"] += 1
+        else:
+            outcomes["missed"] += 1
+    dup = done[done["vehicle"] != ""].duplicated("vehicle").sum()
     return {"true": len(both), "run_complete": len(done), "accuracy": acc, "heavy_true": heavy_true,
-            "heavy_got": heavy_got, **outcomes, "extra": extra,
-            "incomplete_all": int((~moves["complete"]).sum()),
+            "heavy_got": heavy_got, **outcomes, "duplicates": int(dup),
+            "phantoms": int((done["vehicle"] == "").sum()),
             "by_path": int(((done["origin_by"] == "path") | (done["destination_by"] == "path")).sum())}
 
 
@@ -169,14 +204,17 @@ def main() -> None:
     cameras = args.cameras.split(",")
     for seed, camera in zip(seeds, cameras * len(seeds), strict=False):
         world = build(seed, camera, args.seconds)
-        for name, (run, seconds) in (("ideal", (ideal_run(world), None)), ("process", process_run(world))):
+        runs = (("ideal points", (ideal_run(world), None)), ("ideal detector", (ideal_detector_run(world), None)),
+                ("process", process_run(world)))
+        for name, (run, seconds) in runs:
             s = score(world, run)
             s.update(world=f"seed {seed}{' (dev)' if seed in DEVELOPMENT_SEEDS else ''}, {camera}", run=name,
                      x_real_time=(args.seconds / seconds) if seconds else None)
             rows.append(s)
             print(pd.DataFrame([s]).to_string(index=False), flush=True)
     table = pd.DataFrame(rows)[["world", "run", "true", "run_complete", "accuracy", "heavy_true", "heavy_got",
-                                "counted", "wrong arm", "incomplete", "missed", "extra", "by_path", "x_real_time"]]
+                                "counted", "wrong arm", "incomplete", "missed", "duplicates", "phantoms", "by_path",
+                                "x_real_time"]]
     with pd.option_context("display.float_format", "{:.3f}".format, "display.width", 200):
         print("\nPer-movement counts (vehicles that entered and left in the video), ideal vs process:")
         print(table.to_string(index=False))

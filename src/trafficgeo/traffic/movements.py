@@ -9,6 +9,12 @@ junction's gates (:mod:`trafficgeo.site.gates`, whose conventions hold here).
   :data:`APPROACH_SHARE` of the way from the centre to the gate) and its first 2 m of travel head into the
   junction (within 45 degrees); the destination likewise from its last position and travel. Otherwise the end is
   unknown (``''``) and the movement **incomplete**: listed, not counted.
+* two **halves** of one vehicle (one vehicle's track broken inside the junction, where it turns out of the
+  motion model that joins the pieces of a track on a road, :mod:`trafficgeo.traffic.journeys`): a movement known
+  only by its origin and a later one known only by its destination are one vehicle's when the second begins within
+  :data:`PAIR_GAP_S` of the first's end, no farther from it than its speed there covers in the gap (at least
+  :data:`PAIR_MIN_SPEED_MPS`) plus :data:`PAIR_SLACK_M`, and their classes agree; the pairs are chosen all at
+  once, nearest first (an assignment), and ``track_ids`` lists the two.
 * :func:`movement_counts` - complete movements per interval (by the time the vehicle entered: its entry crossing,
   else the time first seen), origin, destination and class.
 * :func:`turning_movement_table` - the layout junction tools import: one row per interval, per approach arm the
@@ -37,7 +43,10 @@ PATH_TRAVEL_M = 2.0  # metres of travel that give a vehicle's initial / final di
 STOPPED_KMH = 5.0  # km/h: slower than this is stopped
 HEAVY_CLASSES = ("truck", "bus")
 MOVEMENT_COLUMNS = ["track_id", "class", "origin", "destination", "movement", "entry_time", "exit_time",
-                    "travel_time_s", "stopped_s", "origin_by", "destination_by", "complete"]
+                    "travel_time_s", "stopped_s", "origin_by", "destination_by", "complete", "track_ids"]
+PAIR_GAP_S = 5.0  # s: the longest a vehicle may go unseen between the two halves of its movement
+PAIR_SLACK_M = 4.0  # m of position error allowed where the two halves meet, beyond the distance the speed covers
+PAIR_MIN_SPEED_MPS = 3.0  # m/s assumed at least for the distance a hidden vehicle may cover
 
 
 def check_movement_interval(movement_interval_s: float) -> float:
@@ -189,16 +198,57 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
             destination_by = "path" if destination else ""
         start = entry if np.isfinite(entry) else t[0]
         end = exit_ if np.isfinite(exit_) else t[-1]
+        speed = g["speed_kmh"].to_numpy(dtype=np.float64)[ok] / 3.6 if "speed_kmh" in g.columns else np.zeros(len(t))
         rows.append({"track_id": tid, "class": classes.get(tid, ""), "origin": origin, "destination": destination,
-                     "movement": junction.movement(origin, destination) if origin and destination else "",
-                     "entry_time": entry, "exit_time": exit_,
-                     "travel_time_s": exit_ - entry if np.isfinite(entry) and np.isfinite(exit_) else np.nan,
-                     "stopped_s": _stopped_s(g, start, end),
-                     "origin_by": origin_by, "destination_by": destination_by,
-                     "complete": bool(origin and destination)})
+                     "entry_time": entry, "exit_time": exit_, "stopped_s": _stopped_s(g, start, end),
+                     "origin_by": origin_by, "destination_by": destination_by, "track_ids": tid,
+                     "_t0": t[0], "_t1": t[-1], "_p0": xy[0], "_p1": xy[-1],
+                     "_v1": float(np.nan_to_num(speed[-1])) if len(speed) else 0.0})
+    rows = _pair_halves(rows, metres_per_unit)
+    for r in rows:
+        o, d, e, x = r["origin"], r["destination"], r["entry_time"], r["exit_time"]
+        r["movement"] = junction.movement(o, d) if o and d else ""
+        r["travel_time_s"] = x - e if np.isfinite(e) and np.isfinite(x) else np.nan
+        r["complete"] = bool(o and d)
     table = pd.DataFrame(rows, columns=MOVEMENT_COLUMNS)
     table["complete"] = table["complete"].astype(bool)
     return table.sort_values(["entry_time", "track_id"], kind="stable", na_position="last").reset_index(drop=True)
+
+
+def _pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
+    """Join movements known only by their origin to later ones known only by their destination (module docstring)."""
+    from scipy.optimize import linear_sum_assignment
+
+    heads = [i for i, r in enumerate(rows) if r["origin"] and not r["destination"]]
+    tails = [j for j, r in enumerate(rows) if r["destination"] and not r["origin"]]
+    if not heads or not tails:
+        return rows
+    big = 1e9
+    cost = np.full((len(heads), len(tails)), big)
+    for a, i in enumerate(heads):
+        h = rows[i]
+        for b, j in enumerate(tails):
+            t = rows[j]
+            gap = t["_t0"] - h["_t1"]
+            if not 0.0 < gap <= PAIR_GAP_S:
+                continue
+            if h["class"] and t["class"] and h["class"] != t["class"]:
+                continue
+            dist_m = float(np.hypot(*(t["_p0"] - h["_p1"]))) * metres_per_unit
+            reach_m = max(h["_v1"], PAIR_MIN_SPEED_MPS) * gap + PAIR_SLACK_M
+            if dist_m <= reach_m:
+                cost[a, b] = dist_m / reach_m + gap / PAIR_GAP_S
+    ra, rb = linear_sum_assignment(cost)
+    drop = set()
+    for a, b in zip(ra, rb, strict=True):
+        if cost[a, b] >= big:
+            continue
+        h, t = rows[heads[a]], rows[tails[b]]
+        h.update(destination=t["destination"], destination_by=t["destination_by"], exit_time=t["exit_time"],
+                 stopped_s=h["stopped_s"] + t["stopped_s"], track_ids=f"{h['track_ids']};{t['track_ids']}",
+                 _t1=t["_t1"], _p1=t["_p1"], _v1=t["_v1"], **{"class": h["class"] or t["class"]})
+        drop.add(tails[b])
+    return [r for k, r in enumerate(rows) if k not in drop]
 
 
 def _outside_every_gate(arms: _Arms, centre: np.ndarray, xy: np.ndarray) -> bool:

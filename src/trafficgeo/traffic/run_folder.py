@@ -271,6 +271,8 @@ MOVEMENTS = TableSchema("movements.csv", (
            "arm's approach, heading in) or '' (unknown)"),
     Column("destination_by", "str", "", "how the destination is known: gate, path or ''"),
     Column("complete", "bool", "", "origin and destination known: counted in movement_counts.csv"),
+    Column("track_ids", "str", "", "the vehicles (vehicles.csv) whose tracks make the movement, ';'-separated: two "
+           "where a vehicle's track broke inside the junction and its halves were joined"),
 ), what="one row per vehicle through the junction")
 
 MOVEMENT_COUNTS = TableSchema("movement_counts.csv", (
