@@ -105,7 +105,8 @@ def _status(frame: pd.DataFrame) -> np.ndarray:
     return frame["status"].astype(str).to_numpy() if "status" in frame.columns else np.full(len(frame), "inlier")
 
 
-def _draw_background(ax: Any, background: Background | None, axes: MapAxes) -> None:
+def draw_background(ax: Any, background: Background | None, axes: MapAxes) -> None:
+    """Draw ``background`` (if any) under a plan view in ``axes``' local coordinates."""
     if background is None:
         return
     left, bottom, right, top = background.bounds
@@ -113,7 +114,8 @@ def _draw_background(ax: Any, background: Background | None, axes: MapAxes) -> N
                                         top - axes.origin[1]), origin="upper", interpolation="bilinear", zorder=0)
 
 
-def _set_extent(ax: Any, x: np.ndarray, y: np.ndarray, margin: float = 0.08) -> None:
+def set_extent(ax: Any, x: np.ndarray, y: np.ndarray, margin: float = 0.08) -> None:
+    """Limits around the finite ``x, y`` with ``margin`` of the larger extent on every side."""
     ok = np.isfinite(x) & np.isfinite(y)
     if not ok.any():
         return
@@ -199,7 +201,7 @@ def gcps_on_map(gcps: pd.DataFrame, axes: MapAxes, *, camera_xy: tuple[float, fl
     """
     fig, axs = new_figure(9.0, 7.5)
     ax = axs[0, 0]
-    _draw_background(ax, background, axes)
+    draw_background(ax, background, axes)
     x, y = axes.local(gcps["x"], gcps["y"])
     status = _status(gcps)
     ex, ey = [x], [y]
@@ -237,7 +239,7 @@ def gcps_on_map(gcps: pd.DataFrame, axes: MapAxes, *, camera_xy: tuple[float, fl
     if "id" in gcps.columns and len(gcps) <= 80:
         for name, px, py in zip(gcps["id"].astype(str), x, y, strict=True):
             ax.annotate(name, (px, py), xytext=(4, 3), textcoords="offset points", fontsize=6, zorder=7)
-    _set_extent(ax, np.concatenate(ex), np.concatenate(ey))
+    set_extent(ax, np.concatenate(ex), np.concatenate(ey))
     axes.label(ax)
     ax.set_title("GCPs, camera and visible ground on the map", fontsize=9)
     ax.legend(loc="upper left", fontsize=7, framealpha=0.8)
@@ -288,7 +290,7 @@ def accuracy_map(values: np.ndarray, bounds: tuple[float, float, float, float], 
     bottom, right, top) with contours, over an optional orthophoto; the image has gid ``"accuracy"``."""
     fig, axs = new_figure(9.0, 7.5)
     ax = axs[0, 0]
-    _draw_background(ax, background, axes)
+    draw_background(ax, background, axes)
     x0, y0 = (float(v) for v in axes.local(bounds[0], bounds[1]))
     x1, y1 = (float(v) for v in axes.local(bounds[2], bounds[3]))
     from matplotlib.colors import LogNorm
@@ -323,7 +325,7 @@ def accuracy_map(values: np.ndarray, bounds: tuple[float, float, float, float], 
         ax.scatter([cx], [cy], s=100, marker="^", c="black", edgecolors="white", zorder=4, label="camera")
         ex.append(np.atleast_1d(cx))
         ey.append(np.atleast_1d(cy))
-    _set_extent(ax, np.concatenate(ex), np.concatenate(ey), margin=0.03)
+    set_extent(ax, np.concatenate(ex), np.concatenate(ey), margin=0.03)
     axes.label(ax)
     if gcps_xy is not None or camera_xy is not None:
         ax.legend(loc="upper left", fontsize=7, framealpha=0.8)
@@ -385,7 +387,7 @@ def trajectories_map(points: pd.DataFrame, axes: MapAxes, *, background: Backgro
 
     fig, axs = new_figure(9.0, 7.5)
     ax = axs[0, 0]
-    _draw_background(ax, background, axes)
+    draw_background(ax, background, axes)
     every = max(1, math.ceil(len(points) / max_points))
     seg, speed = trajectory_segments(points, every)
     seg = seg - np.asarray(axes.origin)[None, None, :]
@@ -412,7 +414,7 @@ def trajectories_map(points: pd.DataFrame, axes: MapAxes, *, background: Backgro
         ex.append(lx)
         ey.append(ly)
     if ex:
-        _set_extent(ax, np.concatenate(ex), np.concatenate(ey))
+        set_extent(ax, np.concatenate(ex), np.concatenate(ey))
     axes.label(ax)
     n = points["track_id"].nunique() if len(points) else 0
     ax.set_title(f"{n} trajectories ({len(points)} points{f', every {every}th drawn' if every > 1 else ''}) "

@@ -16,6 +16,8 @@ folder, then in its sub-folders (then beside the camera JSON), unless given expl
   ``refinement.report`` key names beside it (``--refine-report``), with its ``<stem>_frame.jpg``;
 * traffic runs: every folder (the run folder or a sub-folder) with the outputs of ``analyze``/``process``
   (``summary.json`` with ``vehicles.csv``/``trajectories.csv``, ``counts.csv``, ``crossings.csv``, ``process.json``);
+  with a junction's gates also ``movements.csv``, ``turning_movements.csv`` and the ``gates`` layer of
+  ``trajectories.gpkg`` (its turning movements, :mod:`trafficgeo.report.movement_section`);
   a comparison with SUMO in it (``compare_counts.csv``...) is part of its traffic section, or, when
   ``sumo-validate`` wrote it (``compare_simulation.json``), a Simulation section of its own.
 

@@ -18,6 +18,7 @@ from trafficgeo.report import figures as F
 from trafficgeo.report.blocks import Block, Heading, Part, Section, Table, Text, figure, items, num, table
 from trafficgeo.report.context import ReportContext
 from trafficgeo.report.inputs import TrafficRun
+from trafficgeo.report.movement_section import movement_parts
 from trafficgeo.traffic.counts import period_counts
 from trafficgeo.traffic.run_records import ProcessRecord, RunSummary
 
@@ -122,6 +123,7 @@ def traffic_section(b: ReportContext, run: TrafficRun, k: int) -> Section:
         parts.append((Heading("Counts and speeds per line and lane"), _crossing_table(crossings, s)))
     if counts is not None and len(counts):
         parts.append(_counts_table(counts))
+    parts += movement_parts(b, run, name)
     compare = comparison_table(run, "compare_counts.csv")
     if compare is not None and len(compare) and run.simulation is not None:
         parts.append((Text("The comparison with the SUMO simulation of this run (trafficgeo sumo-validate) is in "
