@@ -9,8 +9,8 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from cli_support import invoke
 
+from cli_support import invoke
 from trafficgeo.synth.junction_sumo import JunctionOptions
 from trafficgeo.synth.junction_world import build_junction_world
 from trafficgeo.traffic.run_folder import RunFolder
@@ -53,7 +53,8 @@ def test_analyze_with_gates_counts_every_movement_of_the_vehicles_that_crossed_t
     # vehicle by vehicle: the same arms, movement type and gate times (to the 40 ms frame)
     m = both.merge(moves, left_on="vehicle", right_on="track_id", suffixes=("_true", ""))
     assert len(m) >= 0.95 * len(both)
-    assert (m["origin_true"] == m["origin"]).mean() >= 0.95 and (m["destination_true"] == m["destination"]).mean() >= 0.95
+    assert (m["origin_true"] == m["origin"]).mean() >= 0.95
+    assert (m["destination_true"] == m["destination"]).mean() >= 0.95
     agree = m[(m["origin_true"] == m["origin"]) & (m["destination_true"] == m["destination"])]
     assert (agree["movement_true"] == agree["movement"]).all()
     timed = agree[agree["origin_by"] == "gate"]
