@@ -13,8 +13,9 @@ junction's gates (:mod:`trafficgeo.site.gates`, whose conventions hold here).
   motion model that joins the pieces of a track on a road, :mod:`trafficgeo.traffic.journeys`): a movement known
   only by its origin and a later one known only by its destination are one vehicle's when the second begins within
   :data:`PAIR_GAP_S` of the first's end, no farther from it than its speed there covers in the gap (at least
-  :data:`PAIR_MIN_SPEED_MPS`) plus :data:`PAIR_SLACK_M`, and their classes agree; the pairs are chosen all at
-  once, nearest first (an assignment), and ``track_ids`` lists the two.
+  :data:`PAIR_MIN_SPEED_MPS`) plus :data:`PAIR_SLACK_M`, and their classes are of one family (car or van; truck or
+  bus; or unknown); the pairs are chosen all at once, nearest first (an assignment), ``track_ids`` lists the two and
+  the class is that of the half seen longer.
 * :func:`movement_counts` - complete movements per interval (by the time the vehicle entered: its entry crossing,
   else the time first seen), origin, destination and class.
 * :func:`turning_movement_table` - the layout junction tools import: one row per interval, per approach arm the
@@ -37,7 +38,8 @@ from trafficgeo.errors import InputError
 from trafficgeo.site.gates import MOVEMENTS, Junction
 from trafficgeo.traffic.counts import MIN_INTERVAL_S, interval_edges, segment_crossings
 
-APPROACH_SHARE = 0.5  # a first/last position at least this share of the centre-to-gate distance out is on the arm
+APPROACH_SHARE = 0.3  # a first/last position at least this share of the centre-to-gate distance out is on the arm
+# (a vehicle queued at the stop line when the video starts is there: the stop line is where the junction begins)
 HEADING_TOLERANCE_DEG = 45.0  # travel within this of straight into (out of) the junction along the arm
 PATH_TRAVEL_M = 2.0  # metres of travel that give a vehicle's initial / final direction
 STOPPED_KMH = 5.0  # km/h: slower than this is stopped
@@ -203,7 +205,7 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
                      "entry_time": entry, "exit_time": exit_, "stopped_s": _stopped_s(g, start, end),
                      "origin_by": origin_by, "destination_by": destination_by, "track_ids": tid,
                      "_t0": t[0], "_t1": t[-1], "_p0": xy[0], "_p1": xy[-1],
-                     "_v1": float(np.nan_to_num(speed[-1])) if len(speed) else 0.0})
+                     "_v1": float(np.nan_to_num(speed[-1])) if len(speed) else 0.0, "_n": len(t)})
     rows = _pair_halves(rows, metres_per_unit)
     for r in rows:
         o, d, e, x = r["origin"], r["destination"], r["entry_time"], r["exit_time"]
@@ -213,6 +215,11 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
     table = pd.DataFrame(rows, columns=MOVEMENT_COLUMNS)
     table["complete"] = table["complete"].astype(bool)
     return table.sort_values(["entry_time", "track_id"], kind="stable", na_position="last").reset_index(drop=True)
+
+
+def _family(vehicle_class: str) -> str:
+    """Light (car, van) or heavy (truck, bus) - the classes a detector confuses with each other - else the class."""
+    return "light" if vehicle_class in ("car", "van") else "heavy" if vehicle_class in HEAVY_CLASSES else vehicle_class
 
 
 def _pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
@@ -232,7 +239,7 @@ def _pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
             gap = t["_t0"] - h["_t1"]
             if not 0.0 < gap <= PAIR_GAP_S:
                 continue
-            if h["class"] and t["class"] and h["class"] != t["class"]:
+            if _family(h["class"]) != _family(t["class"]) and h["class"] and t["class"]:
                 continue
             dist_m = float(np.hypot(*(t["_p0"] - h["_p1"]))) * metres_per_unit
             reach_m = max(h["_v1"], PAIR_MIN_SPEED_MPS) * gap + PAIR_SLACK_M
@@ -246,7 +253,9 @@ def _pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
         h, t = rows[heads[a]], rows[tails[b]]
         h.update(destination=t["destination"], destination_by=t["destination_by"], exit_time=t["exit_time"],
                  stopped_s=h["stopped_s"] + t["stopped_s"], track_ids=f"{h['track_ids']};{t['track_ids']}",
-                 _t1=t["_t1"], _p1=t["_p1"], _v1=t["_v1"], **{"class": h["class"] or t["class"]})
+                 _t1=t["_t1"], _p1=t["_p1"], _v1=t["_v1"],
+                 **{"class": (h["class"] if h["_n"] >= t["_n"] else t["class"]) or h["class"] or t["class"]})
+        h["_n"] += t["_n"]
         drop.add(tails[b])
     return [r for k, r in enumerate(rows) if k not in drop]
 
