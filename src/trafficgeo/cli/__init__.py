@@ -225,6 +225,8 @@ def demo(
     duration: Annotated[float, typer.Option(help="video length of the demo world (s)")] = 60.0,
     quick: Annotated[bool, typer.Option(help="a small, short world (10 s, 960x540) for a fast look")] = False,
     rebuild: Annotated[bool, typer.Option(help="rebuild the world even if a cached one matches")] = False,
+    junction: Annotated[bool, typer.Option(help="the junction demo instead: turning movements at a signalised "
+                                           "four-arm junction (seed 3 unless --seed is given)")] = False,
 ) -> None:
     """Run the pipeline on the demo world (built once, then cached) and compare every result with the truth."""
     from dataclasses import replace
@@ -235,6 +237,12 @@ def demo(
     check_writable_folder(out, "--out")
     if not duration > 0:
         raise InputError(f"--duration {duration} must be positive (s)")
+    if junction:
+        from trafficgeo.demo import run_junction_demo
+
+        run_junction_demo(out, seed=3 if seed == 7 else seed, duration_s=duration, console=console, rebuild=rebuild,
+                          process_s=None if quick else min(20.0, duration))
+        return
     world = replace(DEMO_WORLD, seed=seed, duration_s=duration)
     if quick:
         world = replace(world, duration_s=min(duration, 10.0), image_size=(960, 540), ortho_resolution=0.1)
