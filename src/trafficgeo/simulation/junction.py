@@ -40,9 +40,9 @@ from trafficgeo.site.gates import Gate, Junction
 from trafficgeo.site.lines import CountLine
 from trafficgeo.traffic.movements import movement_counts
 
-__all__ = ["GATE_MAPPING_COLUMNS", "SPREAD_SHARE", "GateMapping", "GateMappingError", "map_gates",
-           "movement_demand", "movement_routes", "movement_vehicle_types", "observed_movement_counts",
-           "read_run_junction", "run_has_movements"]
+__all__ = ["GATE_MAPPING_COLUMNS", "SPREAD_SHARE", "GateMapping", "GateMappingError", "counts_in_period",
+           "map_gates", "movement_demand", "movement_routes", "movement_vehicle_types", "observed_movement_counts",
+           "read_run_junction", "run_has_movements", "simulated_movement_counts"]
 
 SPREAD_SHARE = 0.9  # vehicles cross their origin gate within this share of the observed part of their interval
 DEFAULT_SPEED_FACTOR = (1.0, 0.1, 0.2, 2.0)  # SUMO's own default normc(1, 0.1, 0.2, 2): movements carry no speeds
@@ -245,3 +245,20 @@ def movement_demand(counts: pd.DataFrame, routes: dict[tuple[str, str], list[str
     n = len(route_of)
     return SampledDemand(gate_t + offset - lag_a, route_of, vclass, ["best"] * n, np.full(n, np.nan),
                          np.asarray(pos, dtype=np.float64), offset, max_lag)
+
+
+def simulated_movement_counts(points: pd.DataFrame, junction: Junction, interval_s: float, begin_s: float,
+                              end_s: float, *, metres_per_unit: float = 1.0) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The simulated vehicles' movements and their counts, found like the observed ones: ``points`` (simulated
+    trajectories in the run's CRS and observed time, :func:`trafficgeo.traffic.validation.simulated_points`) through
+    :func:`~trafficgeo.traffic.movements.vehicle_movements` at the run's gates, counted per ``interval_s`` over
+    ``[begin_s, end_s)`` by the time each entered (else was first seen)."""
+    from trafficgeo.traffic.movements import vehicle_movements
+
+    tid = points["track_id"].astype(str)
+    g = points.assign(track_id=tid).groupby("track_id", sort=False)
+    vehicles = pd.DataFrame({"track_id": g["class"].first().index, "class": g["class"].first().to_numpy(),
+                             "first_time": g["time"].min().to_numpy()})
+    moves = vehicle_movements(points.assign(track_id=tid), vehicles, junction, metres_per_unit=metres_per_unit)
+    first_seen = vehicles.set_index("track_id")["first_time"]
+    return moves, counts_in_period(moves, junction, interval_s, begin_s, end_s, first_seen)
