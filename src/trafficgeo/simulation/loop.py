@@ -10,6 +10,16 @@ lines, lanes and intervals, SUMO time moved back by the scenario's ``time_offset
 line, where no vehicle at all was observed is not compared (out of the camera's view is not a count of zero); the
 validation lists them (``unobserved``).
 
+At a junction (a scenario built from a run's turning movements) the simulated vehicles' FCD trajectories, in the
+run's CRS and observed time, go through the same :func:`~trafficgeo.traffic.movements.vehicle_movements` at the
+run's gates; both sides are counted per the scenario's interval over its period by the time each vehicle entered
+(else was first seen), and compared per interval and movement (origin, destination):
+``compare_movements.csv`` (observed, simulated, hourly flows, GEH), ``simulated_movements.csv``, and the headline
+(share with GEH < 5, mean GEH) under ``movements`` in ``compare_summary.json`` and in ``compare_simulation.json``.
+The simulation runs on past the period (:data:`~trafficgeo.simulation.scenario.TAIL_S`) so that a simulated
+vehicle entering near its end is followed until it leaves, as the observed counts hold only vehicles seen leaving.
+A run without counting lines has an empty line comparison.
+
 Beside the comparison tables ``sumo-validate`` writes ``compare_simulation.json``
 (:class:`~trafficgeo.traffic.run_records.SimulationRecord`: the scenario simulated and the headline figures,
 through :meth:`~trafficgeo.traffic.run_folder.RunFolder.write_simulation_record`) and lists it in the comparison's

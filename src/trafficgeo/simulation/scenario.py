@@ -9,6 +9,9 @@ A scenario folder holds (all written atomically, its manifest ``scenario_run.jso
 * ``counts.edgedata.xml`` - the observed counts per edge and interval given to routeSampler;
 * ``candidates.rou.xml`` - the candidate routes (randomTrips.py), unless the user gave routes;
 * ``mapping.csv`` - line x lane x direction -> SUMO edge/lane; ``observed_lane_counts.csv`` - the counts used;
+* for a run with a junction's movements instead of the three above: ``gate_mapping.csv`` - each arm's in- and
+  out-edge (:mod:`trafficgeo.simulation.junction`); ``observed_movement_counts.csv`` - the movement counts used;
+  the simulation then runs :data:`TAIL_S` past the period so that the last vehicles leave the junction;
 * ``scenario.json`` - what :func:`run_scenario` and ``sumo-validate`` need: the run, net, net CRS, interval,
   observed period ``[begin_s, end_s)``, ``time_offset_s`` (SUMO time = observed time + time_offset_s), step, seed.
 """
@@ -188,10 +191,13 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
     """SUMO demand reproducing the observed counts of ``run`` (a run folder) on ``net`` (a ``.net.xml``), counted
     per ``interval_s`` over ``[begin_s, end_s)`` (observed time, s; default the run's period), on candidate
     ``routes`` (a route file; default randomTrips.py), written as a runnable scenario into ``out_dir`` (module
-    docstring). Deterministic for a ``seed``.
+    docstring). Deterministic for a ``seed``. A run with a junction's movements (analyzed with gates) gets the
+    demand of its movements instead (:mod:`trafficgeo.simulation.junction`; its counting lines, if any, are not
+    used for the demand, and ``routes`` is refused).
 
     Raises:
-        InputError: bad options, run or network; a line crossing no edge (:class:`MappingError` with its table).
+        InputError: bad options, run or network; a line crossing no edge (:class:`MappingError` with its table), a
+            gate crossing none (:class:`~trafficgeo.simulation.junction.GateMappingError`).
         TrafficgeoError: a SUMO tool failed.
     """
     from trafficgeo.io.atomic import write_csv_atomic, write_json_atomic, write_text_atomic
@@ -215,6 +221,10 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
     work = Path(tempfile.mkdtemp(prefix=".sumo-demand-", dir=parent)).resolve()
     try:
         if run_has_movements(observed.outputs):
+            if routes is not None:
+                raise InputError(f"routes {routes}: a run with a junction's movements is routed by each movement's "
+                                 "shortest path from its in-edge to its out-edge; leave routes out",
+                                 parameters=("routes",))
             parts = _junction_parts(observed, Path(net), interval, b, e, net_crs, seed)
         else:
             parts = _line_parts(observed, Path(net), interval, b, e, routes, net_crs, seed, work)
