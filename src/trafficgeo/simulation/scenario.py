@@ -9,6 +9,9 @@ A scenario folder holds (all written atomically, its manifest ``scenario_run.jso
 * ``counts.edgedata.xml`` - the observed counts per edge and interval given to routeSampler;
 * ``candidates.rou.xml`` - the candidate routes (randomTrips.py), unless the user gave routes;
 * ``mapping.csv`` - line x lane x direction -> SUMO edge/lane; ``observed_lane_counts.csv`` - the counts used;
+* for a run with a junction's movements instead of the three above: ``gate_mapping.csv`` - each arm's in- and
+  out-edge (:mod:`trafficgeo.simulation.junction`); ``observed_movement_counts.csv`` - the movement counts used;
+  the simulation then runs :data:`TAIL_S` past the period so that the last vehicles leave the junction;
 * ``scenario.json`` - what :func:`run_scenario` and ``sumo-validate`` need: the run, net, net CRS, interval,
   observed period ``[begin_s, end_s)``, ``time_offset_s`` (SUMO time = observed time + time_offset_s), step, seed.
 """
@@ -31,7 +34,7 @@ import pandas as pd
 from trafficgeo.crs import parse_crs
 from trafficgeo.errors import InputError
 from trafficgeo.simulation.demand import (
-    DemandCounts,
+    SampledDemand,
     VehicleType,
     candidates_for,
     demand_xml,
@@ -40,6 +43,15 @@ from trafficgeo.simulation.demand import (
     place_departures,
     sample_routes,
     write_edge_data,
+)
+from trafficgeo.simulation.junction import (
+    map_gates,
+    movement_demand,
+    movement_routes,
+    movement_vehicle_types,
+    observed_movement_counts,
+    read_run_junction,
+    run_has_movements,
 )
 from trafficgeo.simulation.mapping import map_observations
 from trafficgeo.simulation.tools import run_sumo_program
@@ -61,6 +73,9 @@ SCENARIO_MANIFEST = "scenario_run.json"
 FORMAT = "trafficgeo-sumo-scenario/1"
 FCD_ATTRIBUTES = "x,y,angle,type,speed,lane"
 _SIMULATION_OUTPUTS = ("fcd.xml", "simulated.edgedata.xml")  # what run_scenario writes into the folder
+_BUILD_OUTPUTS = ("candidates.rou.xml", "counts.edgedata.xml", "mapping.csv", "observed_lane_counts.csv",
+                  "gate_mapping.csv", "observed_movement_counts.csv")  # the one kind of demand or the other's
+TAIL_S = 180.0  # s simulated past a movement demand's period: its last vehicles leave the junction, as observed ones
 
 
 @dataclass(frozen=True)
@@ -82,6 +97,7 @@ class SumoScenario:
     build_s: float = 0.0  # wall time of sumo-demand
     warnings: tuple[str, ...] = ()  # observations left out of the demand (see mapping.py)
     run_fingerprint: str = ""  # SHA-256 of the run's crossings.csv and counts.csv (from its manifest)
+    junction: dict | None = None  # a movement demand: {"arms": {arm: {"in_edge", "out_edge"}}}; None: counting lines
 
     @property
     def sumocfg(self) -> Path:
@@ -175,10 +191,13 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
     """SUMO demand reproducing the observed counts of ``run`` (a run folder) on ``net`` (a ``.net.xml``), counted
     per ``interval_s`` over ``[begin_s, end_s)`` (observed time, s; default the run's period), on candidate
     ``routes`` (a route file; default randomTrips.py), written as a runnable scenario into ``out_dir`` (module
-    docstring). Deterministic for a ``seed``.
+    docstring). Deterministic for a ``seed``. A run with a junction's movements (analyzed with gates) gets the
+    demand of its movements instead (:mod:`trafficgeo.simulation.junction`; its counting lines, if any, are not
+    used for the demand, and ``routes`` is refused).
 
     Raises:
-        InputError: bad options, run or network; a line crossing no edge (:class:`MappingError` with its table).
+        InputError: bad options, run or network; a line crossing no edge (:class:`MappingError` with its table), a
+            gate crossing none (:class:`~trafficgeo.simulation.junction.GateMappingError`).
         TrafficgeoError: a SUMO tool failed.
     """
     from trafficgeo.io.atomic import write_csv_atomic, write_json_atomic, write_text_atomic
@@ -198,45 +217,45 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
     interval, b, e = _check_options(observed, interval_s, begin_s, end_s, step_s, seed)
     if net_crs is not None:
         parse_crs(net_crs)
-    mapping = map_observations(observed, net, net_crs=net_crs)
-    counts = edge_counts(observed, mapping, interval, b, e)
-    if not len(counts.edges) or int(counts.edges["entered"].sum()) == 0:
-        raise InputError(f"{observed.folder}: no vehicle counted between {b:g} and {e:g} s; give a run with counts",
-                         parameters=("begin_s", "end_s"))
-    types = observed_vehicle_types(observed, mapping, b, e)
     parent = next(p for p in [out, *out.parents] if p.is_dir())
     work = Path(tempfile.mkdtemp(prefix=".sumo-demand-", dir=parent)).resolve()
     try:
-        write_edge_data(work / "counts.edgedata.xml", counts)
-        cand = candidates_for(Path(net).resolve(), Path(routes).resolve() if routes is not None else None, work,
-                              counts, seed=seed)
-        sampled = sample_routes(cand, counts, work, seed=seed)
-        demand = place_departures(sampled, mapping.edge_lengths_m, observed, mapping, counts, seed=seed)
-        offset = demand.time_offset_s
+        if run_has_movements(observed.outputs):
+            if routes is not None:
+                raise InputError(f"routes {routes}: a run with a junction's movements is routed by each movement's "
+                                 "shortest path from its in-edge to its out-edge; leave routes out",
+                                 parameters=("routes",))
+            parts = _junction_parts(observed, Path(net), interval, b, e, net_crs, seed)
+        else:
+            parts = _line_parts(observed, Path(net), interval, b, e, routes, net_crs, seed, work)
+        offset = parts.demand.time_offset_s
         out.mkdir(parents=True, exist_ok=True)
         with hold_folder(out):  # one run at a time in a folder
             begin_outputs(out, SCENARIO_MANIFEST)
-            for stale in (*_SIMULATION_OUTPUTS, "candidates.rou.xml", COMPARE_MANIFEST):  # of an earlier scenario here
+            for stale in (*_SIMULATION_OUTPUTS, *_BUILD_OUTPUTS, COMPARE_MANIFEST):  # of an earlier scenario here
                 (out / stale).unlink(missing_ok=True)
             net_rel = os.path.relpath(Path(net).resolve(), out.resolve())
-            files = {"scenario.sumocfg": _sumocfg(net_rel, e + offset, step_s, seed, max(0.0, b + offset - 5.0)),
-                     "demand.rou.xml": demand_xml(types, demand),
+            files = {"scenario.sumocfg": _sumocfg(net_rel, e + offset + parts.tail_s, step_s, seed,
+                                                  max(0.0, b + offset - 5.0)),
+                     "demand.rou.xml": demand_xml(parts.types, parts.demand),
                      "outputs.add.xml": _outputs_add("simulated.edgedata.xml", interval, b + offset, e + offset)}
             for name, text in files.items():
                 write_text_atomic(out / name, text)
             written = [out / n for n in files]
-            for name in ("counts.edgedata.xml", *(["candidates.rou.xml"] if routes is None else [])):
+            for name in parts.copies:
                 shutil.copyfile(work / name, work / f"{name}.copy")
                 os.replace(work / f"{name}.copy", out / name)
                 written.append(out / name)
-            write_csv_atomic(out / "mapping.csv", mapping.table, float_format="%.3f")
-            write_csv_atomic(out / "observed_lane_counts.csv", counts.lanes, float_format="%.3f")
-            written += [out / "mapping.csv", out / "observed_lane_counts.csv"]
+            for name, table in parts.tables.items():
+                write_csv_atomic(out / name, table, float_format="%.3f")
+                written.append(out / name)
             scenario = SumoScenario(out, Path(run).resolve(), Path(net).resolve(), net_crs, interval, b, e, offset,
-                                    step_s, int(seed), len(demand.depart_s), [_type_doc(t) for t in types],
-                                    time.perf_counter() - started, mapping.warnings,
-                                    run_fingerprint(observed.folder))
-            write_json_atomic(out / "scenario.json", _scenario_doc(scenario, net_rel, routes, counts, demand.max_lag_s))
+                                    step_s, int(seed), len(parts.demand.depart_s), [_type_doc(t) for t in parts.types],
+                                    time.perf_counter() - started, parts.warnings,
+                                    run_fingerprint(observed.folder), parts.junction)
+            doc = _scenario_doc(scenario, net_rel, routes if parts.junction is None else None, parts.observed_total,
+                                parts.demand.max_lag_s)
+            write_json_atomic(out / "scenario.json", doc)
             written.append(out / "scenario.json")
             publish_outputs(out, written, command="sumo-demand", name=SCENARIO_MANIFEST)
     finally:
@@ -244,18 +263,85 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
     return scenario
 
 
+@dataclass(frozen=True)
+class _DemandParts:
+    """What one kind of demand adds to the scenario folder: the vehicles and their types, files of the work folder
+    to copy, tables to write, warnings, the observed vehicles the demand reproduces, the time simulated past the
+    period (s) and the junction (None: counting lines)."""
+
+    demand: SampledDemand
+    types: list[VehicleType]
+    copies: tuple[str, ...]
+    tables: dict[str, pd.DataFrame]
+    warnings: tuple[str, ...]
+    observed_total: dict[str, int]
+    tail_s: float = 0.0
+    junction: dict | None = None
+
+
+def _line_parts(observed: ObservedRun, net: Path, interval: float, b: float, e: float, routes, net_crs, seed: int,
+                work: Path) -> _DemandParts:
+    """The demand of the counting lines (routeSampler on edge counts, :mod:`trafficgeo.simulation.demand`)."""
+    mapping = map_observations(observed, net, net_crs=net_crs)
+    counts = edge_counts(observed, mapping, interval, b, e)
+    if not len(counts.edges) or int(counts.edges["entered"].sum()) == 0:
+        raise InputError(f"{observed.folder}: no vehicle counted between {b:g} and {e:g} s; give a run with counts",
+                         parameters=("begin_s", "end_s"))
+    types = observed_vehicle_types(observed, mapping, b, e)
+    write_edge_data(work / "counts.edgedata.xml", counts)
+    cand = candidates_for(net.resolve(), Path(routes).resolve() if routes is not None else None, work, counts,
+                          seed=seed)
+    sampled = sample_routes(cand, counts, work, seed=seed)
+    demand = place_departures(sampled, mapping.edge_lengths_m, observed, mapping, counts, seed=seed)
+    return _DemandParts(demand, types, ("counts.edgedata.xml", *(["candidates.rou.xml"] if routes is None else [])),
+                        {"mapping.csv": mapping.table, "observed_lane_counts.csv": counts.lanes}, mapping.warnings,
+                        {"observed_vehicles_per_edge": int(counts.edges["entered"].sum())})
+
+
+def _junction_parts(observed: ObservedRun, net: Path, interval: float, b: float, e: float, net_crs,
+                    seed: int) -> _DemandParts:
+    """The demand of a junction's turning movements (:mod:`trafficgeo.simulation.junction`)."""
+    from trafficgeo.traffic.run_folder import RunFolder
+
+    if not net.is_file():
+        raise InputError(f"net {net}: SUMO network file not found; give the .net.xml of the network to simulate",
+                         parameters=("net",))
+    junction = read_run_junction(observed.folder, observed.crs)
+    gates = map_gates(junction, net, observed.crs, net_crs=net_crs)
+    run = RunFolder(observed.folder)
+    vehicles = run.vehicles()
+    counts = observed_movement_counts(run.movements(), vehicles, junction, interval, b, e)
+    if int(counts["count"].sum()) == 0:
+        raise InputError(f"{observed.folder}: no complete movement through the junction between {b:g} and {e:g} s; "
+                         "give a run with movements (or other begin_s/end_s)", parameters=("begin_s", "end_s"))
+    routes, warnings = movement_routes(net, gates, counts)
+    demand = movement_demand(counts, routes, gates, seed=seed)
+    arms = {str(r.arm): {"in_edge": str(r.in_edge), "out_edge": str(r.out_edge)} for r in gates.table.itertuples()}
+    return _DemandParts(demand, movement_vehicle_types(counts, vehicles), (),
+                        {"gate_mapping.csv": gates.table, "observed_movement_counts.csv": counts},
+                        (*gates.warnings, *warnings), {"observed_movements": int(counts["count"].sum())}, TAIL_S,
+                        {"arms": arms})
+
+
 def _type_doc(t: VehicleType) -> dict:
     return {"class": t.name, "share": t.share, "length_m": t.length_m, "speed_factor": list(t.speed_factor),
             "observed": t.observed}
 
 
-def _scenario_doc(s: SumoScenario, net_rel: str, routes, counts: DemandCounts, max_lag_s: float) -> dict:
-    return {"format": FORMAT, "run": str(s.run), "net": net_rel, "net_crs": s.net_crs, "interval_s": s.interval_s,
-            "begin_s": s.begin_s, "end_s": s.end_s, "time_offset_s": s.time_offset_s, "step_s": s.step_s,
-            "seed": s.seed, "vehicles": s.vehicles, "observed_vehicles_per_edge": int(counts.edges["entered"].sum()),
-            "max_lag_s": max_lag_s, "routes": str(Path(routes).resolve()) if routes is not None else
-            "candidates.rou.xml (randomTrips.py)", "vehicle_types": s.vehicle_types,
-            "warnings": list(s.warnings), "run_fingerprint": s.run_fingerprint}
+def _scenario_doc(s: SumoScenario, net_rel: str, routes, observed_total: dict[str, int], max_lag_s: float) -> dict:
+    if s.junction is not None:
+        route_text = "in-edge to out-edge of each movement (sumolib shortest path)"
+    elif routes is not None:
+        route_text = str(Path(routes).resolve())
+    else:
+        route_text = "candidates.rou.xml (randomTrips.py)"
+    doc = {"format": FORMAT, "run": str(s.run), "net": net_rel, "net_crs": s.net_crs, "interval_s": s.interval_s,
+           "begin_s": s.begin_s, "end_s": s.end_s, "time_offset_s": s.time_offset_s, "step_s": s.step_s,
+           "seed": s.seed, "vehicles": s.vehicles, **observed_total, "max_lag_s": max_lag_s, "routes": route_text,
+           "vehicle_types": s.vehicle_types, "warnings": list(s.warnings), "run_fingerprint": s.run_fingerprint}
+    if s.junction is not None:
+        doc["junction"] = s.junction
+    return doc
 
 
 def run_fingerprint(run: str | os.PathLike[str]) -> str:
@@ -287,10 +373,22 @@ def read_sumo_scenario(folder: str | os.PathLike[str]) -> SumoScenario:
                             float(doc["interval_s"]), float(doc["begin_s"]), float(doc["end_s"]),
                             float(doc["time_offset_s"]), float(doc["step_s"]), int(doc["seed"]), int(doc["vehicles"]),
                             list(doc["vehicle_types"]), warnings=tuple(doc.get("warnings", ())),
-                            run_fingerprint=str(doc.get("run_fingerprint", "")))
+                            run_fingerprint=str(doc.get("run_fingerprint", "")),
+                            junction=_junction_doc(doc.get("junction")))
     except (KeyError, TypeError, ValueError):
         raise InputError(f"scenario {d}: scenario.json is not one written by 'trafficgeo sumo-demand'; run it again",
                          parameters=("scenario",)) from None
+
+
+def _junction_doc(doc) -> dict | None:
+    """The ``junction`` of a scenario.json (None: a demand of counting lines); KeyError when malformed."""
+    if doc is None:
+        return None
+    arms = doc["arms"]
+    if not isinstance(arms, dict) or not all(isinstance(a, dict) and {"in_edge", "out_edge"} <= set(a)
+                                             for a in arms.values()):
+        raise KeyError("junction")
+    return {"arms": {str(k): {"in_edge": str(v["in_edge"]), "out_edge": str(v["out_edge"])} for k, v in arms.items()}}
 
 
 @dataclass(frozen=True)

@@ -301,8 +301,10 @@ TRACKS = TableSchema("tracks.csv", (
 SCHEMAS: dict[str, TableSchema] = {s.file: s for s in (VEHICLES, CROSSINGS, COUNTS, TRAJECTORIES, DETECTIONS,
                                                       TRACKS, MOVEMENTS, MOVEMENT_COUNTS)}
 RUN_HINT = "give the output folder of 'trafficgeo analyze' or 'trafficgeo process'"
-COMPARE_TABLES = ("compare_counts.csv", "compare_speeds.csv", "simulated_crossings.csv")  # compare-sumo's tables
-COMPARE_TEXT_COLUMNS = ("track_id", "class", "lane", "line", "source_track")  # read as text ("" where empty)
+COMPARE_TABLES = ("compare_counts.csv", "compare_speeds.csv", "simulated_crossings.csv",  # compare-sumo's tables
+                  "compare_movements.csv", "simulated_movements.csv")  # sumo-validate at a junction's gates
+COMPARE_TEXT_COLUMNS = ("track_id", "class", "lane", "line", "source_track", "origin", "destination", "movement",
+                        "origin_by", "destination_by")  # read as text ("" where empty)
 
 
 class RunFolder:

@@ -400,6 +400,13 @@ class CompareSummary(_Record):
     counts: CountSummary
     travel_times: TravelTimeSummary | None
     crs: str
+    movements: CountSummary | None = None  # sumo-validate at a junction's gates (joined 2027-01); groups per movement
+
+    def to_dict(self) -> dict[str, Any]:
+        doc = super().to_dict()
+        if doc.get("movements") is None:  # a comparison without a junction writes no movements key
+            doc.pop("movements", None)
+        return doc
 
     @classmethod
     def from_dict(cls, doc: Any, where: str = "compare_summary.json") -> CompareSummary:
@@ -413,11 +420,15 @@ class CompareSummary(_Record):
     @classmethod
     def _from(cls, o: _Obj) -> CompareSummary:
         tt = o.sub("travel_times")
+        mv = o.sub("movements", None)
         return cls(CountSummary._from(o.sub("counts")), TravelTimeSummary._from(tt) if tt is not None else None,
-                   o.text("crs"))
+                   o.text("crs"), CountSummary._from(mv) if mv is not None else None)
 
 
 # ---------------------------------------------------------------------------------------- compare_simulation.json
+_SIMULATION_LATER = ("movements", "movement_share_geh_below_5", "movement_mean_geh")  # keys that joined later
+
+
 @dataclass(frozen=True, eq=False, kw_only=True)
 class SimulationRecord(_Record):
     """``compare_simulation.json``: the SUMO scenario ``sumo-validate`` simulated and its headline figures, beside
@@ -429,7 +440,9 @@ class SimulationRecord(_Record):
     seconds to build it (``build_s``, NaN when not known) and to run SUMO (``run_s``). The figures: ``counts``
     compared (line x lane x direction x interval), ``share_geh_below_5`` against ``target_share``, ``target_met``,
     ``mean_geh``, ``max_abs_speed_difference_kmh``, ``travel_time_difference_s`` (simulated minus observed mean),
-    ``unobserved`` (lines or directions with no observed vehicle, not compared) and the scenario's ``warnings``.
+    ``unobserved`` (lines or directions with no observed vehicle, not compared) and the scenario's ``warnings``;
+    at a junction's gates the ``movements`` compared (interval x movement), their ``movement_share_geh_below_5``
+    and ``movement_mean_geh`` (0 and NaN without a junction).
     """
 
     format: str = SIMULATION_FORMAT
@@ -455,6 +468,9 @@ class SimulationRecord(_Record):
     travel_time_difference_s: float
     unobserved: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
+    movements: int = 0  # interval x movement rows compared at a junction's gates (joined 2027-01)
+    movement_share_geh_below_5: float = NAN
+    movement_mean_geh: float = NAN
 
     @classmethod
     def from_dict(cls, doc: Any, where: str = SIMULATION_RECORD) -> SimulationRecord:
@@ -474,7 +490,8 @@ class SimulationRecord(_Record):
         values: dict[str, Any] = {"net_crs": o.text("net_crs", None, nullable=True)}
         for f in fields(cls):
             if f.type in read and f.name not in values:
-                values[f.name] = read[f.type](f.name)
+                later = f.name in _SIMULATION_LATER  # a record written before the key joined reads its default
+                values[f.name] = read[f.type](f.name, *((f.default,) if later else ()))
         for key in ("unobserved", "warnings"):
             items = o.items(key, [])
             if not all(isinstance(v, str) for v in items):

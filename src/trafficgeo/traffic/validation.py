@@ -123,6 +123,9 @@ class Comparison:
     speeds: pd.DataFrame
     travel_times: dict | None
     simulated_crossings: pd.DataFrame
+    movements: pd.DataFrame | None = None  # at a junction's gates: traffic.movements.compare_movement_counts
+    movement_summary: dict | None = None  # its traffic.movements.movement_comparison_summary
+    simulated_movements: pd.DataFrame | None = None  # the simulated vehicles' movements (movements.csv's columns)
 
 
 def compare_with_simulation(observed: ObservedRun, simulated: pd.DataFrame, *,
@@ -150,15 +153,21 @@ def compare_with_simulation(observed: ObservedRun, simulated: pd.DataFrame, *,
 
 
 def write_comparison(out_dir: str | Path, comparison: Comparison, crs: pyproj.CRS | None) -> list[Path]:
-    """``compare_counts.csv``, ``compare_speeds.csv``, ``simulated_crossings.csv`` and ``compare_summary.json``
-    into ``out_dir``, under the comparison's manifest (:meth:`~trafficgeo.traffic.run_folder.RunFolder.
-    write_comparison`); returns the paths written."""
+    """``compare_counts.csv``, ``compare_speeds.csv``, ``simulated_crossings.csv`` (at a junction also
+    ``compare_movements.csv`` and ``simulated_movements.csv``) and ``compare_summary.json`` into ``out_dir``,
+    under the comparison's manifest (:meth:`~trafficgeo.traffic.run_folder.RunFolder.write_comparison`); returns the
+    paths written."""
     from trafficgeo.traffic.run_folder import RunFolder
     from trafficgeo.traffic.run_records import CompareSummary
 
-    doc = {"counts": comparison.count_summary, "travel_times": comparison.travel_times, "crs": crs_label(crs)}
+    doc = {"counts": comparison.count_summary, "travel_times": comparison.travel_times, "crs": crs_label(crs),
+           "movements": comparison.movement_summary}
     tables = {"compare_counts.csv": comparison.counts, "compare_speeds.csv": comparison.speeds,
               "simulated_crossings.csv": comparison.simulated_crossings}
+    if comparison.movements is not None:
+        tables["compare_movements.csv"] = comparison.movements
+    if comparison.simulated_movements is not None:
+        tables["simulated_movements.csv"] = comparison.simulated_movements
     return RunFolder(out_dir).write_comparison(tables, CompareSummary.from_dict(doc, "the comparison"))
 
 
