@@ -40,7 +40,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -51,7 +50,6 @@ CAMERAS = {  # name -> JunctionOptions fields
     "pole18": {"camera_height": 18.0, "camera_corner": "NW", "azimuth_deg": -10.0},
 }
 HEAVY = ("truck", "bus")
-NEAR_M = 3.0  # m: a run trajectory point this close to a true vehicle's position at the same time is of it
 
 
 def cpu_flags() -> str:
@@ -138,57 +136,20 @@ def process_run(world: Path) -> tuple[Path, float | None]:
     return run, seconds
 
 
-def truth_of_run_vehicles(world: Path, run: Path) -> dict[str, str]:
-    """The true vehicle of each run vehicle: the one within :data:`NEAR_M` of most of its trajectory points at the
-    same times ('' for none: a phantom)."""
-    truth = pd.read_csv(world / "truth_tracks.csv", usecols=["time", "vehicle", "x", "y"])
-    pts = pd.read_csv(run / "trajectories.csv", usecols=["track_id", "time", "x", "y"], dtype={"track_id": str})
-    truth["t"] = np.rint(truth["time"] * 1000).astype(np.int64)
-    pts["t"] = np.rint(pts["time"] * 1000).astype(np.int64)
-    m = pts.merge(truth, on="t", suffixes=("", "_true"))
-    m = m[np.hypot(m["x"] - m["x_true"], m["y"] - m["y_true"]) < NEAR_M]
-    votes = m.groupby(["track_id", "vehicle"]).size().rename("n").reset_index()
-    best = votes.sort_values("n", ascending=False).drop_duplicates("track_id")
-    return dict(zip(best["track_id"], best["vehicle"], strict=True))
-
-
 def score(world: Path, run: Path) -> dict[str, object]:
-    """Per-movement counts and outcomes (module docstring). Each run vehicle is matched to a true vehicle by its
-    trajectory; run movements of true vehicles that did not both enter and leave during the video are left out of
-    the comparison (their true movement is not in the video), those of no true vehicle count as extra."""
+    """Per-movement counts and outcomes (module docstring; :func:`trafficgeo.synth.scoring.movement_scores`, the run's
+    vehicles matched to the true ones by their trajectories)."""
+    from trafficgeo.synth.scoring import movement_scores, truth_of_run_vehicles
+
     truth = pd.read_csv(world / "truth_movements.csv", keep_default_na=False)
-    both = truth[(truth["entry_time"] != "") & (truth["exit_time"] != "")]
-    in_video = set(both["vehicle"])
-    moves = pd.read_csv(run / "movements.csv", keep_default_na=False, dtype={"track_id": str})
-    moves["complete"] = moves["complete"].astype(str).str.lower() == "true"
-    of = truth_of_run_vehicles(world, run)
-    moves["vehicle"] = moves["track_id"].map(of).fillna("")
-    done = moves[moves["complete"] & (moves["vehicle"].isin(in_video) | (moves["vehicle"] == ""))]
-    key = ["origin", "destination"]
-    true_n = both.groupby(key).size()
-    got_n = done.groupby(key).size()
-    pairs = true_n.index.union(got_n.index)
-    diff = (true_n.reindex(pairs, fill_value=0) - got_n.reindex(pairs, fill_value=0)).abs().sum()
-    acc = 1.0 - diff / max(int(true_n.sum()), 1)
-    heavy_true = 100.0 * both["class"].isin(HEAVY).mean() if len(both) else float("nan")
-    heavy_got = 100.0 * done["class"].isin(HEAVY).mean() if len(done) else float("nan")
-    outcomes = {"counted": 0, "wrong arm": 0, "incomplete": 0, "missed": 0}
-    for _, t in both.iterrows():
-        mine = moves[moves["vehicle"] == t["vehicle"]]
-        complete = mine[mine["complete"]]
-        right = (complete["origin"] == t["origin"]) & (complete["destination"] == t["destination"])
-        if len(complete) and right.any():
-            outcomes["counted"] += 1
-        elif len(complete):
-            outcomes["wrong arm"] += 1
-        elif len(mine):
-            outcomes["incomplete"] += 1
-        else:
-            outcomes["missed"] += 1
-    dup = done[done["vehicle"] != ""].duplicated("vehicle").sum()
-    return {"true": len(both), "run_complete": len(done), "accuracy": acc, "heavy_true": heavy_true,
-            "heavy_got": heavy_got, **outcomes, "duplicates": int(dup),
-            "phantoms": int((done["vehicle"] == "").sum()),
+    moves = pd.read_csv(run / "movements.csv", keep_default_na=False, dtype={"track_id": str, "track_ids": str})
+    of = truth_of_run_vehicles(pd.read_csv(world / "truth_tracks.csv"),
+                               pd.read_csv(run / "trajectories.csv", dtype={"track_id": str}))
+    s = movement_scores(truth, moves, of)
+    done = moves[moves["complete"].astype(str).str.lower() == "true"]
+    return {"true": int(s.table["true"].sum()), "run_complete": int(s.table["counted"].sum()),
+            "accuracy": s.accuracy, "heavy_true": s.heavy_true_pct, "heavy_got": s.heavy_counted_pct, **s.outcomes,
+            "duplicates": s.duplicates, "phantoms": s.phantoms,
             "by_path": int(((done["origin_by"] == "path") | (done["destination_by"] == "path")).sum())}
 
 

@@ -394,20 +394,14 @@ def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console)
 
 
 # ------------------------------------------------------------------------------------------------ junction
-def _movement_scores(world: Path, moves: pd.DataFrame, end_s: float) -> tuple[pd.DataFrame, float]:
-    """Per origin -> destination: the true movements of the vehicles that entered and left before ``end_s`` against
-    the complete movements counted with an entry crossing (a vehicle already inside when the video starts has no
-    true entry in it), and ``1 - sum |counted - true| / sum true``."""
+def _movement_scores(world: Path, moves: pd.DataFrame, points: pd.DataFrame, end_s: float):
+    """Turning movements against the truth (:func:`trafficgeo.synth.scoring.movement_scores`), the run's vehicles
+    matched to the true ones by their trajectories."""
+    from trafficgeo.synth.scoring import movement_scores, truth_of_run_vehicles
+
     truth = pd.read_csv(world / "truth_movements.csv", keep_default_na=False)
-    both = truth[(truth["entry_time"] != "") & (truth["exit_time"] != "")]
-    both = both[both["exit_time"].astype(float) < end_s]
-    done = moves[moves["complete"].astype(bool) & (moves["origin_by"] == "gate")]
-    done = done[np.nan_to_num(done["exit_time"].to_numpy(dtype=float), nan=0.0) < end_s]
-    key = ["origin", "destination"]
-    table = pd.concat([both.groupby(key).size().rename("true"), done.groupby(key).size().rename("counted")],
-                      axis=1).fillna(0).astype(int).reset_index()
-    acc = 1.0 - float((table["counted"] - table["true"]).abs().sum()) / max(int(table["true"].sum()), 1)
-    return table, acc
+    of = truth_of_run_vehicles(pd.read_csv(world / "truth_tracks.csv"), points)
+    return movement_scores(truth, moves, of, end_s=end_s)
 
 
 def run_junction_demo(out: Path, *, seed: int = 3, duration_s: float = 60.0, process_s: float | None = 20.0,
@@ -449,7 +443,7 @@ def run_junction_demo(out: Path, *, seed: int = 3, duration_s: float = 60.0, pro
     con.print(f"camera position off by {np.linalg.norm(calibrated.camera.position - truth_cam.position):.3f} m")
     scores: dict[str, float] = {}
     t = Table(title="Junction demo: turning movements measured vs truth (vehicles that entered and left)")
-    for col in ("tracks from", "movements counted", "true", "per-movement counts"):
+    for col in ("tracks from", "movements counted", "true", "per-movement counts", "heavy: counted / true"):
         t.add_column(col, justify="right" if col != "tracks from" else "left")
     truth = pd.read_csv(wdir / "truth_tracks.csv")
     noisy = noisy_tracks(truth, opts.image_size, seed=opts.seed)
@@ -460,10 +454,10 @@ def run_junction_demo(out: Path, *, seed: int = 3, duration_s: float = 60.0, pro
                             gates=wdir / "gates.gpkg")
     RunFolder(out / "traffic").write_traffic(result, calibrated.camera)
     print_analysis(result, con)
-    table, acc = _movement_scores(wdir, result.movements, duration_s)
-    scores["tracker_movement_accuracy"] = acc
-    t.add_row("simulated tracker output", str(int(table["counted"].sum())), str(int(table["true"].sum())),
-              f"{acc:.1%}")
+    sc = _movement_scores(wdir, result.movements, result.points, duration_s)
+    scores["tracker_movement_accuracy"] = sc.accuracy
+    t.add_row("simulated tracker output", str(int(sc.table["counted"].sum())), str(int(sc.table["true"].sum())),
+              f"{sc.accuracy:.1%}", f"{sc.heavy_counted_pct:.0f} / {sc.heavy_true_pct:.0f} %")
     if process_s is not None:
         from trafficgeo.pipeline.run import process_video
         from trafficgeo.video.pipeline import ProcessOptions
@@ -474,11 +468,12 @@ def run_junction_demo(out: Path, *, seed: int = 3, duration_s: float = 60.0, pro
                             gates=wdir / "gates.gpkg", options=ProcessOptions(end_s=process_s), restart=True,
                             notice=lambda text: con.print(text, markup=False))
         print_analysis(run.traffic, con)
-        table, acc = _movement_scores(wdir, run.traffic.movements, process_s)
-        scores["video_movement_accuracy"] = acc
+        sc = _movement_scores(wdir, run.traffic.movements, run.traffic.points, process_s)
+        scores["video_movement_accuracy"] = sc.accuracy
         scores["video_realtime_factor"] = process_s / run.seconds
         t.add_row(f"the video (first {process_s:g} s, default detector, {scores['video_realtime_factor']:.2f}x "
-                  "real time)", str(int(table["counted"].sum())), str(int(table["true"].sum())), f"{acc:.1%}")
+                  "real time)", str(int(sc.table["counted"].sum())), str(int(sc.table["true"].sum())),
+                  f"{sc.accuracy:.1%}", f"{sc.heavy_counted_pct:.0f} / {sc.heavy_true_pct:.0f} %")
     con.print(t)
     from trafficgeo.report.html import write_report_html
 

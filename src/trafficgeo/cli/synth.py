@@ -67,7 +67,7 @@ def synth(
     camera_distance: Annotated[float, typer.Option(
         help="with --junction: camera pole distance from the centre (m)")] = 45.0,
     gate_distance: Annotated[float, typer.Option(help="with --junction: gates this far from the centre (m)")] =
-        30.0,
+        22.0,
 ) -> None:
     """Generate a demo world: SUMO traffic, orthophoto, lidar, GCPs, true camera, H.264 video and truth
     (with --cameras: a city of several cameras and their cameras.csv)."""
@@ -80,7 +80,7 @@ def synth(
     size = parse_image_size(image_size)
     junction_only = {"--turning": turning != "left=0.2,through=0.6,right=0.2", "--azimuth": azimuth != 20.0,
                      "--camera-corner": camera_corner != "SE", "--camera-distance": camera_distance != 45.0,
-                     "--gate-distance": gate_distance != 30.0}
+                     "--gate-distance": gate_distance != 22.0}
     if junction:
         road_only = {"--one-way": one_way, "--length": length != 300.0, "--grade": grade != 0.0,
                      "--crossfall": crossfall != 0.02, "--crest-radius": crest_radius != 0.0,

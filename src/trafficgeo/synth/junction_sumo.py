@@ -102,7 +102,7 @@ class JunctionOptions:
     veh_per_hour_per_arm: float = 400.0
     turning: dict[str, float] = field(default_factory=lambda: {"left": 0.2, "through": 0.6, "right": 0.2})
     mix: dict[str, float] = field(default_factory=lambda: {"car": 0.8, "van": 0.1, "truck": 0.07, "bus": 0.03})
-    gate_distance_m: float = 30.0
+    gate_distance_m: float = 22.0  # 11 m behind the stop line: in the frame of the default camera on every arm
     warmup_s: float = 90.0  # simulated before the first frame (one signal cycle and more): traffic is present
     origin: tuple[float, float, float] = (245000.0, 5182600.0, 90.0)
     crs: str = "EPSG:2949"
@@ -136,7 +136,7 @@ class JunctionOptions:
         for name, hint in (("duration_s", "give seconds, e.g. 60"), ("fps", "give e.g. 25"),
                            ("camera_height", "give metres, e.g. 12"), ("camera_distance_m", "give metres, e.g. 45"),
                            ("arm_length_m", "give metres, e.g. 120"), ("lane_width", "give metres, e.g. 3.5"),
-                           ("speed_limit_kmh", "give km/h, e.g. 50"), ("gate_distance_m", "give metres, e.g. 30"),
+                           ("speed_limit_kmh", "give km/h, e.g. 50"), ("gate_distance_m", "give metres, e.g. 22"),
                            ("ortho_resolution", "give metres, e.g. 0.05"), ("view_half_size", "give metres")):
             try:
                 positive(name, hint)

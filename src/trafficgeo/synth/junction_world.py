@@ -19,7 +19,9 @@ truth behind them (issue 39). Conventions (CRS, bearings, arms, movements) are i
 * ``truth_tracks.csv``/``.gpkg`` - the road world's columns; ``direction`` is the vehicle's origin arm, ``lane`` the
   SUMO lane id under its front bumper;
 * ``gates.gpkg`` - per arm one line across the whole arm (both directions and 1 m beyond the edge lines),
-  ``gate_distance_m`` from the centre (default 30 m: about 19 m behind the stop line, so queues reach it), with
+  ``gate_distance_m`` from the centre (default 22 m: about 11 m behind the stop line, so queues reach it, and
+  well inside the default camera's frame on every arm: at 30 m the near arms' gates lie at the frame's left and
+  right edges, where vehicles are cut off and their boxes cannot be used), with
   ``arm`` (compass name), ``bearing_deg`` (centre to the gate's midpoint) and ``distance_m``;
 * ``truth_movements.csv`` - per vehicle in the video's time span: ``vehicle, class, origin, destination,
   movement, entry_time, exit_time``: origin/destination arms from its SUMO route, ``movement`` from the arms'

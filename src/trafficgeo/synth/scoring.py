@@ -129,3 +129,73 @@ def crossing_outcomes(crossings: pd.DataFrame, truth_counts: pd.DataFrame, truth
                      "outcome": outcome[i], "visible": visible, "touching": touching})
     columns = ["line", "vehicle", "lane", "time", "outcome", "visible", "touching"]
     return pd.DataFrame(rows, columns=columns), int((~used).sum())
+
+
+# ------------------------------------------------------------------------------------------------ movements
+NEAR_M = 3.0  # m: a run trajectory point this close to a true vehicle's position at the same time is of it
+
+
+def truth_of_run_vehicles(truth_tracks: pd.DataFrame, points: pd.DataFrame, *, near_m: float = NEAR_M
+                          ) -> dict[str, str]:
+    """The true vehicle of each run vehicle (``points``: ``track_id, time, x, y`` of trajectories.csv): the one
+    within ``near_m`` (CRS units, metres in the generated worlds) of most of its points at the same frame times.
+    A run vehicle near no true one is left out (a phantom)."""
+    truth = truth_tracks[["time", "vehicle", "x", "y"]].assign(t=np.rint(truth_tracks["time"] * 1000).astype(np.int64))
+    pts = points[["track_id", "time", "x", "y"]].assign(track_id=points["track_id"].astype(str),
+                                                        t=np.rint(points["time"] * 1000).astype(np.int64))
+    m = pts.merge(truth, on="t", suffixes=("", "_true"))
+    m = m[np.hypot(m["x"] - m["x_true"], m["y"] - m["y_true"]) < near_m]
+    votes = m.groupby(["track_id", "vehicle"]).size().rename("n").reset_index()
+    best = votes.sort_values("n", ascending=False, kind="stable").drop_duplicates("track_id")
+    return dict(zip(best["track_id"], best["vehicle"].astype(str), strict=True))
+
+
+@dataclass(frozen=True)
+class MovementScores:
+    """Turning movements against the truth of a junction world, over the vehicles that entered and left during
+    the run: ``table`` (origin, destination, true, counted), ``accuracy`` (1 - sum |counted - true| / sum true),
+    the heavy-vehicle shares (%), and what became of each true vehicle (``outcomes``: counted, wrong arm,
+    incomplete, missed) with the run's ``duplicates`` and ``phantoms``."""
+
+    table: pd.DataFrame
+    accuracy: float
+    heavy_true_pct: float
+    heavy_counted_pct: float
+    outcomes: dict[str, int]
+    duplicates: int
+    phantoms: int
+
+
+def movement_scores(truth_movements: pd.DataFrame, movements: pd.DataFrame, vehicle_of: dict[str, str], *,
+                    end_s: float | None = None) -> MovementScores:
+    """Score ``movements`` (movements.csv) against ``truth_movements`` (truth_movements.csv, read with
+    ``keep_default_na=False``), the run's vehicles matched to true ones by ``vehicle_of``
+    (:func:`truth_of_run_vehicles`; a movement of joined halves takes its first track's). Only true vehicles that
+    entered and left (before ``end_s``) are scored; run movements of other true vehicles (already inside when the
+    run began, still inside at its end) are left out, those of no true vehicle count as phantoms."""
+    heavy = ("truck", "bus")
+    both = truth_movements[(truth_movements["entry_time"] != "") & (truth_movements["exit_time"] != "")]
+    if end_s is not None:
+        both = both[both["exit_time"].astype(float) < end_s]
+    scored = set(both["vehicle"].astype(str))
+    moves = movements.assign(track_id=movements["track_id"].astype(str))
+    ids = moves["track_ids"].astype(str) if "track_ids" in moves.columns else moves["track_id"]
+    moves["vehicle"] = [next((vehicle_of[t] for t in i.split(";") if t in vehicle_of), "") for i in ids]
+    complete = moves["complete"].astype(str).str.lower().isin(("true", "1"))
+    done = moves[complete & (moves["vehicle"].isin(scored) | (moves["vehicle"] == ""))]
+    key = ["origin", "destination"]
+    table = pd.concat([both.groupby(key).size().rename("true"), done.groupby(key).size().rename("counted")],
+                      axis=1).fillna(0).astype(int).reset_index()
+    accuracy = 1.0 - float((table["counted"] - table["true"]).abs().sum()) / max(int(table["true"].sum()), 1)
+    outcomes = {"counted": 0, "wrong arm": 0, "incomplete": 0, "missed": 0}
+    for _, t in both.iterrows():
+        mine = moves[moves["vehicle"] == str(t["vehicle"])]
+        whole = mine[complete[mine.index]]
+        right = (whole["origin"] == t["origin"]) & (whole["destination"] == t["destination"])
+        key_ = "counted" if right.any() else "wrong arm" if len(whole) else "incomplete" if len(mine) else "missed"
+        outcomes[key_] += 1
+    return MovementScores(
+        table, accuracy,
+        100.0 * float(both["class"].isin(heavy).mean()) if len(both) else float("nan"),
+        100.0 * float(done["class"].isin(heavy).mean()) if len(done) else float("nan"),
+        outcomes, int(done[done["vehicle"] != ""].duplicated("vehicle").sum()), int((done["vehicle"] == "").sum()))
