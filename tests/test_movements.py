@@ -192,3 +192,26 @@ def test_bad_gates_are_refused() -> None:
         Junction.from_gates(g[:1])
     with pytest.raises(InputError, match="unique"):
         Junction.from_gates([g[0], Gate(g[0].arm, g[1].geometry)])
+
+
+def test_the_two_halves_of_a_track_broken_inside_the_junction_are_one_movement() -> None:
+    j = junction()
+    whole = path("S", "W", tid="car")  # a left turn at 10 m/s
+    inside = np.hypot(whole["x"], whole["y"]) < 8.0
+    k = np.flatnonzero(inside)
+    first = whole.iloc[: k[0]].assign(track_id="a")  # lost 8 m before the centre ...
+    second = whole.iloc[k[-1] + 1:].assign(track_id="b")  # ... found again 8 m past it, 1.6 s later
+    row = run([first, second], j)
+    assert len(row) == 1 and (row.iloc[0].origin, row.iloc[0].destination, row.iloc[0].movement) == ("S", "W", "left")
+    assert row.iloc[0].track_ids == "a;b" and row.iloc[0].complete
+    # found again too late to have been the same vehicle (6 s: farther than it could have driven), or as a truck
+    late = second.assign(time=second["time"] + 6.0)
+    assert not run([first, late], j)["complete"].any()
+    assert not run([first, second.assign(**{"class": "truck"})], j)["complete"].any()
+    # two vehicles lost at once and found again: each joined to its own
+    other = path("N", "E", tid="o", t0=0.05)
+    ins = np.flatnonzero(np.hypot(other["x"], other["y"]) < 8.0)
+    pieces = [first, second, other.iloc[: ins[0]].assign(track_id="c"), other.iloc[ins[-1] + 1:].assign(track_id="d")]
+    rows = run(pieces, j).set_index("track_ids")
+    assert rows.loc["a;b", "movement"] == "left" and rows.loc["c;d", "movement"] == "left"
+    assert rows.loc["c;d", "destination"] == "E"

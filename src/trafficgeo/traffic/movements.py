@@ -13,9 +13,11 @@ junction's gates (:mod:`trafficgeo.site.gates`, whose conventions hold here).
   motion model that joins the pieces of a track on a road, :mod:`trafficgeo.traffic.journeys`): a movement known
   only by its origin and a later one known only by its destination are one vehicle's when the second begins within
   :data:`PAIR_GAP_S` of the first's end, no farther from it than its speed there covers in the gap (at least
-  :data:`PAIR_MIN_SPEED_MPS`) plus :data:`PAIR_SLACK_M`, and their classes are of one family (car or van; truck or
-  bus; or unknown); the pairs are chosen all at once, nearest first (an assignment), ``track_ids`` lists the two and
-  the class is that of the half seen longer.
+  :data:`PAIR_MIN_SPEED_MPS`) plus :data:`PAIR_SLACK_M`, ahead of it as it turns (the line between the two runs
+  within 45 degrees of the mean of the directions where the first ends and the second begins, as an arc's chord
+  does), and their classes are of one family (car or van; truck or bus; or unknown). The pairs are chosen all at
+  once by an assignment that prefers the arc between the two whose length best matches what their speeds cover in
+  the gap; ``track_ids`` lists the two and the class is that of the half seen longer.
 * :func:`movement_counts` - complete movements per interval (by the time the vehicle entered: its entry crossing,
   else the time first seen), origin, destination and class.
 * :func:`turning_movement_table` - the layout junction tools import: one row per interval, per approach arm the
@@ -205,7 +207,10 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
                      "entry_time": entry, "exit_time": exit_, "stopped_s": _stopped_s(g, start, end),
                      "origin_by": origin_by, "destination_by": destination_by, "track_ids": tid,
                      "_t0": t[0], "_t1": t[-1], "_p0": xy[0], "_p1": xy[-1],
-                     "_v1": float(np.nan_to_num(speed[-1])) if len(speed) else 0.0, "_n": len(t)})
+                     "_v0": float(np.nan_to_num(speed[0])) if len(speed) else 0.0,
+                     "_v1": float(np.nan_to_num(speed[-1])) if len(speed) else 0.0, "_n": len(t),
+                     "_d0": _travel_direction(xy, True, metres_per_unit),
+                     "_d1": _travel_direction(xy, False, metres_per_unit)})
     rows = _pair_halves(rows, metres_per_unit)
     for r in rows:
         o, d, e, x = r["origin"], r["destination"], r["entry_time"], r["exit_time"]
@@ -220,6 +225,22 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
 def _family(vehicle_class: str) -> str:
     """Light (car, van) or heavy (truck, bus) - the classes a detector confuses with each other - else the class."""
     return "light" if vehicle_class in ("car", "van") else "heavy" if vehicle_class in HEAVY_CLASSES else vehicle_class
+
+
+def _arc_length_m(chord: np.ndarray, d_end: np.ndarray | None, d_start: np.ndarray | None) -> float | None:
+    """The length (m) of the circular arc from the end of one half (direction ``d_end``) to the start of the next
+    (direction ``d_start``) over ``chord`` (m); None when the chord does not run between the two directions (the
+    second half is not ahead of the first, turning as it does). The chord itself where a direction is unknown."""
+    dist = float(np.hypot(*chord))
+    if d_end is None or d_start is None or dist < 1e-9:
+        return dist
+    turn = float(np.arctan2(d_end[0] * d_start[1] - d_end[1] * d_start[0], d_end @ d_start))  # signed, radians
+    mid = np.arctan2(d_end[1], d_end[0]) + 0.5 * turn  # an arc's chord runs at the mean of its end directions
+    off = abs((np.arctan2(chord[1], chord[0]) - mid + np.pi) % (2 * np.pi) - np.pi)
+    if off > np.radians(HEADING_TOLERANCE_DEG):
+        return None
+    half = 0.5 * abs(turn)
+    return dist * half / np.sin(half) if half > 1e-6 else dist
 
 
 def _pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
@@ -241,10 +262,16 @@ def _pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
                 continue
             if _family(h["class"]) != _family(t["class"]) and h["class"] and t["class"]:
                 continue
-            dist_m = float(np.hypot(*(t["_p0"] - h["_p1"]))) * metres_per_unit
+            chord = (t["_p0"] - h["_p1"]) * metres_per_unit
+            dist_m = float(np.hypot(*chord))
             reach_m = max(h["_v1"], PAIR_MIN_SPEED_MPS) * gap + PAIR_SLACK_M
-            if dist_m <= reach_m:
-                cost[a, b] = dist_m / reach_m + gap / PAIR_GAP_S
+            if dist_m > reach_m:
+                continue
+            path_m = _arc_length_m(chord, h["_d1"], t["_d0"])
+            if path_m is None:
+                continue
+            travelled_m = 0.5 * (h["_v1"] + t["_v0"]) * gap  # what its speeds on both sides cover in the gap
+            cost[a, b] = abs(path_m - travelled_m) / (travelled_m + PAIR_SLACK_M) + gap / PAIR_GAP_S
     ra, rb = linear_sum_assignment(cost)
     drop = set()
     for a, b in zip(ra, rb, strict=True):
@@ -253,7 +280,7 @@ def _pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
         h, t = rows[heads[a]], rows[tails[b]]
         h.update(destination=t["destination"], destination_by=t["destination_by"], exit_time=t["exit_time"],
                  stopped_s=h["stopped_s"] + t["stopped_s"], track_ids=f"{h['track_ids']};{t['track_ids']}",
-                 _t1=t["_t1"], _p1=t["_p1"], _v1=t["_v1"],
+                 _t1=t["_t1"], _p1=t["_p1"], _v1=t["_v1"], _d1=t["_d1"],
                  **{"class": (h["class"] if h["_n"] >= t["_n"] else t["class"]) or h["class"] or t["class"]})
         h["_n"] += t["_n"]
         drop.add(tails[b])
