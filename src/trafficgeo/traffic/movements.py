@@ -230,9 +230,10 @@ def _family(vehicle_class: str) -> str:
 def _arc_length_m(chord: np.ndarray, d_end: np.ndarray | None, d_start: np.ndarray | None) -> float | None:
     """The length (m) of the circular arc from the end of one half (direction ``d_end``) to the start of the next
     (direction ``d_start``) over ``chord`` (m); None when the chord does not run between the two directions (the
-    second half is not ahead of the first, turning as it does). The chord itself where a direction is unknown."""
+    second half is not ahead of the first, turning as it does). The chord itself where a direction is unknown or the
+    chord is shorter than the position error :data:`PAIR_SLACK_M` (its direction is noise)."""
     dist = float(np.hypot(*chord))
-    if d_end is None or d_start is None or dist < 1e-9:
+    if d_end is None or d_start is None or dist < PAIR_SLACK_M:
         return dist
     turn = float(np.arctan2(d_end[0] * d_start[1] - d_end[1] * d_start[0], d_end @ d_start))  # signed, radians
     mid = np.arctan2(d_end[1], d_end[0]) + 0.5 * turn  # an arc's chord runs at the mean of its end directions
