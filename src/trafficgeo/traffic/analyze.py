@@ -224,6 +224,8 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
                         vehicles=world.vehicles[[c for c in world.vehicles.columns if c not in later] + later])
     if "length_m" in world.vehicles.columns and len(world.points):
         world.points["length_m"] = world.points["track_id"].map(world.vehicles.set_index("track_id")["length_m"])
+    if {"length_m", "length_std_m"} <= set(world.vehicles.columns) and len(world.vehicles):
+        _classes_by_length(world)
     moving = _moving_points(world)  # stationary objects are not traffic: they count at no line
     crossings = find_crossings(moving, lines or [], lanes, metres_per_unit=mpu)
     hidden = hidden_crossings(moving, tracks, camera.image_size, lines or [], lanes, crossings,
@@ -263,6 +265,26 @@ def _movements(world: WorldTracks, junction: Junction, interval_s: float, period
     first_seen = world.vehicles.set_index(world.vehicles["track_id"].astype(str))["first_time"]
     counts = movement_counts(moves, junction, interval_s, *period, first_seen=first_seen)
     return moves, counts, turning_movement_table(counts, junction)
+
+
+def _classes_by_length(world: WorldTracks) -> None:
+    """Vehicles whose class the detector could not tell (or called a car or van) given the class of their
+    measured length (:func:`trafficgeo.traffic.measurements.classes_by_length`), in the points too (in place)."""
+    from trafficgeo.traffic.measurements import classes_by_length
+
+    veh = world.vehicles
+    before = veh["class"].fillna("").astype(str).to_numpy(dtype=object)
+    after = classes_by_length(before, veh["length_m"].to_numpy(dtype=np.float64),
+                              veh["length_std_m"].to_numpy(dtype=np.float64))
+    changed = after != before
+    if not changed.any():
+        return
+    veh["class"] = after
+    if len(world.points) and "class" in world.points.columns:
+        new = dict(zip(veh.loc[changed, "track_id"], after[changed], strict=True))
+        tid = world.points["track_id"]
+        hit = tid.isin(set(new))
+        world.points.loc[hit, "class"] = tid[hit].map(new)
 
 
 def _moving_points(world: WorldTracks) -> pd.DataFrame:

@@ -150,3 +150,30 @@ def track_slices(track_id: np.ndarray) -> list[tuple[str, np.ndarray]]:
     order = np.argsort(first)
     bounds = np.append(np.sort(first), track_id.size)
     return [(str(keys[o]), np.arange(bounds[k], bounds[k + 1])) for k, o in enumerate(order)]
+
+
+# A vehicle's class from its measured length (m), where the detector could not tell it: the boundaries of the size
+# rules' classes (trafficgeo.video.detectors.sizes.SizeRules: car 3.0-5.3, van 4.6-7.5, truck and bus from 7.5).
+LENGTH_CLASS_MAX_STD_M = 1.0  # only a length measured at least this well decides a class
+CAR_MIN_LENGTH_M = 3.0
+CAR_MAX_LENGTH_M = 5.0  # between a car and a van
+HEAVY_MIN_LENGTH_M = 7.5  # a truck or a bus: "truck", as the size rules name both
+RELABEL_HEAVY_MIN_LENGTH_M = 8.0  # a "car" or "van" this long (well measured) is a truck or bus the detector missed
+
+
+def classes_by_length(vehicle_class: np.ndarray, length_m: np.ndarray, length_std_m: np.ndarray) -> np.ndarray:
+    """Vehicle classes completed by their measured length: a vehicle of unknown class (``""``) whose length is known
+    to :data:`LENGTH_CLASS_MAX_STD_M` becomes a car (from :data:`CAR_MIN_LENGTH_M`), a van (from
+    :data:`CAR_MAX_LENGTH_M`) or a truck (from :data:`HEAVY_MIN_LENGTH_M`); a car or van at least
+    :data:`RELABEL_HEAVY_MIN_LENGTH_M` long becomes a truck. Seen broadside at a junction a bus's box is too wide
+    for the detector's size rule, which judges a box's size along the line of sight; the track's length, fitted
+    with its heading, is not."""
+    cls = np.asarray(vehicle_class, dtype=object).copy()
+    length = np.asarray(length_m, dtype=np.float64)
+    sure = np.isfinite(length) & (np.asarray(length_std_m, dtype=np.float64) <= LENGTH_CLASS_MAX_STD_M)
+    blank = sure & (cls == "")
+    cls[blank & (length >= CAR_MIN_LENGTH_M)] = "car"
+    cls[blank & (length >= CAR_MAX_LENGTH_M)] = "van"
+    cls[blank & (length >= HEAVY_MIN_LENGTH_M)] = "truck"
+    cls[sure & np.isin(cls, ["car", "van"]) & (length >= RELABEL_HEAVY_MIN_LENGTH_M)] = "truck"
+    return cls
