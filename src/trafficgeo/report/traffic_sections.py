@@ -105,7 +105,7 @@ def traffic_section(b: ReportContext, run: TrafficRun, k: int) -> Section:
     if not lanes:
         b.skip(f"lanes ({name})", "the run has no lanes: pass --lanes to analyze/process for per-lane results")
     if vehicles is not None and "stationary" in vehicles.columns:  # parked vehicles and signs: not in the speeds
-        vehicles = vehicles[~vehicles["stationary"].fillna(False).astype(bool)]
+        vehicles = vehicles[~vehicles["stationary"].fillna(0).astype(bool)]
     if vehicles is not None and len(vehicles) and _speed_columns(vehicles)[0] in vehicles.columns:
         parts.append((figure(F.speed_histograms(vehicles, column=_speed_columns(vehicles)[0]),
                              "Distribution of the vehicles' speeds (distance travelled along the direction of travel "
