@@ -34,13 +34,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pandas as pd
+
+from bench_video import cpu_flags  # this machine's CPU and SIMD flags, as the video benchmark prints them
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "out"
@@ -50,23 +51,6 @@ CAMERAS = {  # name -> JunctionOptions fields
     "pole18": {"camera_height": 18.0, "camera_corner": "NW", "azimuth_deg": -10.0},
 }
 HEAVY = ("truck", "bus")
-
-
-def cpu_flags() -> str:
-    model, flags = platform.processor() or platform.machine(), set()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            key, _, value = line.partition(":")
-            if key.strip() == "model name":
-                model = value.strip()
-            elif key.strip() == "flags":
-                flags = set(value.split())
-    except OSError:
-        pass
-    import os
-
-    simd = [f for f in ("avx", "avx2", "fma", "avx512f", "avx512_vnni", "avx_vnni") if f in flags]
-    return f"{model}, {os.cpu_count()} cores, flags {' '.join(simd) or 'none of avx/avx2/avx512'}"
 
 
 def build(seed: int, camera: str, seconds: float) -> Path:

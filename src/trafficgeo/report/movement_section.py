@@ -20,8 +20,9 @@ from trafficgeo.report.blocks import Block, Heading, Part, Table, Text, figure, 
 from trafficgeo.report.context import ReportContext
 from trafficgeo.report.inputs import TrafficRun
 from trafficgeo.report.movement_figures import movement_diagram, movement_flows
-from trafficgeo.site.gates import MOVEMENTS, Gate, Junction
+from trafficgeo.site.gates import MOVEMENTS, Junction
 from trafficgeo.traffic.movements import HEAVY_CLASSES, STOPPED_KMH
+from trafficgeo.traffic.run_folder import RunFolder
 
 TABLE_ROWS = 200
 DIAGRAM_CAPTION = "Turning-movement diagram"
@@ -29,20 +30,7 @@ DIAGRAM_CAPTION = "Turning-movement diagram"
 
 def run_junction(folder: Path, crs: Any) -> Junction | None:
     """The junction of the ``gates`` layer of a run's ``trajectories.gpkg`` (in ``crs``); None without one."""
-    gpkg = folder / "trajectories.gpkg"
-    if not gpkg.is_file():
-        return None
-    import pyogrio
-
-    from trafficgeo.io.gis import read_gis
-
-    if "gates" not in set(pyogrio.list_layers(gpkg)[:, 0]):
-        return None
-    g = read_gis(gpkg, layer="gates")
-    g = g.to_crs(crs) if crs is not None and g.crs is not None else g
-    if len(g) < 2:
-        return None
-    return Junction.from_gates([Gate(str(a), geom) for a, geom in zip(g["arm"], g.geometry, strict=True)])
+    return RunFolder(folder).junction(crs)
 
 
 def _arms(movements: pd.DataFrame, junction: Junction | None, info: dict[str, Any]) -> list[tuple[str, str]]:

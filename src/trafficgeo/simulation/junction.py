@@ -78,17 +78,13 @@ def run_has_movements(outputs: frozenset[str] | set[str]) -> bool:
 
 def read_run_junction(folder: str | os.PathLike[str], crs: pyproj.CRS | None) -> Junction:
     """The junction of a run: the ``gates`` layer of its ``trajectories.gpkg`` (lines with ``arm``), in ``crs``."""
-    import geopandas as gpd
-    import pyogrio
+    from trafficgeo.traffic.run_folder import RunFolder
 
-    gpkg = Path(folder) / "trajectories.gpkg"
-    if not gpkg.is_file() or "gates" not in set(pyogrio.list_layers(gpkg)[:, 0]):
+    junction = RunFolder(folder).junction(crs)
+    if junction is None:
         raise InputError(f"{folder}: no gates layer in trajectories.gpkg; run analyze with --gates",
                          parameters=("run",))
-    g = gpd.read_file(gpkg, layer="gates")
-    if crs is not None and g.crs is not None:
-        g = g.to_crs(crs)
-    return Junction.from_gates([Gate(str(a), geom) for a, geom in zip(g["arm"], g.geometry, strict=True)])
+    return junction
 
 
 def _centre_left(gate: Gate, centre: np.ndarray) -> bool:

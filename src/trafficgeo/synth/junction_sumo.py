@@ -281,11 +281,7 @@ def _edges_xml(opts: JunctionOptions) -> str:
 def _routes_xml(opts: JunctionOptions, end_s: float) -> str:
     lines = ["<routes>\n"]
     for name in opts.mix:
-        vc = VEHICLE_CLASSES[name]
-        lines.append(f'    <vType id="{name}" vClass="{vc.sumo_vclass}" guiShape="{vc.gui_shape}" '
-                     f'length="{_num(vc.length)}" width="{_num(vc.width)}" height="{_num(vc.height)}" '
-                     f'minGap="{_num(vc.min_gap)}" maxSpeed="{_num(vc.max_speed)}" accel="{_num(vc.accel)}" '
-                     f'decel="{_num(vc.decel)}" speedFactor="{vc.speed_factor_spec}"/>\n')
+        lines.append(VEHICLE_CLASSES[name].vtype_xml())
     bearings = arm_bearings(opts)
     pairs = [(o, d) for o in bearings for d in bearings if o != d]
     for o, d in pairs:

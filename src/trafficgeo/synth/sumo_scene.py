@@ -61,6 +61,15 @@ class VehicleClass:
         """The speed factor distribution as SUMO text, e.g. ``normc(1,0.1,0.8,1.2)``."""
         return "normc({})".format(",".join(f"{v:g}" for v in self.speed_factor))
 
+    def vtype_xml(self) -> str:
+        """The SUMO ``<vType>`` element of the class (id = its name), one indented line."""
+        from trafficgeo.simulation.network import sumo_number as n
+
+        return (f'    <vType id="{self.name}" vClass="{self.sumo_vclass}" guiShape="{self.gui_shape}" '
+                f'length="{n(self.length)}" width="{n(self.width)}" height="{n(self.height)}" '
+                f'minGap="{n(self.min_gap)}" maxSpeed="{n(self.max_speed)}" accel="{n(self.accel)}" '
+                f'decel="{n(self.decel)}" speedFactor="{self.speed_factor_spec}"/>\n')
+
 
 VEHICLE_CLASSES: dict[str, VehicleClass] = {
     "car": VehicleClass("car", 4.5, 1.8, 1.5, "passenger", "passenger", 50.0, 2.6, 4.5, (1.0, 0.1, 0.8, 1.2)),

@@ -196,12 +196,7 @@ def _build_net(folder: Path, work: Path, road: RoadSpec) -> tuple[Path, str | No
 def _routes_xml(road: RoadSpec, demand: Demand, end_s: float) -> str:
     lines = ["<routes>\n"]
     for name in demand.mix:
-        vc = VEHICLE_CLASSES[name]
-        lines.append(f'    <vType id="{name}" vClass="{vc.sumo_vclass}" guiShape="{vc.gui_shape}" '
-                     f'length="{_num(vc.length)}" width="{_num(vc.width)}" height="{_num(vc.height)}" '
-                     f'minGap="{_num(vc.min_gap)}" '
-                     f'maxSpeed="{_num(vc.max_speed)}" accel="{_num(vc.accel)}" decel="{_num(vc.decel)}" '
-                     f'speedFactor="{vc.speed_factor_spec}"/>\n')
+        lines.append(VEHICLE_CLASSES[name].vtype_xml())
     for d in road.directions:
         lines.append(f'    <route id="r{d}" edges="{_EDGE_IDS[d]}"/>\n')
     for d in road.directions:

@@ -60,6 +60,7 @@ from trafficgeo.traffic.run_records import (
 
 if TYPE_CHECKING:
     from trafficgeo.camera.model import Camera
+    from trafficgeo.site.gates import Junction
     from trafficgeo.traffic.analyze import TrafficResult
 
 __all__ = ["COMPARE_TABLES", "COUNTS", "CROSSINGS", "DETECTIONS", "SCHEMAS", "TRACKS", "TRAJECTORIES", "VEHICLES",
@@ -529,6 +530,24 @@ class RunFolder:
     def movement_counts(self) -> pd.DataFrame:
         """``movement_counts.csv`` of a run with a junction's gates."""
         return self.table("movement_counts.csv")
+
+    def junction(self, crs: Any = None) -> Junction | None:
+        """The junction of a run with gates: the ``gates`` layer of ``trajectories.gpkg`` (in ``crs`` when given);
+        None for a run without one."""
+        gpkg = self.path / "trajectories.gpkg"
+        if not gpkg.is_file():
+            return None
+        import pyogrio
+
+        from trafficgeo.io.gis import read_gis
+        from trafficgeo.site.gates import Gate, Junction
+
+        if "gates" not in set(pyogrio.list_layers(gpkg)[:, 0]):
+            return None
+        g = read_gis(gpkg, layer="gates")
+        if crs is not None and g.crs is not None:
+            g = g.to_crs(crs)
+        return Junction.from_gates([Gate(str(a), geom) for a, geom in zip(g["arm"], g.geometry, strict=True)])
 
     def turning_movements(self) -> pd.DataFrame:
         """``turning_movements.csv`` of a run with a junction's gates: ``interval_start, interval_end``, then
