@@ -98,7 +98,10 @@ def test_one_file_gives_what_process_gives(anchor: dict) -> None:
     theirs = _sorted(traffic.vehicles, ["first_time", "source_track"])
     assert vehicles["track_id"].tolist() == ["0-" + t for t in theirs["track_id"]]  # same tracker ids
     assert vehicles["tracker_ids"].tolist() == [";".join("0-" + i for i in t.split(";")) for t in theirs["tracker_ids"]]
-    worst = [_assert_same_values(vehicles, theirs, ("first_time", "last_time"))]
+    # every moment on the clock moves to the day's clock, the speed window's too (not only first/last seen)
+    moments = ("first_time", "last_time", "speed_start_time", "speed_end_time")
+    assert theirs["speed_start_time"].notna().any()
+    worst = [_assert_same_values(vehicles, theirs, moments)]
     crossings = _sorted(read_table(ds, "crossings"), ["line", "time"])
     worst.append(_assert_same_values(crossings, _sorted(traffic.crossings, ["line", "time"]), ("time",)))
     counts = _sorted(read_table(ds, "counts"), ["line", "lane", "direction", "interval_start"])
@@ -362,3 +365,18 @@ def test_another_dataset_crs_moves_positions_and_a_mismatch_is_refused(anchor: d
     assert ours.crs.to_epsg() == 32618
     assert json.loads((ds / "dataset.json").read_text(encoding="utf-8"))["crs"] == "EPSG:32618"
     assert os.path.getsize(ds / "counts" / "camera=cam1" / f"date={DAY}" / "part-0.parquet") > 0
+
+
+def test_the_schema_names_every_moment_on_the_clock() -> None:
+    """The columns a batch day moves to seconds since midnight (moments), and not the durations."""
+    from trafficgeo.traffic.run_folder import SCHEMAS
+
+    assert SCHEMAS["vehicles.csv"].clock_columns == ("first_time", "last_time", "speed_start_time", "speed_end_time")
+    assert SCHEMAS["crossings.csv"].clock_columns == ("time",)
+    assert SCHEMAS["counts.csv"].clock_columns == ("interval_start", "interval_end")
+    assert SCHEMAS["trajectories.csv"].clock_columns == ("time",)
+    assert SCHEMAS["movements.csv"].clock_columns == ("entry_time", "exit_time")
+    for schema in SCHEMAS.values():
+        for column in schema.columns:
+            if column.name.endswith("_s") or column.unit != "s":
+                assert not column.clock, (schema.file, column.name)

@@ -301,6 +301,18 @@ def _times_utc(midnight: Any, seconds: pd.Series) -> pd.Series:
     return out
 
 
+def _on_day_clock(table: pd.DataFrame, file: str, shift_s: float) -> pd.DataFrame:
+    """A copy of ``table`` (of the run folder table ``file``) with every column that is a moment on the run's
+    clock (:attr:`~trafficgeo.traffic.run_folder.TableSchema.clock_columns`) moved by ``shift_s`` seconds."""
+    from trafficgeo.traffic.run_folder import SCHEMAS
+
+    out = table.copy()
+    for name in SCHEMAS[file].clock_columns:
+        if name in out.columns:
+            out[name] = pd.to_numeric(out[name]) + shift_s
+    return out
+
+
 def merge_day(results: list, midnight: Any, lanes: Any = None, lines: list | None = None) -> Any:
     """One :class:`~trafficgeo.traffic.analyze.TrafficResult` of a camera-day from the analyses of its segments
     (``(TrafficResult, origin, tracks)``, times in seconds from ``origin``): times in **seconds since local
@@ -315,14 +327,10 @@ def merge_day(results: list, midnight: Any, lanes: Any = None, lines: list | Non
     options: dict[str, object] = {}
     for result, origin, tracks in results:
         shift = (origin - midnight).total_seconds()
-        veh = result.vehicles.copy()
-        veh[["first_time", "last_time"]] += shift
-        cross = result.crossings.copy()
-        cross["time"] = cross["time"] + shift
-        counts = _class_counts(result.counts)
-        counts[["interval_start", "interval_end"]] += shift
-        pts = result.points.copy()
-        pts["time"] = pts["time"] + shift
+        veh = _on_day_clock(result.vehicles, "vehicles.csv", shift)
+        cross = _on_day_clock(result.crossings, "crossings.csv", shift)
+        counts = _on_day_clock(_class_counts(result.counts), "counts.csv", shift)
+        pts = _on_day_clock(result.points, "trajectories.csv", shift)
         frame_of = dict(zip(tracks["frame"].to_numpy(), tracks["file_frame"].to_numpy(), strict=False))
         pts["frame"] = pts["frame"].map(frame_of).astype("Int64")
         for name, table in zip(STAGE2_TABLES, (veh, cross, counts, pts), strict=True):

@@ -71,13 +71,16 @@ __all__ = ["COMPARE_TABLES", "COUNTS", "CROSSINGS", "DETECTIONS", "SCHEMAS", "TR
 class Column:
     """One column: ``dtype`` one of ``"str"``, ``"int"``, ``"float"``, ``"bool"``; ``unit`` as in the module
     docstring (``""`` for none); ``added``: when a column joined a table that run folders already held (e.g.
-    ``"2026-12-04"``, the day it joined): a file written before it still reads, with the column empty (NaN)."""
+    ``"2026-12-04"``, the day it joined): a file written before it still reads, with the column empty (NaN);
+    ``clock``: the column is a moment on the run's clock (seconds from the video's start; a batch day's tables
+    move every such column to seconds since local midnight), not a duration."""
 
     name: str
     dtype: str
     unit: str = ""
     description: str = ""
     added: str = ""
+    clock: bool = False  # a moment on the run's clock (s), moved with it; a duration (``_s``) is not
 
 
 _PANDAS = {"str": str, "int": "Int64", "float": "float64", "bool": "boolean"}
@@ -92,6 +95,11 @@ class TableSchema:
     columns: tuple[Column, ...]
     families: tuple[Column, ...] = ()
     what: str = ""
+
+    @property
+    def clock_columns(self) -> tuple[str, ...]:
+        """The names of the columns that are moments on the run's clock (:attr:`Column.clock`)."""
+        return tuple(c.name for c in self.columns if c.clock)
 
     @property
     def names(self) -> list[str]:
@@ -164,8 +172,8 @@ VEHICLES = TableSchema("vehicles.csv", (
            "suffix where that id was split)"),
     Column("source_track", "str", "", "the tracker's id the vehicle came from"),
     Column("class", "str", "", "vehicle class (car, van, truck, bus, motorcycle, bicycle; '' unknown)"),
-    Column("first_time", "float", S, "first time seen"),
-    Column("last_time", "float", S, "last time seen"),
+    Column("first_time", "float", S, "first time seen", clock=True),
+    Column("last_time", "float", S, "last time seen", clock=True),
     Column("duration_s", "float", S, "time seen"),
     Column("points", "int", "", "trajectory points used"),
     Column("outliers", "int", "", "points rejected as outliers"),
@@ -176,8 +184,10 @@ VEHICLES = TableSchema("vehicles.csv", (
            "calibration's covariance or GCPs)"),
     Column("speed_std_kmh", "float", KMH, "standard uncertainty of speed_kmh (position noise and the calibration's "
            "scale uncertainty)"),
-    Column("speed_start_time", "float", S, "start of the window speed_kmh is measured over", added="2026-12-04"),
-    Column("speed_end_time", "float", S, "end of the window speed_kmh is measured over", added="2026-12-04"),
+    Column("speed_start_time", "float", S, "start of the window speed_kmh is measured over", added="2026-12-04",
+           clock=True),
+    Column("speed_end_time", "float", S, "end of the window speed_kmh is measured over", added="2026-12-04",
+           clock=True),
     Column("travel_speed_kmh", "float", KMH, "travel_m / duration_s: the former headline speed, over all the time "
            "seen (reads the calibration's scale errors at the edges of the view)", added="2026-12-04"),
     Column("mean_speed_kmh", "float", KMH, "path_length_m / duration_s (reads high under position noise)"),
@@ -203,7 +213,7 @@ CROSSINGS = TableSchema("crossings.csv", (
     Column("class", "str", "", "vehicle class"),
     Column("lane", "str", "", "lane at the crossing ('' none)"),
     Column("direction", "int", "", "+1 / -1: side of the line crossed to (left to right of the line's direction: +1)"),
-    Column("time", "float", S, "time of the crossing"),
+    Column("time", "float", S, "time of the crossing", clock=True),
     Column("speed_kmh", "float", KMH, "speed at the crossing"),
     Column("x", "float", CRS_UNITS, "crossing point x"),
     Column("y", "float", CRS_UNITS, "crossing point y"),
@@ -215,8 +225,8 @@ COUNTS = TableSchema("counts.csv", (
     Column("line", "str", "", "counting line name"),
     Column("lane", "str", "", "lane ('' none)"),
     Column("direction", "int", "", "+1 / -1, as in crossings.csv"),
-    Column("interval_start", "float", S, "interval start"),
-    Column("interval_end", "float", S, "interval end"),
+    Column("interval_start", "float", S, "interval start", clock=True),
+    Column("interval_end", "float", S, "interval end", clock=True),
     Column("observed_s", "float", S, "seconds of the interval observed (interval_end - interval_start)",
            added="2026-12-04"),
     Column("count", "int", "", "vehicles"),
@@ -233,7 +243,7 @@ TRAJECTORIES = TableSchema("trajectories.csv", (
     Column("track_id", "str", "", "vehicle id"),
     Column("source_track", "str", "", "the tracker's id"),
     Column("frame", "int", "", "video frame index"),
-    Column("time", "float", S, "time"),
+    Column("time", "float", S, "time", clock=True),
     Column("u", "float", PX, "image point used (bottom centre or the fitted footprint centre)"),
     Column("v", "float", PX, "image point used"),
     Column("x_obs", "float", CRS_UNITS, "ground point of the observation"),
@@ -263,8 +273,10 @@ MOVEMENTS = TableSchema("movements.csv", (
     Column("origin", "str", "", "the arm it came in by ('' unknown)"),
     Column("destination", "str", "", "the arm it left by ('' unknown)"),
     Column("movement", "str", "", "left, through, right or U from the arms' bearings ('' when an end is unknown)"),
-    Column("entry_time", "float", S, "when it crossed its origin's gate inwards (empty: not seen there)"),
-    Column("exit_time", "float", S, "when it crossed its destination's gate outwards (empty: not seen there)"),
+    Column("entry_time", "float", S, "when it crossed its origin's gate inwards (empty: not seen there)",
+           clock=True),
+    Column("exit_time", "float", S, "when it crossed its destination's gate outwards (empty: not seen there)",
+           clock=True),
     Column("travel_time_s", "float", S, "exit_time - entry_time"),
     Column("stopped_s", "float", S, "time at a speed below 5 km/h between entering (else first seen) and leaving "
            "(else last seen)"),
@@ -277,8 +289,8 @@ MOVEMENTS = TableSchema("movements.csv", (
 ), what="one row per vehicle through the junction")
 
 MOVEMENT_COUNTS = TableSchema("movement_counts.csv", (
-    Column("interval_start", "float", S, "interval start"),
-    Column("interval_end", "float", S, "interval end"),
+    Column("interval_start", "float", S, "interval start", clock=True),
+    Column("interval_end", "float", S, "interval end", clock=True),
     Column("observed_s", "float", S, "seconds of the interval observed"),
     Column("origin", "str", "", "arm the vehicles came in by"),
     Column("destination", "str", "", "arm they left by"),
@@ -288,7 +300,7 @@ MOVEMENT_COUNTS = TableSchema("movement_counts.csv", (
            "the time first seen)"),
 ), what="per interval, origin, destination and class")
 
-_BOX = (Column("frame", "int", "", "video frame index"), Column("time", "float", S, "frame time"),
+_BOX = (Column("frame", "int", "", "video frame index"), Column("time", "float", S, "frame time", clock=True),
         Column("x1", "float", PX, "box left"), Column("y1", "float", PX, "box top"),
         Column("x2", "float", PX, "box right"), Column("y2", "float", PX, "box bottom"))
 DETECTIONS = TableSchema("detections.csv", (
