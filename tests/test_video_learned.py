@@ -108,3 +108,25 @@ def test_process_records_the_tile_plan_and_keys_the_run_on_it(tmp_path: Path) ->
     told = []
     detect_and_track(video, cam, FLAT, out, opts, lanes=lanes_along_y(n=2), notice=told.append)
     assert any("ignoring the checkpoint" in line for line in told), told
+
+
+def test_a_bus_seen_broadside_is_heavy_and_a_car_seen_broadside_is_not() -> None:
+    """At a junction a vehicle crossing the view shows its side: its box's ground width is its length. A bus or a
+    truck is then wider on the ground than any van is long (7.5 m) - a size the line-of-sight rule finds
+    implausible - and is called a truck; a car or a van crossing the view is not."""
+    from trafficgeo.video.detectors.sizes import SizeRules, blob_ground_size, broadside_heavy, classify_sizes
+
+    cam = camera_over_road()
+    across = 90.0  # heading (deg) across the camera's view, which looks along +y
+    bus = cuboid_boxes(cam, np.array([[0.0, 35.0, 0.0]]), np.array([across]), 12.0, 2.55, 3.2)
+    truck = cuboid_boxes(cam, np.array([[0.0, 50.0, 0.0]]), np.array([across]), 9.0, 2.5, 3.5)
+    car = cuboid_boxes(cam, np.array([[0.0, 35.0, 0.0]]), np.array([across]), 4.5, 1.8, 1.5)
+    van = cuboid_boxes(cam, np.array([[0.0, 35.0, 0.0]]), np.array([across]), 6.0, 2.0, 2.5)
+    boxes = np.vstack([bus, truck, car, van])
+    sizes = blob_ground_size(cam, FLAT, boxes)
+    _cls, _length, plausible = classify_sizes(sizes, SizeRules())
+    assert not plausible[:2].any()  # the line-of-sight rule alone cannot place them
+    assert broadside_heavy(sizes, SizeRules()).tolist() == [True, True, False, False]
+    det = SizeClasses(Boxes(boxes), cam, FLAT).detect(np.zeros((1080, 1920, 3), np.uint8))
+    assert det.classes.tolist()[:2] == ["truck", "truck"]
+    assert det.classes.tolist()[2] in ("car", "") and det.classes.tolist()[3] in ("car", "van", "")

@@ -18,7 +18,7 @@ from trafficgeo.errors import InputError
 from trafficgeo.video.detections import Detections, Detector
 from trafficgeo.video.detectors.builtin import builtin_model, builtin_model_path
 from trafficgeo.video.detectors.onnx import OnnxDetector
-from trafficgeo.video.detectors.sizes import SizeRules, blob_ground_size, classify_sizes
+from trafficgeo.video.detectors.sizes import SizeRules, blob_ground_size, broadside_heavy, classify_sizes
 from trafficgeo.video.detectors.tile_bands import plan_bands
 from trafficgeo.video.detectors.tile_plan import TilePlan
 from trafficgeo.video.detectors.tiled import TiledDetector
@@ -43,7 +43,8 @@ BANDS_MIN_SIZE_PX = 32.0  # the size (px, shorter side) bands bring a car to: Na
 
 class SizeClasses:
     """A :class:`~trafficgeo.video.detections.Detector` whose boxes get the class their size on the ground fits
-    (``camera`` and ``surface``: the calibrated camera and the road), ``""`` where none fits."""
+    (``camera`` and ``surface``: the calibrated camera and the road), ``""`` where none fits, except that a box
+    wider on the ground than any van is long is a truck or bus seen broadside (:func:`broadside_heavy`)."""
 
     def __init__(self, base: Detector, camera: Camera, surface: Surface, rules: SizeRules | None = None) -> None:
         self.base, self.camera, self.surface = base, camera, surface
@@ -55,9 +56,10 @@ class SizeClasses:
         det = self.base.detect(image, time_s)
         if not len(det):
             return det
-        classes, _length_m, plausible = classify_sizes(blob_ground_size(self.camera, self.surface, det.boxes),
-                                                       self.rules)
+        sizes = blob_ground_size(self.camera, self.surface, det.boxes)
+        classes, _length_m, plausible = classify_sizes(sizes, self.rules)
         named = np.where(plausible, classes, "").astype(object)
+        named[~plausible & broadside_heavy(sizes, self.rules)] = "truck"
         return Detections(det.boxes, det.scores, named)
 
 

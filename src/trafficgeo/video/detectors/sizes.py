@@ -201,3 +201,16 @@ def classify_sizes(sizes: BlobSizes, rules: SizeRules) -> tuple[np.ndarray, np.n
                      & (length >= rules.min_length_m) & (length <= rules.max_length_m)
                      & (sizes.width_m >= rules.min_width_m) & (sizes.width_m <= rules.max_width_m))
     return classes, length, plausible
+
+
+def broadside_heavy(sizes: BlobSizes, rules: SizeRules) -> np.ndarray:
+    """(N,) bool: the blob's bottom edge is wider on the ground than the longest light vehicle of ``rules`` (the
+    upper length of every class but "truck") and no longer than ``max_length_m``. Seen broadside, as at a junction,
+    a vehicle's side is its box's bottom edge, so its width is its length: such a box is a truck or a bus, which
+    :func:`classify_sizes` (judging the size along the line of sight) finds implausible. For a learned detector's
+    boxes, which are one vehicle each; a background blob this wide may be vehicles merged side by side."""
+    light = [spec[1] for name, spec in rules.classes.items() if name != "truck"]
+    if not light:
+        return np.zeros(sizes.width_m.shape, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        return (sizes.width_m > max(light)) & (sizes.width_m <= rules.max_length_m)
