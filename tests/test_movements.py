@@ -215,3 +215,52 @@ def test_the_two_halves_of_a_track_broken_inside_the_junction_are_one_movement()
     rows = run(pieces, j).set_index("track_ids")
     assert rows.loc["a;b", "movement"] == "left" and rows.loc["c;d", "movement"] == "left"
     assert rows.loc["c;d", "destination"] == "E"
+
+
+def test_a_u_turn_needs_a_turn_inside_the_junction() -> None:
+    j = junction()
+    real = run([path("S", "S", tid="u")], j).iloc[0]  # into the junction and round: a U-turn
+    assert (real.origin, real.destination, real.movement) == ("S", "S", "U") and real.complete
+    # a piece of track that crosses the S gate inbound and back out 5 m further on without going in (a box
+    # jittering at the gate, or the front and back of a bus): not a U-turn; its motion along the arm keeps one end
+    out = path("N", "S", tid="x")
+    d = np.hypot(out["x"], out["y"])
+    k = np.flatnonzero(d > GATE_M - 3.0)
+    piece = out.iloc[k[k > len(out) // 2]].iloc[:25].copy()  # leaving by S, from 3 m inside the gate
+    back = piece.iloc[:5].assign(x=piece["x"].iloc[0] + 0.1, y=-(GATE_M - 4.0))  # first a moment 4 m inside
+    jitter = pd.concat([back, piece], ignore_index=True).assign(time=np.arange(30) * 0.1, track_id="j")
+    jitter.loc[:4, "y"] = -(GATE_M + 1.0)  # ... but on the arm's outer side, so it "enters" then leaves
+    row = run([jitter], j).iloc[0]
+    assert not (row.origin == row.destination == "S"), row
+    assert row.destination == "S" and row.origin == "" and not row.complete
+
+
+def test_two_boxes_on_one_vehicle_seen_at_once_are_one_movement_but_neighbours_are_not() -> None:
+    j = junction()
+    whole = path("W", "S", tid="car")
+    d = np.hypot(whole["x"], whole["y"])
+    k = np.flatnonzero(d < 8.0)
+    first = whole.iloc[: k[-1]].assign(track_id="a")  # to 8 m past the centre ...
+    second = whole.iloc[k[0]:].assign(track_id="b")  # ... and a second id on it from 8 m before: 1.6 s at once
+    row = run([first, second], j)
+    assert len(row) == 1 and row.iloc[0].track_ids == "a;b"
+    assert (row.iloc[0].origin, row.iloc[0].destination) == ("W", "S") and row.iloc[0].complete
+    # a neighbour 3.5 m to the side (in the next lane, left of travel) over the same time is another vehicle
+    heading = np.column_stack([np.gradient(second["x"].to_numpy()), np.gradient(second["y"].to_numpy())])
+    heading /= np.hypot(*heading.T)[:, None]
+    side = second.assign(x=second["x"] - 3.5 * heading[:, 1], y=second["y"] + 3.5 * heading[:, 0])
+    assert not run([first, side], j)["complete"].any()
+    # the front of a bus detected as a van 4 m ahead of the bus's own box, its track ending inside the junction
+    # where its path points to another arm: one vehicle, whose arms are the bus's gate crossings
+    bus = path("W", "S", tid="bus", cls="bus", speed_mps=6.0)
+    front = bus.iloc[:-60].copy()
+    front[["x", "y"]] = np.column_stack([np.interp(front["time"] + 4.0 / 6.0, bus["time"], bus["x"]),
+                                         np.interp(front["time"] + 4.0 / 6.0, bus["time"], bus["y"])])
+    rows = run([bus, front.assign(track_id="front", **{"class": "van"})], j)
+    assert len(rows) == 1 and (rows.iloc[0].origin, rows.iloc[0].destination) == ("W", "S")
+    assert rows.iloc[0]["class"] == "bus"
+    # and two halves are never joined into a U-turn
+    again = path("S", "S", tid="u")
+    inside = np.flatnonzero(np.hypot(again["x"], again["y"]) < 8.0)
+    halves = [again.iloc[: inside[0]].assign(track_id="p"), again.iloc[inside[-1] + 1:].assign(track_id="q")]
+    assert not run(halves, j)["complete"].any()

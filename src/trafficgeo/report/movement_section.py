@@ -21,7 +21,8 @@ from trafficgeo.report.context import ReportContext
 from trafficgeo.report.inputs import TrafficRun
 from trafficgeo.report.movement_figures import movement_diagram, movement_flows
 from trafficgeo.site.gates import MOVEMENTS, Junction
-from trafficgeo.traffic.movements import HEAVY_CLASSES, STOPPED_KMH
+from trafficgeo.traffic.measurements import HEAVY_CLASSES
+from trafficgeo.traffic.movements import STOPPED_KMH
 from trafficgeo.traffic.run_folder import RunFolder
 
 TABLE_ROWS = 200

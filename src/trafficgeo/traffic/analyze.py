@@ -402,7 +402,8 @@ def junction_summary(analysis: TrafficResult) -> dict[str, object] | None:
     """The junction part of ``summary.json``: the arms (bearing, approach bound), the vehicles through it, the
     complete movements (and how many had an end assigned by their path), the incomplete ones, and the peak hour
     (None when less than an hour of whole intervals was observed)."""
-    from trafficgeo.traffic.movements import HEAVY_CLASSES, peak_hour
+    from trafficgeo.traffic.measurements import HEAVY_CLASSES
+    from trafficgeo.traffic.movements import peak_hour
 
     j, mv = analysis.junction, analysis.movements
     if j is None or mv is None:

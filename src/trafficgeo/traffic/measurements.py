@@ -158,6 +158,7 @@ LENGTH_CLASS_MAX_STD_M = 1.0  # only a length measured at least this well decide
 CAR_MIN_LENGTH_M = 3.0
 CAR_MAX_LENGTH_M = 5.0  # between a car and a van
 HEAVY_MIN_LENGTH_M = 7.5  # a truck or a bus: "truck", as the size rules name both
+HEAVY_CLASSES = ("truck", "bus")  # heavy vehicles, as junction studies count them
 RELABEL_HEAVY_MIN_LENGTH_M = 8.0  # a "car" or "van" this long (well measured) is a truck or bus the detector missed
 
 

@@ -9,19 +9,15 @@ junction's gates (:mod:`trafficgeo.site.gates`, whose conventions hold here).
   :data:`APPROACH_SHARE` of the way from the centre to the gate) and its first 2 m of travel head into the
   junction (within 45 degrees); the destination likewise from its last position and travel. Otherwise the end is
   unknown (``''``) and the movement **incomplete**: listed, not counted.
-* two **halves** of one vehicle (one vehicle's track broken inside the junction, where it turns out of the
-  motion model that joins the pieces of a track on a road, :mod:`trafficgeo.traffic.journeys`): a movement known
-  only by its origin and a later one known only by its destination are one vehicle's when the second begins within
-  :data:`PAIR_GAP_S` of the first's end, no farther from it than its speed there covers in the gap (at least
-  :data:`PAIR_MIN_SPEED_MPS`) plus :data:`PAIR_SLACK_M`, ahead of it as it turns (the line between the two runs
-  within 45 degrees of the mean of the directions where the first ends and the second begins, as an arc's chord
-  does), and their classes are of one family (car or van; truck or bus; or unknown). The pairs are chosen all at
-  once by an assignment that prefers the arc between the two whose length best matches what their speeds cover in
-  the gap; ``track_ids`` lists the two and the class is that of the half seen longer.
+* a **U-turn** (out by the arm it came in by) only where the track went well into the junction and turned round
+  (:data:`U_TURN_REACH_SHARE`, :data:`U_TURN_MIN_DEG`); a piece of track that crossed its gate twice without
+  doing so keeps the end that agrees with its motion along the arm and is a half.
+* pieces of one vehicle - **halves** of a track broken inside the junction, **doubles** seen at once - joined
+  into one movement (:mod:`trafficgeo.traffic.movement_pieces`).
 * :func:`movement_counts` - complete movements per interval (by the time the vehicle entered: its entry crossing,
   else the time first seen), origin, destination and class.
 * :func:`turning_movement_table` - the layout junction tools import: one row per interval, per approach arm the
-  left, through, right and U counts, the total and the heavy vehicles (:data:`HEAVY_CLASSES`).
+  left, through, right and U counts, the total and the heavy vehicles (:data:`~trafficgeo.traffic.measurements.HEAVY_CLASSES`).
 * :func:`peak_hour` - the busiest hour of whole intervals, its volume and peak-hour factor (PHF = hour volume /
   (intervals per hour x the busiest interval's volume)).
 
@@ -39,18 +35,18 @@ import pandas as pd
 from trafficgeo.errors import InputError
 from trafficgeo.site.gates import MOVEMENTS, Junction
 from trafficgeo.traffic.counts import MIN_INTERVAL_S, interval_edges, segment_crossings
+from trafficgeo.traffic.measurements import HEAVY_CLASSES
+from trafficgeo.traffic.movement_pieces import merge_doubles, pair_halves
 
 APPROACH_SHARE = 0.3  # a first/last position at least this share of the centre-to-gate distance out is on the arm
 # (a vehicle queued at the stop line when the video starts is there: the stop line is where the junction begins)
 HEADING_TOLERANCE_DEG = 45.0  # travel within this of straight into (out of) the junction along the arm
 PATH_TRAVEL_M = 2.0  # metres of travel that give a vehicle's initial / final direction
 STOPPED_KMH = 5.0  # km/h: slower than this is stopped
-HEAVY_CLASSES = ("truck", "bus")
 MOVEMENT_COLUMNS = ["track_id", "class", "origin", "destination", "movement", "entry_time", "exit_time",
                     "travel_time_s", "stopped_s", "origin_by", "destination_by", "complete", "track_ids"]
-PAIR_GAP_S = 5.0  # s: the longest a vehicle may go unseen between the two halves of its movement
-PAIR_SLACK_M = 4.0  # m of position error allowed where the two halves meet, beyond the distance the speed covers
-PAIR_MIN_SPEED_MPS = 3.0  # m/s assumed at least for the distance a hidden vehicle may cover
+U_TURN_REACH_SHARE = 0.5  # a U-turn reaches this share of the centre-to-gate distance from the centre
+U_TURN_MIN_DEG = 120.0  # and turns by at least this much between its first and last travel
 
 
 def check_movement_interval(movement_interval_s: float) -> float:
@@ -210,8 +206,10 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
                      "_v0": float(np.nan_to_num(speed[0])) if len(speed) else 0.0,
                      "_v1": float(np.nan_to_num(speed[-1])) if len(speed) else 0.0, "_n": len(t),
                      "_d0": _travel_direction(xy, True, metres_per_unit),
-                     "_d1": _travel_direction(xy, False, metres_per_unit)})
-    rows = _pair_halves(rows, metres_per_unit)
+                     "_d1": _travel_direction(xy, False, metres_per_unit), "_t": t, "_xy": xy})
+        _check_u_turn(rows[-1], arms, junction.centre)
+    rows = pair_halves(rows, metres_per_unit)
+    rows = pair_halves(merge_doubles(rows, metres_per_unit), metres_per_unit)  # halves that doubles completed
     for r in rows:
         o, d, e, x = r["origin"], r["destination"], r["entry_time"], r["exit_time"]
         r["movement"] = junction.movement(o, d) if o and d else ""
@@ -222,70 +220,25 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
     return table.sort_values(["entry_time", "track_id"], kind="stable", na_position="last").reset_index(drop=True)
 
 
-def _family(vehicle_class: str) -> str:
-    """Light (car, van) or heavy (truck, bus) - the classes a detector confuses with each other - else the class."""
-    return "light" if vehicle_class in ("car", "van") else "heavy" if vehicle_class in HEAVY_CLASSES else vehicle_class
-
-
-def _arc_length_m(chord: np.ndarray, d_end: np.ndarray | None, d_start: np.ndarray | None) -> float | None:
-    """The length (m) of the circular arc from the end of one half (direction ``d_end``) to the start of the next
-    (direction ``d_start``) over ``chord`` (m); None when the chord does not run between the two directions (the
-    second half is not ahead of the first, turning as it does). The chord itself where a direction is unknown or the
-    chord is shorter than the position error :data:`PAIR_SLACK_M` (its direction is noise)."""
-    dist = float(np.hypot(*chord))
-    if d_end is None or d_start is None or dist < PAIR_SLACK_M:
-        return dist
-    turn = float(np.arctan2(d_end[0] * d_start[1] - d_end[1] * d_start[0], d_end @ d_start))  # signed, radians
-    mid = np.arctan2(d_end[1], d_end[0]) + 0.5 * turn  # an arc's chord runs at the mean of its end directions
-    off = abs((np.arctan2(chord[1], chord[0]) - mid + np.pi) % (2 * np.pi) - np.pi)
-    if off > np.radians(HEADING_TOLERANCE_DEG):
-        return None
-    half = 0.5 * abs(turn)
-    return dist * half / np.sin(half) if half > 1e-6 else dist
-
-
-def _pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
-    """Join movements known only by their origin to later ones known only by their destination (module docstring)."""
-    from scipy.optimize import linear_sum_assignment
-
-    heads = [i for i, r in enumerate(rows) if r["origin"] and not r["destination"]]
-    tails = [j for j, r in enumerate(rows) if r["destination"] and not r["origin"]]
-    if not heads or not tails:
-        return rows
-    big = 1e9
-    cost = np.full((len(heads), len(tails)), big)
-    for a, i in enumerate(heads):
-        h = rows[i]
-        for b, j in enumerate(tails):
-            t = rows[j]
-            gap = t["_t0"] - h["_t1"]
-            if not 0.0 < gap <= PAIR_GAP_S:
-                continue
-            if _family(h["class"]) != _family(t["class"]) and h["class"] and t["class"]:
-                continue
-            chord = (t["_p0"] - h["_p1"]) * metres_per_unit
-            dist_m = float(np.hypot(*chord))
-            reach_m = max(h["_v1"], PAIR_MIN_SPEED_MPS) * gap + PAIR_SLACK_M
-            if dist_m > reach_m:
-                continue
-            path_m = _arc_length_m(chord, h["_d1"], t["_d0"])
-            if path_m is None:
-                continue
-            travelled_m = 0.5 * (h["_v1"] + t["_v0"]) * gap  # what its speeds on both sides cover in the gap
-            cost[a, b] = abs(path_m - travelled_m) / (travelled_m + PAIR_SLACK_M) + gap / PAIR_GAP_S
-    ra, rb = linear_sum_assignment(cost)
-    drop = set()
-    for a, b in zip(ra, rb, strict=True):
-        if cost[a, b] >= big:
-            continue
-        h, t = rows[heads[a]], rows[tails[b]]
-        h.update(destination=t["destination"], destination_by=t["destination_by"], exit_time=t["exit_time"],
-                 stopped_s=h["stopped_s"] + t["stopped_s"], track_ids=f"{h['track_ids']};{t['track_ids']}",
-                 _t1=t["_t1"], _p1=t["_p1"], _v1=t["_v1"], _d1=t["_d1"],
-                 **{"class": (h["class"] if h["_n"] >= t["_n"] else t["class"]) or h["class"] or t["class"]})
-        h["_n"] += t["_n"]
-        drop.add(tails[b])
-    return [r for k, r in enumerate(rows) if k not in drop]
+def _check_u_turn(row: dict, arms: _Arms, centre: np.ndarray) -> None:
+    """A vehicle that leaves by the arm it came from made a U-turn only if it went well into the junction (within
+    :data:`U_TURN_REACH_SHARE` of the gate's distance from the centre) and turned round (its first and last travel
+    :data:`U_TURN_MIN_DEG` or more apart, where both are known). Otherwise the piece of track crossed its gate twice
+    without turning (a box jittering at the gate, the two ends of a bus): the end that goes against its motion along
+    the arm is dropped, leaving a half for :func:`~trafficgeo.traffic.movement_pieces.pair_halves` (in place)."""
+    if not row["origin"] or row["origin"] != row["destination"]:
+        return
+    i = arms.names.index(row["origin"])
+    along = (row["_xy"] - centre) @ arms.out[i]
+    deep = float(np.min(np.hypot(*(row["_xy"] - centre).T))) <= U_TURN_REACH_SHARE * arms.reach[i]
+    d0, d1 = row["_d0"], row["_d1"]
+    turned = d0 is None or d1 is None or float(d0 @ d1) <= np.cos(np.radians(U_TURN_MIN_DEG))
+    if deep and turned:
+        return
+    if along[-1] > along[0]:  # moving out along the arm: it left by it, it did not come from it
+        row.update(origin="", origin_by="", entry_time=np.nan)
+    else:
+        row.update(destination="", destination_by="", exit_time=np.nan)
 
 
 def _outside_every_gate(arms: _Arms, centre: np.ndarray, xy: np.ndarray) -> bool:

@@ -1,0 +1,210 @@
+"""Pieces of track that are one vehicle's movement through a junction (:mod:`trafficgeo.traffic.movements`).
+
+Inside a junction vehicles turn, queue and hide one another, out of the motion model that joins the pieces of a
+track on a road (:mod:`trafficgeo.traffic.journeys`). The movement rows of the pieces (each with what is known of
+its origin and destination, :func:`~trafficgeo.traffic.movements.vehicle_movements`) are joined here:
+
+* :func:`pair_halves` - two **halves** of one vehicle (its track broken inside the junction): a movement known only
+  by its origin and a later one known only by its destination are one vehicle's when the second begins within
+  :data:`PAIR_GAP_S` of the first's end, no farther from it than its speed there covers in the gap (at least
+  :data:`PAIR_MIN_SPEED_MPS`) plus :data:`PAIR_SLACK_M`, ahead of it as it turns (the line between the two within
+  :data:`CHORD_TOLERANCE_DEG` of the mean of the directions where the first ends and the second begins, as an
+  arc's chord runs), and their classes are of one family (car or van; truck or bus; or unknown). The pairs are
+  chosen all at once by an assignment that prefers the arc whose length best matches what their speeds cover in the
+  gap. A tail that begins up to :data:`PAIR_OVERLAP_S` before its head ends is paired only where the two stand
+  together meanwhile (as doubles do). Two halves are never joined into a U-turn: a U-turn is counted only where one
+  piece of track shows it.
+* :func:`merge_doubles` - two pieces of track seen at once (for :data:`SAME_MIN_OVERLAP_S` or more: two ids on one
+  vehicle, a bus detected in two boxes) are one vehicle when they stand together - the medians over their common
+  time of the distance across the travel within :data:`SAME_ACROSS_M` (half a lane) and along it within
+  :data:`SAME_ALONG_M` (half the longer vehicle: 6 m if either is a truck or bus) - and their ends agree (the same
+  arm, or unknown in one, or judged by the path in one where the other crossed a gate: the gate's is kept).
+
+:func:`~trafficgeo.traffic.movements.vehicle_movements` pairs halves, merges doubles, then pairs the halves that
+merging completed. A joined row's ``track_ids`` lists its pieces and its class is that of the piece seen longest.
+
+The rows are dicts with the movement columns and private keys (``_t``, ``_xy``: the piece's times and positions;
+``_t0, _t1, _p0, _p1, _v0, _v1, _d0, _d1``: its first/last time, position, speed (m/s) and unit direction of
+travel (None if unknown); ``_n``: its number of points). Positions in CRS units (``metres_per_unit`` gives metres),
+times in seconds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from trafficgeo.traffic.measurements import HEAVY_CLASSES
+
+__all__ = ["merge_doubles", "pair_halves"]
+
+CHORD_TOLERANCE_DEG = 45.0  # the chord between two halves runs within this of the mean of their directions
+PAIR_GAP_S = 5.0  # s: the longest a vehicle may go unseen between the two halves of its movement
+PAIR_SLACK_M = 4.0  # m of position error allowed where the two halves meet, beyond the distance the speed covers
+PAIR_MIN_SPEED_MPS = 3.0  # m/s assumed at least for the distance a hidden vehicle may cover
+SAME_ACROSS_M = 1.5  # m: two pieces of track seen at once, this close across their travel (half a lane) ...
+SAME_ALONG_M = {"light": 2.5, "heavy": 6.0}  # ... and this close along it (half the longer vehicle) are one vehicle
+SAME_MIN_OVERLAP_S = 0.3  # s: seen at once for at least this long
+PAIR_OVERLAP_S = 2.0  # s: a tail may begin this long before its head ends if the two stand together meanwhile
+
+
+def _family(vehicle_class: str) -> str:
+    """Light (car, van) or heavy (truck, bus) - the classes a detector confuses with each other - else the class."""
+    return "light" if vehicle_class in ("car", "van") else "heavy" if vehicle_class in HEAVY_CLASSES else vehicle_class
+
+
+def _arc_length_m(chord: np.ndarray, d_end: np.ndarray | None, d_start: np.ndarray | None) -> float | None:
+    """The length (m) of the circular arc from the end of one half (direction ``d_end``) to the start of the next
+    (direction ``d_start``) over ``chord`` (m); None when the chord does not run between the two directions (the
+    second half is not ahead of the first, turning as it does). The chord itself where a direction is unknown or the
+    chord is shorter than the position error :data:`PAIR_SLACK_M` (its direction is noise)."""
+    dist = float(np.hypot(*chord))
+    if d_end is None or d_start is None or dist < PAIR_SLACK_M:
+        return dist
+    turn = float(np.arctan2(d_end[0] * d_start[1] - d_end[1] * d_start[0], d_end @ d_start))  # signed, radians
+    mid = np.arctan2(d_end[1], d_end[0]) + 0.5 * turn  # an arc's chord runs at the mean of its end directions
+    off = abs((np.arctan2(chord[1], chord[0]) - mid + np.pi) % (2 * np.pi) - np.pi)
+    if off > np.radians(CHORD_TOLERANCE_DEG):
+        return None
+    half = 0.5 * abs(turn)
+    return dist * half / np.sin(half) if half > 1e-6 else dist
+
+
+def _together(a: dict, b: dict, metres_per_unit: float, min_overlap_s: float = SAME_MIN_OVERLAP_S) -> float | None:
+    """How far apart two pieces of track seen at once stand, as a share of what one vehicle allows (<= 1: one
+    vehicle; module docstring), from the medians over their common time of the distance across and along the
+    travel of ``a`` (``b``'s points against ``a``'s positions interpolated at their times); None if they share less
+    than :data:`SAME_MIN_OVERLAP_S` or stand farther apart."""
+    ta, tb = a["_t"], b["_t"]
+    lo, hi = max(ta[0], tb[0]), min(ta[-1], tb[-1])
+    if hi - lo < min_overlap_s or ta.size < 2:
+        return None
+    both = (tb >= lo) & (tb <= hi)
+    if not both.any():
+        return None
+    at = np.column_stack([np.interp(tb[both], ta, a["_xy"][:, 0]), np.interp(tb[both], ta, a["_xy"][:, 1])])
+    ahead = np.column_stack([np.interp(tb[both] + 0.5, ta, a["_xy"][:, 0]),
+                             np.interp(tb[both] + 0.5, ta, a["_xy"][:, 1])]) - \
+        np.column_stack([np.interp(tb[both] - 0.5, ta, a["_xy"][:, 0]), np.interp(tb[both] - 0.5, ta, a["_xy"][:, 1])])
+    d = (b["_xy"][both] - at) * metres_per_unit
+    norm = np.hypot(*ahead.T)
+    moving = norm * metres_per_unit > 0.5  # direction known where it moved 0.5 m in the second around the sample
+    u = np.where(moving[:, None], ahead / np.maximum(norm, 1e-12)[:, None], 0.0)
+    along = np.abs(np.einsum("ij,ij->i", d, u))
+    across = np.where(moving, np.abs(d[:, 0] * u[:, 1] - d[:, 1] * u[:, 0]), np.hypot(*d.T))
+    heavy = "heavy" in (_family(a["class"]), _family(b["class"]))
+    share = max(float(np.median(across)) / SAME_ACROSS_M,
+                float(np.median(along)) / SAME_ALONG_M["heavy" if heavy else "light"])
+    return share if share <= 1.0 else None
+
+
+def _agree(a: dict, b: dict, end: str) -> bool:
+    """The two pieces' ``end`` ("origin" or "destination") can be one vehicle's: equal, or one of them unknown or
+    judged by the path where the other crossed a gate."""
+    x, y = a[end], b[end]
+    if not x or not y or x == y:
+        return True
+    return {a[f"{end}_by"], b[f"{end}_by"]} == {"gate", "path"}
+
+
+def merge_doubles(rows: list[dict], metres_per_unit: float) -> list[dict]:
+    """Pieces of track seen at once that stand together (:func:`_together`: two ids on one vehicle, or a long
+    vehicle detected in two boxes) are one vehicle when their ends agree (:func:`_agree`): merged, nearest first,
+    the origin taken from the piece seen first (a gate crossing before a path), the destination from the piece seen
+    last, the class from the piece seen longer."""
+    order = sorted(range(len(rows)), key=lambda k: rows[k]["_t0"])
+    pairs = []
+    for x, i in enumerate(order):
+        for j in order[x + 1:]:
+            if rows[j]["_t0"] > rows[i]["_t1"] - SAME_MIN_OVERLAP_S:
+                break
+            share = _together(rows[i], rows[j], metres_per_unit)
+            if share is not None and _agree(rows[i], rows[j], "origin") and _agree(rows[i], rows[j], "destination"):
+                pairs.append((share, i, j))
+    merged_into: dict[int, int] = {}
+    for _share, i, j in sorted(pairs):
+        while i in merged_into:
+            i = merged_into[i]
+        while j in merged_into:
+            j = merged_into[j]
+        if i == j or not (_agree(rows[i], rows[j], "origin") and _agree(rows[i], rows[j], "destination")):
+            continue
+        a, b = (i, j) if rows[i]["_t0"] <= rows[j]["_t0"] else (j, i)
+        _absorb(rows[a], rows[b])
+        merged_into[b] = a
+    return [r for k, r in enumerate(rows) if k not in merged_into]
+
+
+def _absorb(a: dict, b: dict) -> None:
+    """Merge piece ``b`` (seen at the same time as ``a``, starting no earlier) into ``a`` (in place)."""
+    def pick(end: str, time: str, first: bool) -> None:
+        mine, other = (a, b) if first else (b, a)
+        take = mine if mine[end] and (mine[f"{end}_by"] == "gate" or other[f"{end}_by"] != "gate") else other
+        if not take[end] or (other[end] and other[f"{end}_by"] == "gate" and take[f"{end}_by"] != "gate"):
+            take = other if other[end] else take
+        a.update({end: take[end], f"{end}_by": take[f"{end}_by"], time: take[time]})
+
+    late = b["_t1"] > a["_t1"]
+    pick("origin", "entry_time", True)
+    pick("destination", "exit_time", not late)
+    if late:
+        a.update(_t1=b["_t1"], _p1=b["_p1"], _v1=b["_v1"], _d1=b["_d1"])
+    t = np.concatenate([a["_t"], b["_t"]])
+    xy = np.concatenate([a["_xy"], b["_xy"]])
+    keep = np.argsort(t, kind="stable")
+    a.update(_t=t[keep], _xy=xy[keep], track_ids=f"{a['track_ids']};{b['track_ids']}",
+             stopped_s=max(a["stopped_s"], b["stopped_s"]),
+             **{"class": (a["class"] if a["_n"] >= b["_n"] else b["class"]) or a["class"] or b["class"]})
+    a["_n"] += b["_n"]
+
+
+def pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
+    """Join movements known only by their origin to later ones known only by their destination (module docstring)."""
+    from scipy.optimize import linear_sum_assignment
+
+    heads = [i for i, r in enumerate(rows) if r["origin"] and not r["destination"]]
+    tails = [j for j, r in enumerate(rows) if r["destination"] and not r["origin"]]
+    if not heads or not tails:
+        return rows
+    big = 1e9
+    cost = np.full((len(heads), len(tails)), big)
+    for a, i in enumerate(heads):
+        h = rows[i]
+        for b, j in enumerate(tails):
+            t = rows[j]
+            gap = t["_t0"] - h["_t1"]
+            if not -PAIR_OVERLAP_S <= gap <= PAIR_GAP_S or t["_t0"] <= h["_t0"] or t["_t1"] <= h["_t1"]:
+                continue
+            if _family(h["class"]) != _family(t["class"]) and h["class"] and t["class"]:
+                continue
+            if h["origin"] == t["destination"]:
+                continue  # a U-turn is counted only where one piece of track shows it
+            if gap <= 0.0:  # seen at once for a moment (a piece merged into the tail began earlier)
+                share = _together(h, t, metres_per_unit, min_overlap_s=0.0)
+                if share is not None:
+                    cost[a, b] = share
+                continue
+            chord = (t["_p0"] - h["_p1"]) * metres_per_unit
+            dist_m = float(np.hypot(*chord))
+            reach_m = max(h["_v1"], PAIR_MIN_SPEED_MPS) * gap + PAIR_SLACK_M
+            if dist_m > reach_m:
+                continue
+            path_m = _arc_length_m(chord, h["_d1"], t["_d0"])
+            if path_m is None:
+                continue
+            travelled_m = 0.5 * (h["_v1"] + t["_v0"]) * gap  # what its speeds on both sides cover in the gap
+            cost[a, b] = abs(path_m - travelled_m) / (travelled_m + PAIR_SLACK_M) + gap / PAIR_GAP_S
+    ra, rb = linear_sum_assignment(cost)
+    drop = set()
+    for a, b in zip(ra, rb, strict=True):
+        if cost[a, b] >= big:
+            continue
+        h, t = rows[heads[a]], rows[tails[b]]
+        h.update(destination=t["destination"], destination_by=t["destination_by"], exit_time=t["exit_time"],
+                 stopped_s=h["stopped_s"] + t["stopped_s"], track_ids=f"{h['track_ids']};{t['track_ids']}",
+                 _t1=t["_t1"], _p1=t["_p1"], _v1=t["_v1"], _d1=t["_d1"],
+                 _t=np.concatenate([h["_t"], t["_t"][t["_t"] > h["_t"][-1]]]),
+                 _xy=np.concatenate([h["_xy"], t["_xy"][t["_t"] > h["_t"][-1]]]),
+                 **{"class": (h["class"] if h["_n"] >= t["_n"] else t["class"]) or h["class"] or t["class"]})
+        h["_n"] += t["_n"]
+        drop.add(tails[b])
+    return [r for k, r in enumerate(rows) if k not in drop]
