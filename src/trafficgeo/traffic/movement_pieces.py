@@ -110,7 +110,7 @@ def merge_doubles(rows: list[dict], metres_per_unit: float) -> list[dict]:
     """Pieces of track seen at once that stand together (:func:`_together`: two ids on one vehicle, or a long
     vehicle detected in two boxes) are one vehicle when their ends agree (:func:`_agree`): merged, nearest first,
     the origin taken from the piece seen first (a gate crossing before a path), the destination from the piece seen
-    last, the class from the piece seen longer."""
+    last, the class from the piece seen longer; never into a U-turn that neither piece shows."""
     order = sorted(range(len(rows)), key=lambda k: rows[k]["_t0"])
     pairs = []
     for x, i in enumerate(order):
@@ -129,7 +129,12 @@ def merge_doubles(rows: list[dict], metres_per_unit: float) -> list[dict]:
         if i == j or not (_agree(rows[i], rows[j], "origin") and _agree(rows[i], rows[j], "destination")):
             continue
         a, b = (i, j) if rows[i]["_t0"] <= rows[j]["_t0"] else (j, i)
-        _absorb(rows[a], rows[b])
+        both = dict(rows[a])
+        _absorb(both, rows[b])
+        if both["origin"] and both["origin"] == both["destination"] and not any(
+                r["origin"] == r["destination"] != "" for r in (rows[a], rows[b])):
+            continue  # no U-turn from two pieces (pair_halves)
+        rows[a] = both
         merged_into[b] = a
     return [r for k, r in enumerate(rows) if k not in merged_into]
 
