@@ -78,7 +78,9 @@ def test_loaders_take_paths_or_objects_and_give_the_same_analysis(world: Path) -
     truth = pd.read_csv(world / "truth_counts.csv")
     assert int(by_path.counts["count"].sum()) == pytest.approx(len(truth), abs=1)
     with pytest.raises(tg.InputError, match="surface 'plane'"):
-        tg.load_surface("plane", cam)  # the GCP plane needs the camera JSON
+        tg.load_surface("plane", cam.camera)  # the GCP plane needs the camera JSON's GCPs: a bare camera has none
+    with pytest.raises(tg.InputError, match="surface plane needs the GCPs"):
+        tg.load_surface("plane", cam)  # this one has none kept as inliers
     with pytest.raises(tg.InputError, match="tracks: list"):
         tg.load_tracks([1, 2])
 
@@ -163,3 +165,30 @@ def test_analyze_outputs_equal_those_of_the_release_before_the_api(tmp_path: Pat
     for key in ("period_s", "vehicles", "points", "dropped_points", "options", "classes", "crossings"):
         assert new_summary[key] == old_summary[key], key
     assert pyproj.CRS.from_wkt(new_summary["crs"]) == pyproj.CRS.from_wkt(old_summary["crs"])
+
+
+@pytest.mark.slow
+def test_the_loaded_camera_carries_its_calibration_to_the_speeds_and_a_bare_one_says_so(world: Path,
+                                                                                       tmp_path: Path) -> None:
+    """The README's API example: ``tg.load_camera`` gives the CalibratedCamera, whose covariance and GCPs place the
+    headline speeds; the bare projection (``.camera``) is accepted and the result says what it lacks."""
+    from trafficgeo.traffic.analyze import NO_CALIBRATION_WARNING
+
+    truth = tg.load_camera(world / "camera_truth.json").camera
+    cal = tg.calibrate(tg.read_gcps(world / "gcps.csv", crs=truth.crs), truth.image_size)
+    cal.calibrated_camera().write(tmp_path / "camera.json")  # as `trafficgeo calibrate` writes it
+    camera = tg.load_camera(tmp_path / "camera.json")
+    assert isinstance(camera, tg.CalibratedCamera) and camera.covariance is not None
+    boxes = pd.read_csv(world / "truth_tracks.csv").dropna(subset=["x1"]).rename(columns={"vehicle": "track_id"})
+    table = boxes[["frame", "time", "track_id", "x1", "y1", "x2", "y2", "class"]]
+    surface = tg.load_surface(world / "cloud.laz", camera)
+    known = tg.analyze_tracks(camera, surface, table, lanes=world / "lanes.gpkg", lines=world / "count_lines.gpkg")
+    assert known.options["speed_scale_knowledge"] == "covariance+gcps"
+    assert NO_CALIBRATION_WARNING not in known.warnings
+    bare = tg.analyze_tracks(camera.camera, surface, table, lanes=world / "lanes.gpkg",
+                             lines=world / "count_lines.gpkg")
+    assert bare.options["speed_scale_knowledge"] == "none" and NO_CALIBRATION_WARNING in bare.warnings
+    # the projection-only functions take either
+    pixel = [[960.0, 700.0]]
+    np.testing.assert_allclose(tg.georeference(camera, pixel, surface).xyz,
+                               tg.georeference(camera.camera, pixel, surface).xyz)

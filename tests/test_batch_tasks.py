@@ -331,7 +331,7 @@ def test_summarize_and_reading_back(anchor: dict, tmp_path: Path) -> None:
     cams = gpd.read_file(gpkg, layer="cameras")
     from trafficgeo.site.site import load_camera
 
-    position = load_camera(anchor["ctx"].cameras["cam1"].camera).position
+    position = load_camera(anchor["ctx"].cameras["cam1"].camera).camera.position
     assert cams["camera_id"].tolist() == ["cam1"] and cams["days"].tolist() == [1]
     assert cams["vehicles"].tolist() == [len(read_table(ds, "vehicles"))]
     np.testing.assert_allclose([cams.geometry.iloc[0].x, cams.geometry.iloc[0].y], position[:2], atol=1e-6)

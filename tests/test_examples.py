@@ -22,3 +22,5 @@ def test_api_example_runs_the_whole_chain_on_a_short_demo_world(tmp_path: Path, 
     assert figures["count_accuracy"] >= 0.85  # per-lane counts against the world's true crossings
     assert figures["ground_median_error_m"] < 1.0  # true pixels mapped back through the calibrated camera
     assert 0.0 <= figures["share_geh_below_5"] <= 1.0
+    # the calibration's knowledge reached the speeds (a bare camera would have dropped it: "none")
+    assert figures["speed_scale_knowledge"] == "covariance+gcps"

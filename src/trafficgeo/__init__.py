@@ -5,7 +5,7 @@ paths, returns plain dataclasses and tables, and raises :class:`InputError` nami
 
     import trafficgeo as tg
 
-    camera = tg.load_camera("camera.json")                      # or tg.calibrate(gcps, image_size).camera
+    camera = tg.load_camera("camera.json")      # a CalibratedCamera; or tg.calibrate(gcps, size).calibrated_camera()
     surface = tg.load_surface("cloud.laz", "camera.json")        # a number, "plane", a DEM or a point cloud
     run = tg.process_video("video.mp4", camera, surface, "run", lanes="lanes.gpkg", lines="lines.gpkg")
     run.traffic.counts                                           # per line, lane, direction and interval

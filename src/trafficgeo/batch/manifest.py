@@ -199,7 +199,7 @@ def _dataset_crs(cameras: Mapping[str, CameraEntry], crs: str | None, csv_path: 
     from trafficgeo.crs import parse_crs
     from trafficgeo.site.site import load_camera
 
-    cams = {cid: load_camera(e.camera) for cid, e in cameras.items()}
+    cams = {cid: load_camera(e.camera).camera for cid, e in cameras.items()}
     if crs is not None:
         target = parse_crs(crs)
     else:

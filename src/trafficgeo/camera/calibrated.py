@@ -373,5 +373,11 @@ def load_calibrated_camera(camera: CalibratedCamera | Camera | str | Path | Any)
                      parameters=("camera",))
 
 
+def as_camera(camera: CalibratedCamera | Camera) -> Camera:
+    """The :class:`Camera` of a :class:`CalibratedCamera`, or the camera as it is: for functions that need only the
+    projection (a calibration's knowledge is kept by whoever holds the CalibratedCamera)."""
+    return camera.camera if isinstance(camera, CalibratedCamera) else camera
+
+
 __all__ = ["FORMAT", "CalibratedCamera", "CameraCovariance", "CameraGCP", "FitModel", "FitStats", "PoseUncertainty",
-           "RefinementSummary", "load_calibrated_camera"]
+           "RefinementSummary", "as_camera", "load_calibrated_camera"]

@@ -15,6 +15,7 @@ import numpy as np
 import pyproj
 from numpy.typing import ArrayLike
 
+from trafficgeo.camera.calibrated import CalibratedCamera, as_camera
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import is_geographic, metres_per_unit, projected_to_lonlat
 from trafficgeo.geo.surface import (
@@ -153,7 +154,7 @@ def world_to_pixels(camera: Camera, xyz: ArrayLike, surface: Surface | None = No
     return ImagePoints(uv=uv, status=status, depth=depth)
 
 
-def georeference(camera: Camera, pixels: ArrayLike, surface: Surface, *, height_m: float = 0.0,
+def georeference(camera: Camera | CalibratedCamera, pixels: ArrayLike, surface: Surface, *, height_m: float = 0.0,
                  min_incidence_deg: float = DEFAULT_MIN_INCIDENCE_DEG) -> GroundPoints:
     """Pixels (N, 2) ``u, v`` (pixel-centre convention, :mod:`trafficgeo.camera.model`) to the ground: where each
     pixel's ray first meets ``surface`` lifted by ``height_m`` metres (e.g. a car roof), in the camera's CRS, with a
@@ -165,6 +166,7 @@ def georeference(camera: Camera, pixels: ArrayLike, surface: Surface, *, height_
     >>> ground.status.tolist(), np.round(ground.xyz[0], 2).tolist()
     (['ok', 'above_horizon'], [0.0, 16.95, 0.0])
     """
+    camera = as_camera(camera)
     crs = camera_crs(camera)
     from trafficgeo.crs import metres_per_unit
 

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from trafficgeo.camera.calibrated import CalibratedCamera, load_calibrated_camera
+from trafficgeo.camera.calibrated import CalibratedCamera, as_camera, load_calibrated_camera
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface, camera_crs
@@ -77,28 +77,33 @@ class Site:
         return None
 
 
-def load_camera(camera: CameraLike) -> Camera:
-    """A :class:`Camera` as it is, the camera of a CalibratedCamera, or read from the camera JSON at ``camera``."""
-    return load_calibrated_camera(camera).camera
+def load_camera(camera: CameraLike) -> CalibratedCamera:
+    """The :class:`CalibratedCamera` read from the camera JSON at ``camera`` (the camera and what its calibration
+    knows: GCPs, covariance, which place the headline speeds), or as it is; a bare :class:`Camera` is wrapped and
+    knows nothing of a calibration. Its ``.camera`` is the projection alone."""
+    return load_calibrated_camera(camera)
 
 
-def load_lanes(lanes: Lanes | PathLike | None, camera: Camera, surface: Surface | None = None) -> Lanes | None:
+def load_lanes(lanes: Lanes | PathLike | None, camera: CalibratedCamera | Camera, surface: Surface | None = None
+               ) -> Lanes | None:
     """Lanes as they are, or read from a GIS file (polygons or boundary lines) or an image CSV (boundary lines
     drawn in the frame, mapped through ``camera`` onto ``surface``); None stays None."""
     if lanes is None or isinstance(lanes, Lanes):
         return lanes
+    camera = as_camera(camera)
     if not isinstance(lanes, str | os.PathLike):
         raise InputError(f"lanes: {type(lanes).__name__} is neither Lanes nor the path of a lanes file",
                          parameters=("lanes",))
     return read_lanes(Path(lanes), crs=camera_crs(camera), camera=camera, surface=surface)
 
 
-def load_lines(lines: Sequence[CountLine] | PathLike | None, camera: Camera, surface: Surface | None = None
-               ) -> list[CountLine] | None:
+def load_lines(lines: Sequence[CountLine] | PathLike | None, camera: CalibratedCamera | Camera,
+               surface: Surface | None = None) -> list[CountLine] | None:
     """Counting lines as they are, or read from a GIS file or an image CSV (see :func:`load_lanes`)."""
     if lines is None:
         return None
     if isinstance(lines, str | os.PathLike):
+        camera = as_camera(camera)
         return read_count_lines(Path(lines), crs=camera_crs(camera), camera=camera, surface=surface)
     out = list(lines)
     if not all(isinstance(ln, CountLine) for ln in out):
@@ -106,12 +111,13 @@ def load_lines(lines: Sequence[CountLine] | PathLike | None, camera: Camera, sur
     return out
 
 
-def load_gates(gates: Sequence[Gate] | PathLike | None, camera: Camera, surface: Surface | None = None
-               ) -> list[Gate] | None:
+def load_gates(gates: Sequence[Gate] | PathLike | None, camera: CalibratedCamera | Camera,
+               surface: Surface | None = None) -> list[Gate] | None:
     """Junction gates as they are, or read from a GIS file or an image CSV (see :func:`load_lanes`)."""
     if gates is None:
         return None
     if isinstance(gates, str | os.PathLike):
+        camera = as_camera(camera)
         return read_gates(Path(gates), crs=camera_crs(camera), camera=camera, surface=surface)
     out = list(gates)
     if not all(isinstance(g, Gate) for g in out):

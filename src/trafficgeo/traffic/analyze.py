@@ -180,6 +180,13 @@ def uncrossed_warnings(lines: list[CountLine], crossings: pd.DataFrame, period: 
             for line in lines if line.name not in crossed]
 
 
+NO_CALIBRATION_WARNING = (
+    "speed_kmh: the camera carries no record of its calibration (no GCPs, no covariance), so each vehicle's speed is "
+    "measured over the middle half of the time it is seen, not where the calibration knows the ground scale; give "
+    "the camera JSON that 'trafficgeo calibrate' wrote, or its CalibratedCamera (tg.load_camera, "
+    "Calibration.calibrated_camera())")
+
+
 def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lanes | None = None,
             lines: list[CountLine] | None = None, interval_s: float = 60.0,
             options: TrajectoryOptions | None = None, progress=None, knowledge: ScaleKnowledge | None = None,
@@ -187,7 +194,8 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
             gates: list[Gate] | None = None, movement_interval_s: float = MOVEMENT_INTERVAL_S) -> TrafficResult:
     """The whole analysis of one set of image tracks (see the module docstring). ``knowledge``: what the
     calibration knows of its ground scale (:meth:`ScaleKnowledge.from_camera` of the calibrated camera; None for
-    a camera made by hand), which places each vehicle's headline speed (:mod:`trafficgeo.traffic.speed`);
+    a camera made by hand, which :data:`NO_CALIBRATION_WARNING` then states), which places each vehicle's headline
+    speed (:mod:`trafficgeo.traffic.speed`);
     ``journeys``: how the fragments of one vehicle are joined (:mod:`trafficgeo.traffic.journeys`); ``gates``: a
     junction's gates, for turning movements counted per ``movement_interval_s`` s."""
     from trafficgeo.site.checks import check_camera_above_surface
@@ -242,6 +250,8 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
     drift = scale_drift_warning(camera, world.points, world.vehicles, speed_opts)
     if drift is not None:
         warnings.append(drift)
+    if knowledge is None and len(world.vehicles):
+        warnings.append(NO_CALIBRATION_WARNING)
     movements = movement_counts = turning = None
     if junction is not None:
         movements, movement_counts, turning = _movements(world, junction, movement_interval_s, period, mpu)

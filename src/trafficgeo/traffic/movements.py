@@ -17,7 +17,8 @@ junction's gates (:mod:`trafficgeo.site.gates`, whose conventions hold here).
 * :func:`movement_counts` - complete movements per interval (by the time the vehicle entered: its entry crossing,
   else the time first seen), origin, destination and class.
 * :func:`turning_movement_table` - the layout junction tools import: one row per interval, per approach arm the
-  left, through, right and U counts, the total and the heavy vehicles (:data:`~trafficgeo.traffic.measurements.HEAVY_CLASSES`).
+  left, through, right and U counts, the total and the heavy vehicles
+  (:data:`~trafficgeo.traffic.measurements.HEAVY_CLASSES`).
 * :func:`peak_hour` - the busiest hour of whole intervals, its volume and peak-hour factor (PHF = hour volume /
   (intervals per hour x the busiest interval's volume)).
 

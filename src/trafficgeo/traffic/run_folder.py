@@ -59,6 +59,7 @@ from trafficgeo.traffic.run_records import (
 )
 
 if TYPE_CHECKING:
+    from trafficgeo.camera.calibrated import CalibratedCamera
     from trafficgeo.camera.model import Camera
     from trafficgeo.site.gates import Junction
     from trafficgeo.traffic.analyze import TrafficResult
@@ -336,11 +337,15 @@ class RunFolder:
         return f"RunFolder({str(self.path)!r})"
 
     # ------------------------------------------------------------------------------------------------ writing
-    def write_traffic(self, result: TrafficResult, camera: Camera, *, publish: bool = True) -> list[Path]:
+    def write_traffic(self, result: TrafficResult, camera: Camera | CalibratedCamera, *, publish: bool = True
+                      ) -> list[Path]:
         """Write ``result`` (vehicles, crossings, counts, trajectories as CSV and GIS layers, summary.json); returns
         the paths written. With ``publish=False`` the manifest is left for the caller, which adds files of its own
         (``process``)."""
+        from trafficgeo.camera.calibrated import as_camera
         from trafficgeo.traffic.analyze import write_analysis
+
+        camera = as_camera(camera)
 
         self._manifest = self._comparison = None
         return write_analysis(self.path, result, camera, publish=publish)
