@@ -1,8 +1,9 @@
 """The import layering docs/architecture.md states: camera -> calibration -> geo -> site -> traffic / video
-(siblings) -> pipeline / simulation -> synth/report/ui -> batch/demo -> cli, with errors, crs, groups and io at the
-bottom; no module imports a layer above its own or a sibling (imports inside functions and under TYPE_CHECKING count
-too), and synth, report and ui do not import each other; no private name crosses a module and no module re-exports
-what it imports (package ``__init__`` namespaces aside)."""
+(siblings) -> pipeline / simulation -> synth/report/ui -> batch/demo -> cli, with errors, version, crs, groups and io
+at the bottom; no module imports a layer above its own or a sibling (imports inside functions and under
+TYPE_CHECKING count too, and a name of the package's namespace is its ``__init__``), and synth, report and ui do not
+import each other; no private name crosses a module and no module re-exports what it imports (package ``__init__``
+namespaces aside)."""
 
 from __future__ import annotations
 
@@ -13,8 +14,8 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "trafficgeo"
 # Each top-level part of the package and its layer; a part may import only parts of a lower layer.
-LAYER = {"errors": 0, "crs": 1, "groups": 1, "io": 2, "camera": 3, "calibration": 4, "geo": 5, "site": 6, "traffic": 7,
-         "registration": 7, "video": 7, "simulation": 8, "pipeline": 8,
+LAYER = {"errors": 0, "version": 0, "crs": 1, "groups": 1, "io": 2, "camera": 3, "calibration": 4, "geo": 5,
+         "site": 6, "traffic": 7, "registration": 7, "video": 7, "simulation": 8, "pipeline": 8,
          "synth": 9, "report": 9, "ui": 9, "batch": 10, "demo": 10, "cli": 11, "__init__": 12}
 
 
@@ -42,8 +43,8 @@ def parts_in(text: str, rel: tuple[str, ...]) -> set[tuple[str, int]]:
                     names += [".".join([*base, a.name]) for a in node.names]
             elif node.module:
                 names.append(node.module)
-                if node.module == "trafficgeo":
-                    names += [f"trafficgeo.{a.name}" for a in node.names]
+                if node.module == "trafficgeo":  # a part, or a name of the package's namespace (its __init__)
+                    names += [f"trafficgeo.{a.name if a.name in LAYER else '__init__'}" for a in node.names]
         elif isinstance(node, ast.Import):
             names += [a.name for a in node.names]
         for name in names:

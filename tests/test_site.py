@@ -112,6 +112,12 @@ def test_the_gcp_plane_of_a_calibration_needs_no_file(tmp_path: Path) -> None:
         load_surface("plane", cal.camera)
     site = tg.Site.load(in_memory, "plane")
     assert site.camera is in_memory and site.lanes is None and site.lines is None
+    # a Site is accepted where a site is loaded: as it is, or with parts given in place of its own
+    assert tg.Site.load(site) is site
+    flat = tg.Site.load(site, 12.5)
+    assert flat.camera is in_memory and float(flat.surface.elevation(x[:1], y[:1])[0]) == 12.5
+    with pytest.raises(InputError, match="surface: the site needs the road surface"):
+        tg.Site.load(in_memory)
 
 
 @pytest.mark.parametrize(("block", "value", "said"), [

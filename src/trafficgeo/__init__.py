@@ -20,8 +20,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 from trafficgeo.errors import CalibrationError, InputError, OutputError, TrafficgeoError
-
-__version__ = "0.1.0"
+from trafficgeo.version import __version__
 
 # name -> module that defines it (the curated public API; one concept per module)
 _API: dict[str, str] = {

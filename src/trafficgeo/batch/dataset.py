@@ -84,7 +84,7 @@ def check_dataset(dataset: str | os.PathLike, crs: str | pyproj.CRS) -> dict[str
 
 def ensure_dataset(dataset: str | os.PathLike, crs: str | pyproj.CRS) -> Path:
     """Create ``dataset`` with its ``dataset.json`` (once; checked when it exists, see :func:`check_dataset`)."""
-    from trafficgeo import __version__
+    from trafficgeo.version import __version__
 
     root = Path(dataset)
     if check_dataset(root, crs) is None:

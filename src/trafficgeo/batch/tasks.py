@@ -130,7 +130,7 @@ def task_key(task: Task, ctx: BatchContext) -> str:
     detector's tiles then); track: the keys of its dependencies, the camera, surface, lanes, lines, time zone and day,
     the detector, the options, the dataset CRS and the version. With lanes, counting lines and the interval do not
     enter a detect key, so changing them re-does only the track tasks."""
-    from trafficgeo import __version__
+    from trafficgeo.version import __version__
 
     entry = _entry(task, ctx)
     detector = entry.detector or "nanodet"
@@ -226,7 +226,7 @@ def run_task(task: Task, ctx: BatchContext) -> TaskOutcome:
         return TaskOutcome(task.task_id, "failed", key=key, reason=reason, seconds=time.perf_counter() - t0)
     outputs = {p.relative_to(dataset).as_posix(): _sha256(p) for p in written}
     seconds = time.perf_counter() - t0
-    from trafficgeo import __version__
+    from trafficgeo.version import __version__
 
     write_json_atomic(_success_path(dataset, task.task_id),
                       {"task_id": task.task_id, "stage": task.stage, "camera_id": task.camera_id, "key": key,

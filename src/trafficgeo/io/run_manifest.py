@@ -118,7 +118,7 @@ def publish_outputs(folder: str | Path, files: Iterable[str | Path], *, command:
                     name: str = MANIFEST) -> Path:
     """Write the manifest ``name`` of ``files`` (paths in ``folder``, or names) last, atomically; returns its
     path."""
-    from trafficgeo import __version__
+    from trafficgeo.version import __version__
 
     d = Path(folder)
     entries: dict[str, dict[str, Any]] = {}

@@ -61,8 +61,8 @@ class ReportPage:
 def _header(b: ReportContext, about: Sequence[tuple[str, str]] = ()) -> list[tuple[str, str]]:
     """(label, value) rows at the top of the page: the folder (or what ``about`` says the page is about), when, the
     version, the CRS and the inputs used."""
-    from trafficgeo import __version__
     from trafficgeo.crs import crs_label
+    from trafficgeo.version import __version__
 
     unit = b.axes.unit if b.m_per_unit == 1.0 else f"{b.axes.unit} (1 {b.axes.unit} = {b.m_per_unit:.10g} m)"
     crs = (f"{crs_label(b.crs)}; units {unit}; ground errors and distances in m, speeds in km/h"

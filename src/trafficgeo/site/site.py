@@ -47,12 +47,25 @@ class Site:
     gates: tuple[Gate, ...] | None = None
 
     @classmethod
-    def load(cls, camera: CameraLike, surface: Surface | float | PathLike, lanes: Lanes | PathLike | None = None,
-             lines: Sequence[CountLine] | PathLike | None = None, *, gates: Sequence[Gate] | PathLike | None = None,
-             surface_crs: str | None = None, resolution_m: float = 0.25) -> Site:
+    def load(cls, camera: CameraLike | Site, surface: Surface | float | PathLike | None = None,
+             lanes: Lanes | PathLike | None = None, lines: Sequence[CountLine] | PathLike | None = None, *,
+             gates: Sequence[Gate] | PathLike | None = None, surface_crs: str | None = None,
+             resolution_m: float = 0.25) -> Site:
         """The site from objects or paths (see the module docstring), having checked that the camera is above the
         surface (a surface in feet read as metres would map nothing). A point cloud is gridded at ``resolution_m``
-        m; ``surface_crs`` for a surface file without a CRS."""
+        m; ``surface_crs`` for a surface file without a CRS. A :class:`Site` given as ``camera`` is the site, with
+        whatever else is given (surface, lanes, lines, gates) in place of its own."""
+        if isinstance(camera, Site):
+            site = camera
+            if surface is None and lanes is None and lines is None and gates is None:
+                return site
+            return cls.load(site.camera, site.surface if surface is None else surface,
+                            site.lanes if lanes is None else lanes, site.lines if lines is None else lines,
+                            gates=site.gates if gates is None else gates, surface_crs=surface_crs,
+                            resolution_m=resolution_m)
+        if surface is None:
+            raise InputError("surface: the site needs the road surface (a number in metres, 'plane', a DEM or a "
+                             "point cloud)", parameters=("surface",))
         calibrated = load_calibrated_camera(camera)
         surf = load_surface(surface, calibrated, surface_crs=surface_crs, resolution_m=resolution_m)
         check_camera_above_surface(calibrated.camera, surf)

@@ -110,7 +110,7 @@ def run_key(video: Path, *, camera: Any, surface: Any, roi: np.ndarray | None, o
     """The key of a run: equal keys mean the same detections and tracks (see the module docstring)."""
     import cv2
 
-    from trafficgeo import __version__
+    from trafficgeo.version import __version__
 
     st = video.stat()
     doc = {"format": FORMAT_VERSION, "trafficgeo": __version__, "trackers": _package_version("trackers"),
