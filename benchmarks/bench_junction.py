@@ -89,7 +89,7 @@ def ideal_run(world: Path) -> Path:
 
 
 def ideal_detector_run(world: Path) -> Path:
-    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.camera.calibrated import read_camera_json
     from trafficgeo.synth.detections import ideal_detections
     from trafficgeo.video.pipeline import TRACK_COLUMNS, ProcessOptions, settled_options
     from trafficgeo.video.track import VehicleTracker

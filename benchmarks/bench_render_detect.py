@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from trafficgeo.camera.io import read_camera_json
+from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.geo.raster import read_raster
 from trafficgeo.geo.surface import DEMSurface
 from trafficgeo.synth.gcp_scene import RoadSurface

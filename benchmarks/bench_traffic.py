@@ -58,7 +58,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from trafficgeo.camera.io import read_camera_json
+from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.cuboids import cuboid_boxes, dimensions_for
 from trafficgeo.geo.mapping import pixels_to_world

@@ -59,7 +59,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from trafficgeo.camera.io import read_camera_json
+from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.pipeline.run import process_video
 from trafficgeo.site.lanes import read_lanes
 from trafficgeo.site.lines import read_count_lines

@@ -15,7 +15,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from reference_values import LAST_BITS, assert_json_close
-from trafficgeo.camera.io import read_camera_json, write_camera_json
+from trafficgeo.camera.calibrated import read_camera_json
+from trafficgeo.camera.io import write_camera_json
 from trafficgeo.camera.model import Camera, crs_to_text
 from trafficgeo.crs import metres_per_unit, parse_crs
 from trafficgeo.errors import InputError

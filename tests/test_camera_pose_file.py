@@ -12,7 +12,7 @@ import pyproj
 import pytest
 
 from cli_support import invoke
-from trafficgeo.camera.io import read_camera_json
+from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.camera.pose_file import read_pose_file, write_pose_file
 from trafficgeo.errors import InputError

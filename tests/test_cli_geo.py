@@ -24,7 +24,8 @@ import shapely
 from affine import Affine
 
 from cli_support import invoke
-from trafficgeo.camera.io import read_camera_json, write_camera_json
+from trafficgeo.camera.calibrated import read_camera_json
+from trafficgeo.camera.io import write_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.raster import read_dem, write_geotiff
 from trafficgeo.geo.surface import DEMSurface

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from trafficgeo.camera.io import read_camera_json
+from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.video.detections import box_iou
 from trafficgeo.video.detectors.factory import make_detector
 from trafficgeo.video.reader import iter_frames

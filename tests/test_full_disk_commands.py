@@ -33,7 +33,7 @@ def inputs(small_world: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[
                                        small_world / "camera_truth.json", "--surface", 90, "--detector", "background",
                                        *span, "--out", root / name)
         assert code == 0, stderr
-    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.camera.calibrated import read_camera_json
     from trafficgeo.camera.pose_file import write_pose_file
 
     write_pose_file(root / "pose.yml", read_camera_json(small_world / "camera_truth.json"))

@@ -41,7 +41,7 @@ def test_a_dem_in_feet_read_as_metres_is_named(scene: dict[str, Path], tmp_path:
 
 
 def test_a_surface_on_another_datum_is_named_without_feet(scene: dict[str, Path]) -> None:  # noqa: F811
-    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.camera.calibrated import read_camera_json
     from trafficgeo.geo.surface import ConstantSurface
     from trafficgeo.site.checks import check_camera_above_surface
 

@@ -21,7 +21,7 @@ from cli_support import invoke
 from trafficgeo.calibration.gcp_read import read_gcps
 from trafficgeo.calibration.pipeline import calibrate
 from trafficgeo.calibration.validation import build_report
-from trafficgeo.camera.io import read_camera_json
+from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.drape import drape_orthophoto

@@ -18,7 +18,7 @@ import pytest
 import shapely
 
 from cli_support import invoke
-from trafficgeo.camera.io import read_camera_json
+from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.cuboids import cuboid_boxes
 from trafficgeo.geo.raster import write_geotiff

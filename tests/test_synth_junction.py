@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 from tests.cli_support import invoke
 
-from trafficgeo.camera.io import read_camera_json
+from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.errors import InputError
 from trafficgeo.io.gis import read_gis
 from trafficgeo.synth.junction_sumo import JunctionOptions, arm_bearings, compass_name, run_junction_sumo

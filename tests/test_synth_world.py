@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from trafficgeo.camera.io import read_camera_json
+from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.synth.world import WorldOptions, build_world
 
 pytestmark = pytest.mark.slow  # builds generated worlds (SUMO, lidar, orthophoto, H.264 video)

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from trafficgeo.calibration import read_gcps
-from trafficgeo.camera.io import read_camera_json
+from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.ui.server import BackgroundServer, create_app
 from trafficgeo.ui.startup import open_session
 from ui_support import CRS, ORTHO_RES, Scene, shared_scene

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from trafficgeo.calibration import read_gcps
-from trafficgeo.camera.io import read_camera_json
+from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import pixels_to_world
 from trafficgeo.geo.raster import write_geotiff

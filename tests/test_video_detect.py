@@ -246,7 +246,7 @@ def _demo_world_scores(demo_world: Path, **options: object) -> tuple[float, floa
     share of well visible vehicles whose box's bottom centre lies in some detection's box."""
     import av
 
-    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.camera.calibrated import read_camera_json
     from trafficgeo.geo.surface import ConstantSurface
 
     camera = read_camera_json(demo_world / "camera_truth.json")
@@ -301,7 +301,7 @@ def test_background_on_demo_world(demo_world: Path) -> None:
 
 @pytest.mark.slow
 def test_size_rules_classify_truth_boxes(demo_world: Path) -> None:
-    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.camera.calibrated import read_camera_json
     from trafficgeo.geo.surface import ConstantSurface
 
     camera = read_camera_json(demo_world / "camera_truth.json")
@@ -317,7 +317,7 @@ def test_size_rules_classify_truth_boxes(demo_world: Path) -> None:
 
 @pytest.mark.slow
 def test_camera_frame_size_mismatch(demo_world: Path) -> None:
-    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.camera.calibrated import read_camera_json
     from trafficgeo.geo.surface import ConstantSurface
 
     camera = read_camera_json(demo_world / "camera_truth.json")

@@ -71,7 +71,7 @@ def _share_on_true_vehicles(tracks: pd.DataFrame, truth: pd.DataFrame, min_iou: 
 
 def test_an_interrupted_run_resumes_to_the_same_tracks(world: Path, tmp_path: Path) -> None:
     """Stop after the first checkpoint (as Ctrl-C would), run again: the result equals an uninterrupted run."""
-    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.camera.calibrated import read_camera_json
 
     cam = read_camera_json(world / "camera_truth.json")
     opts = ProcessOptions(checkpoint_s=3.0)

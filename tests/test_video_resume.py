@@ -156,7 +156,7 @@ def test_a_run_whose_runtime_changed_starts_again(world: Path, tmp_path: Path,
     from dataclasses import replace
 
     import trafficgeo.video.detectors.learned as learned
-    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.camera.calibrated import read_camera_json
     from trafficgeo.site.lanes import read_lanes
     from trafficgeo.video.checkpoint import PartBuffer
 
@@ -185,7 +185,7 @@ def test_a_run_whose_runtime_changed_starts_again(world: Path, tmp_path: Path,
 
 
 def test_a_changed_roi_or_surface_is_another_run(world: Path, tmp_path: Path) -> None:
-    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.camera.calibrated import read_camera_json
 
     cam = read_camera_json(world / "camera_truth.json")
     surface = ConstantSurface(90.0)
@@ -238,7 +238,7 @@ def _planted_pickle(folder: Path, flag: Path) -> None:
 def test_checkpoints_are_data_checked_and_never_unpickled(world: Path, tmp_path: Path) -> None:
     """A planted pickle (old state.pkl, or an object array inside a part) is never loaded; a damaged or foreign
     checkpoint is ignored with one line saying why, and the run starts again with the right result."""
-    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.camera.calibrated import read_camera_json
 
     cam = read_camera_json(world / "camera_truth.json")
     opts = ProcessOptions(detector="background", checkpoint_s=1.0, end_s=2.5)
@@ -387,7 +387,7 @@ def test_a_second_run_on_the_same_folder_is_refused(world: Path, tmp_path: Path)
 
 
 def test_stale_temporaries_of_a_killed_run_are_removed(world: Path, tmp_path: Path) -> None:
-    from trafficgeo.camera.io import read_camera_json
+    from trafficgeo.camera.calibrated import read_camera_json
 
     out = tmp_path / "out"
     ck = out / CHECKPOINT_DIR

@@ -29,8 +29,7 @@ from rich.console import Console
 from rich.table import Table
 
 from trafficgeo.calibration import read_gcps, run_calibration
-from trafficgeo.camera.calibrated import CalibratedCamera
-from trafficgeo.camera.io import read_camera_json
+from trafficgeo.camera.calibrated import CalibratedCamera, read_camera_json
 from trafficgeo.report.terminal import print_calibration_report
 from trafficgeo.synth.world import WorldOptions, build_world
 

@@ -373,6 +373,12 @@ def load_calibrated_camera(camera: CalibratedCamera | Camera | str | Path | Any)
                      parameters=("camera",))
 
 
+def read_camera_json(path: str | Path) -> Camera:
+    """The camera alone of a camera JSON (:meth:`CalibratedCamera.read` gives it with what its calibration
+    knows)."""
+    return CalibratedCamera.read(path).camera
+
+
 def as_camera(camera: CalibratedCamera | Camera) -> Camera:
     """The :class:`Camera` of a :class:`CalibratedCamera`, or the camera as it is: for functions that need only the
     projection (a calibration's knowledge is kept by whoever holds the CalibratedCamera)."""
@@ -380,4 +386,4 @@ def as_camera(camera: CalibratedCamera | Camera) -> Camera:
 
 
 __all__ = ["FORMAT", "CalibratedCamera", "CameraCovariance", "CameraGCP", "FitModel", "FitStats", "PoseUncertainty",
-           "RefinementSummary", "as_camera", "load_calibrated_camera"]
+           "RefinementSummary", "as_camera", "load_calibrated_camera", "read_camera_json"]

@@ -92,11 +92,3 @@ def camera_from_dict(doc: Any, where: str = "camera JSON") -> Camera:
         return Camera(image_size=(int(size[0]), int(size[1])), K=K, dist=dist, R=R, position=position, crs=crs)
     except ValueError as exc:  # InputError (an unknown CRS) is a ValueError too
         raise InputError(f"{where}: 'crs': {exc}" if isinstance(exc, InputError) else f"{where}: {exc}") from None
-
-
-def read_camera_json(path: str | Path) -> Camera:
-    """The camera of a camera JSON written by :func:`write_camera_json` (with what its calibration knows:
-    :meth:`~trafficgeo.camera.calibrated.CalibratedCamera.read`)."""
-    from trafficgeo.camera.calibrated import CalibratedCamera
-
-    return CalibratedCamera.read(path).camera

@@ -48,7 +48,7 @@ def _parse_pattern(text: str) -> tuple[int, int]:
 def _load_intrinsics(path: Path, image_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """K and dist from an OpenCV YAML/XML file or a trafficgeo camera JSON; the image size must match."""
     if path.suffix.lower() == ".json":
-        from trafficgeo.camera.io import read_camera_json
+        from trafficgeo.camera.calibrated import read_camera_json
 
         cam = read_camera_json(path)
         K, dist, size = cam.K, cam.dist, cam.image_size
