@@ -111,6 +111,7 @@ def merge_doubles(rows: list[dict], metres_per_unit: float) -> list[dict]:
     vehicle detected in two boxes) are one vehicle when their ends agree (:func:`_agree`): merged, nearest first,
     the origin taken from the piece seen first (a gate crossing before a path), the destination from the piece seen
     last, the class from the piece seen longer; never into a U-turn that neither piece shows."""
+    rows = list(rows)
     order = sorted(range(len(rows)), key=lambda k: rows[k]["_t0"])
     pairs = []
     for x, i in enumerate(order):
@@ -141,11 +142,13 @@ def merge_doubles(rows: list[dict], metres_per_unit: float) -> list[dict]:
 
 def _absorb(a: dict, b: dict) -> None:
     """Merge piece ``b`` (seen at the same time as ``a``, starting no earlier) into ``a`` (in place)."""
-    def pick(end: str, time: str, first: bool) -> None:
+    def pick(end: str, time: str, first: bool) -> None:  # a known end over none, a gate over a path, else ``first``
         mine, other = (a, b) if first else (b, a)
-        take = mine if mine[end] and (mine[f"{end}_by"] == "gate" or other[f"{end}_by"] != "gate") else other
-        if not take[end] or (other[end] and other[f"{end}_by"] == "gate" and take[f"{end}_by"] != "gate"):
-            take = other if other[end] else take
+
+        def rank(r: dict) -> tuple[bool, bool]:
+            return bool(r[end]), r[f"{end}_by"] == "gate"
+
+        take = mine if rank(mine) >= rank(other) else other
         a.update({end: take[end], f"{end}_by": take[f"{end}_by"], time: take[time]})
 
     late = b["_t1"] > a["_t1"]
