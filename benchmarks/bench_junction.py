@@ -2,9 +2,8 @@
 
 Each world (:func:`trafficgeo.synth.junction_world.build_junction_world`: a signalised four-arm SUMO junction, 2
 lanes each way, a camera on a pole at a corner) is built once into ``out/bench-junction-world-seed<N>-<camera>``.
-Seeds 41 and 42 (and any given with ``--seeds``) were never used for development; the movement rules were written
-against constructed paths (tests/test_movements.py) and checked on seed 5 (``--seeds 5`` reproduces that, and it
-is marked as development in the table).
+Seeds 41-44 (and any given with ``--seeds``) were never used for development; the movement rules were written
+against constructed paths (tests/test_movements.py) and checked on seeds 5-7 (marked as development in the table).
 
 Per world, side by side on the same truth:
 
@@ -27,7 +26,8 @@ Scored over the vehicles that entered and left during the video (truth_movements
   of one vehicle) and phantoms (complete movements of no true vehicle);
 * x real time of ``process`` and the CPU it ran on.
 
-Run ``python benchmarks/bench_junction.py [--seeds 41,42] [--seconds 180] [--cameras pole12,pole18]``.
+Run ``python benchmarks/bench_junction.py [--seeds 41,42] [--seconds 180] [--cameras pole12,pole18]
+[--reanalyze]`` (cameras are paired with the seeds in turn).
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from bench_video import cpu_flags  # this machine's CPU and SIMD flags, as the v
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "out"
-DEVELOPMENT_SEEDS = {5}
+DEVELOPMENT_SEEDS = {5, 6, 7}  # the movement rules and the broadside class were developed on these
 CAMERAS = {  # name -> JunctionOptions fields
     "pole12": {"camera_height": 12.0, "camera_corner": "SE"},
     "pole18": {"camera_height": 18.0, "camera_corner": "NW", "azimuth_deg": -10.0},
