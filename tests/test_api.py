@@ -8,6 +8,7 @@ import importlib
 import json
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -153,7 +154,8 @@ def test_analyze_outputs_equal_those_of_the_release_before_the_api(tmp_path: Pat
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     cam, surface, _table, lines = module.scene()
-    result = tg.analyze_tracks(cam, surface, ref / "input_tracks.csv", lines=lines, interval_s=10.0)
+    with pytest.warns(UserWarning, match="a bare Camera"):  # the reference scene's camera is made by hand
+        result = tg.analyze_tracks(cam, surface, ref / "input_tracks.csv", lines=lines, interval_s=10.0)
     run = tg.RunFolder(tmp_path / "run")
     run.write_traffic(result, cam)
     for name in ("vehicles.csv", "crossings.csv", "counts.csv", "trajectories.csv"):  # by value: reference_values.py
@@ -172,7 +174,7 @@ def test_the_loaded_camera_carries_its_calibration_to_the_speeds_and_a_bare_one_
                                                                                        tmp_path: Path) -> None:
     """The README's API example: ``tg.load_camera`` gives the CalibratedCamera, whose covariance and GCPs place the
     headline speeds; the bare projection (``.camera``) is accepted and the result says what it lacks."""
-    from trafficgeo.traffic.analyze import NO_CALIBRATION_WARNING
+    from trafficgeo.traffic.analyze import BARE_CAMERA_WARNING
 
     truth = tg.load_camera(world / "camera_truth.json").camera
     cal = tg.calibrate(tg.read_gcps(world / "gcps.csv", crs=truth.crs), truth.image_size)
@@ -182,12 +184,16 @@ def test_the_loaded_camera_carries_its_calibration_to_the_speeds_and_a_bare_one_
     boxes = pd.read_csv(world / "truth_tracks.csv").dropna(subset=["x1"]).rename(columns={"vehicle": "track_id"})
     table = boxes[["frame", "time", "track_id", "x1", "y1", "x2", "y2", "class"]]
     surface = tg.load_surface(world / "cloud.laz", camera)
-    known = tg.analyze_tracks(camera, surface, table, lanes=world / "lanes.gpkg", lines=world / "count_lines.gpkg")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no warning for the calibrated camera
+        known = tg.analyze_tracks(camera, surface, table, lanes=world / "lanes.gpkg",
+                                  lines=world / "count_lines.gpkg")
     assert known.options["speed_scale_knowledge"] == "covariance+gcps"
-    assert NO_CALIBRATION_WARNING not in known.warnings
-    bare = tg.analyze_tracks(camera.camera, surface, table, lanes=world / "lanes.gpkg",
-                             lines=world / "count_lines.gpkg")
-    assert bare.options["speed_scale_knowledge"] == "none" and NO_CALIBRATION_WARNING in bare.warnings
+    with pytest.warns(UserWarning, match="a bare Camera carries no record of its calibration") as said:
+        bare = tg.analyze_tracks(camera.camera, surface, table, lanes=world / "lanes.gpkg",
+                                 lines=world / "count_lines.gpkg")
+    assert str(said[0].message) == BARE_CAMERA_WARNING and said[0].filename == __file__  # names the caller's line
+    assert bare.options["speed_scale_knowledge"] == "none"
     # the projection-only functions take either
     pixel = [[960.0, 700.0]]
     np.testing.assert_allclose(tg.georeference(camera, pixel, surface).xyz,

@@ -69,12 +69,13 @@ def test_every_third_party_import_is_declared() -> None:
 
 
 def test_the_version_is_written_once() -> None:
-    """pyproject.toml takes the version from ``trafficgeo.__version__``; the installed metadata agrees."""
+    """pyproject.toml takes the version from ``trafficgeo.version.__version__`` (the package's ``__version__``); the
+    installed metadata agrees."""
     from importlib.metadata import version
 
     import trafficgeo
 
     project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
     assert "version" not in project["project"] and "version" in project["project"]["dynamic"]
-    assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "trafficgeo.__version__"}
+    assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "trafficgeo.version.__version__"}
     assert version("trafficgeo") == trafficgeo.__version__

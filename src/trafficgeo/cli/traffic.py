@@ -75,7 +75,6 @@ def analyze(
     from trafficgeo.traffic.journeys import JourneyOptions
     from trafficgeo.traffic.movements import check_movement_interval
     from trafficgeo.traffic.run_folder import RunFolder
-    from trafficgeo.traffic.speed import ScaleKnowledge
     from trafficgeo.traffic.tracks import read_tracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
 
@@ -89,17 +88,15 @@ def analyze(
                              max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
     calibrated = camera_argument(camera)  # a bad camera file is named before the tracks are read
     cam = calibrated.camera
-    knowledge = ScaleKnowledge.from_camera(calibrated)
     with hold_folder(out):  # refused at once while another run writes this folder, held until written
         image_tracks = read_tracks(tracks, fps=fps)
         surf = load_surface(surface, calibrated, surface_crs=surface_crs, resolution_m=resolution)
         console.print(f"surface: {surf.describe()}")
         with Progress(console=console, transient=True) as progress:
             task = progress.add_task("tracks", total=len(image_tracks.track_ids))
-            analysis = analyze_tracks(cam, surf, image_tracks, lanes, lines, interval_s=interval, options=opts,
-                                      progress=lambda i, n: progress.update(task, completed=i),
-                                      knowledge=knowledge, journeys=journeys, gates=gates,
-                                      movement_interval_s=movement_interval)
+            analysis = analyze_tracks(calibrated, surf, image_tracks, lanes, lines, interval_s=interval,
+                                      options=opts, progress=lambda i, n: progress.update(task, completed=i),
+                                      journeys=journeys, gates=gates, movement_interval_s=movement_interval)
         written = RunFolder(out).write_traffic(analysis, cam)
     print_analysis(analysis, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")

@@ -29,7 +29,7 @@ from trafficgeo.site.lanes import Lanes
 from trafficgeo.site.lines import CountLine
 from trafficgeo.site.site import Site
 from trafficgeo.site.surface import check_resolution
-from trafficgeo.traffic.analyze import MOVEMENT_INTERVAL_S, TrafficResult
+from trafficgeo.traffic.analyze import MOVEMENT_INTERVAL_S, TrafficResult, warn_bare_camera
 from trafficgeo.traffic.counts import check_interval
 from trafficgeo.traffic.journeys import JourneyOptions
 from trafficgeo.traffic.movements import check_movement_interval
@@ -183,6 +183,7 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
     if annotate is not None and Path(annotate).suffix.lower() != ".mp4":
         raise InputError(f"annotate {annotate}: write the annotated video as .mp4", parameters=("annotate",))
     video = Path(video)
+    warn_bare_camera(camera)
     site = Site.load(camera, surface, lanes, lines, gates=gates, surface_crs=surface_crs, resolution_m=resolution_m)
     cam, surf, lane_set, count_lines = site.camera.camera, site.surface, site.lanes, site.count_lines
     opts = settled_options(options or ProcessOptions(), video_info(video).fps)

@@ -180,11 +180,19 @@ def uncrossed_warnings(lines: list[CountLine], crossings: pd.DataFrame, period: 
             for line in lines if line.name not in crossed]
 
 
-NO_CALIBRATION_WARNING = (
-    "speed_kmh: the camera carries no record of its calibration (no GCPs, no covariance), so each vehicle's speed is "
-    "measured over the middle half of the time it is seen, not where the calibration knows the ground scale; give "
-    "the camera JSON that 'trafficgeo calibrate' wrote, or its CalibratedCamera (tg.load_camera, "
-    "Calibration.calibrated_camera())")
+BARE_CAMERA_WARNING = (
+    "camera: a bare Camera carries no record of its calibration (no GCPs, no covariance), so each vehicle's "
+    "speed_kmh is measured over the middle half of the time it is seen, not where the calibration knows the ground "
+    "scale; pass the CalibratedCamera (tg.load_camera(path), Calibration.calibrated_camera()) or the camera JSON")
+
+
+def warn_bare_camera(camera: object, knowledge: ScaleKnowledge | None = None, stacklevel: int = 3) -> None:
+    """Say (:class:`UserWarning`, :data:`BARE_CAMERA_WARNING`) that a bare :class:`Camera` given to an entry point
+    that measures speeds drops what a calibration knows, unless ``knowledge`` is given for it."""
+    if isinstance(camera, Camera) and knowledge is None:
+        import warnings
+
+        warnings.warn(BARE_CAMERA_WARNING, UserWarning, stacklevel=stacklevel)
 
 
 def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lanes | None = None,
@@ -194,8 +202,7 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
             gates: list[Gate] | None = None, movement_interval_s: float = MOVEMENT_INTERVAL_S) -> TrafficResult:
     """The whole analysis of one set of image tracks (see the module docstring). ``knowledge``: what the
     calibration knows of its ground scale (:meth:`ScaleKnowledge.from_camera` of the calibrated camera; None for
-    a camera made by hand, which :data:`NO_CALIBRATION_WARNING` then states), which places each vehicle's headline
-    speed (:mod:`trafficgeo.traffic.speed`);
+    a camera made by hand), which places each vehicle's headline speed (:mod:`trafficgeo.traffic.speed`);
     ``journeys``: how the fragments of one vehicle are joined (:mod:`trafficgeo.traffic.journeys`); ``gates``: a
     junction's gates, for turning movements counted per ``movement_interval_s`` s."""
     from trafficgeo.site.checks import check_camera_above_surface
@@ -250,8 +257,6 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
     drift = scale_drift_warning(camera, world.points, world.vehicles, speed_opts)
     if drift is not None:
         warnings.append(drift)
-    if knowledge is None and len(world.vehicles):
-        warnings.append(NO_CALIBRATION_WARNING)
     movements = movement_counts = turning = None
     if junction is not None:
         movements, movement_counts, turning = _movements(world, junction, movement_interval_s, period, mpu)
@@ -321,8 +326,9 @@ def analyze_tracks(camera: CalibratedCamera | Camera | str | os.PathLike, surfac
     Counts per ``interval_s`` seconds, turning movements per ``movement_interval_s``; ``options`` for the trajectory
     smoother, ``journeys`` for joining the fragments of one vehicle (:mod:`trafficgeo.traffic.journeys`). What the
     calibration knows of its ground scale (``knowledge``, which places the headline speeds) comes from a calibrated
-    camera (its JSON or :class:`~trafficgeo.camera.calibrated.CalibratedCamera`); give it for a bare Camera. Nothing is
-    written: see :meth:`trafficgeo.traffic.run_folder.RunFolder.write_traffic`.
+    camera (its JSON or :class:`~trafficgeo.camera.calibrated.CalibratedCamera`); give it for a bare Camera, which
+    is otherwise warned about (:data:`BARE_CAMERA_WARNING`). Nothing is written: see
+    :meth:`trafficgeo.traffic.run_folder.RunFolder.write_traffic`.
 
     >>> import pandas as pd, trafficgeo as tg
     >>> boxes = pd.read_csv(world / "truth_tracks.csv").dropna(subset=["x1"]).rename(columns={"vehicle": "track_id"})
@@ -335,6 +341,7 @@ def analyze_tracks(camera: CalibratedCamera | Camera | str | os.PathLike, surfac
     from trafficgeo.site.site import Site
     from trafficgeo.traffic.tracks import load_tracks
 
+    warn_bare_camera(camera, knowledge)
     site = Site.load(camera, surface, lanes, lines, gates=gates, resolution_m=resolution_m)
     if knowledge is None:
         knowledge = ScaleKnowledge.from_camera(site.camera)
