@@ -264,28 +264,3 @@ def test_two_boxes_on_one_vehicle_seen_at_once_are_one_movement_but_neighbours_a
     inside = np.flatnonzero(np.hypot(again["x"], again["y"]) < 8.0)
     halves = [again.iloc[: inside[0]].assign(track_id="p"), again.iloc[inside[-1] + 1:].assign(track_id="q")]
     assert not run(halves, j)["complete"].any()
-
-
-def test_a_track_cut_by_the_smoother_is_one_vehicle_and_a_heavy_piece_makes_it_heavy() -> None:
-    """One tracker's track cut in two where the vehicle stopped (pieces "7.1" and "7.2" of tracker id 7): the
-    second continues the first where it ended, so they are one movement, and a truck seen as a van in one piece is
-    a truck. The same two pieces under two tracker ids are two vehicles' (no continuation is assumed)."""
-    j = junction()
-    whole = path("E", "N", tid="t", speed_mps=8.0)
-    d = np.hypot(whole["x"], whole["y"])
-    k = int(np.flatnonzero(d < 9.0)[0])  # cut inside the junction, 9 m from the centre
-    first = whole.iloc[:k].assign(track_id="7.1", **{"class": "van"})
-    second = whole.iloc[k + 1:].assign(track_id="7.2", **{"class": "truck"})
-    pts = pd.concat([first, second], ignore_index=True)
-
-    def movements(trackers: list[str]) -> pd.DataFrame:
-        veh = pd.DataFrame({"track_id": ["7.1", "7.2"], "class": ["van", "truck"], "tracker_ids": trackers})
-        return vehicle_movements(pts, veh, j)
-
-    one = movements(["7", "7"])
-    assert len(one) == 1 and one.iloc[0].track_ids == "7.1;7.2" and one.iloc[0]["class"] == "truck"
-    assert (one.iloc[0].origin, one.iloc[0].destination) == ("E", "N") and one.iloc[0].complete
-    # under two tracker ids a van's half and a truck's half are not paired (classes of two families)
-    two = movements(["7", "9"])
-    assert two["track_ids"].tolist() == ["7.1", "7.2"] and not two["complete"].any()
-    assert two["class"].tolist() == ["van", "truck"]

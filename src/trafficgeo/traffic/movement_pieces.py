@@ -18,20 +18,14 @@ its origin and destination, :func:`~trafficgeo.traffic.movements.vehicle_movemen
   vehicle, a bus detected in two boxes) are one vehicle when they stand together - the medians over their common
   time of the distance across the travel within :data:`SAME_ACROSS_M` (half a lane) and along it within
   :data:`SAME_ALONG_M` (half the longer vehicle: 6 m if either is a truck or bus) - and their ends agree (the same
-  arm, or unknown in one, or judged by the path in one where the other crossed a gate: the gate's is kept). So is
-  a piece that begins within :data:`TOUCH_S` of another's end under the same tracker id, within :data:`TOUCH_M`
-  (plus what its speed covers in the gap) of where that one ended: one tracker's track of one vehicle, cut by the
-  smoother where it stopped, started or changed box.
+  arm, or unknown in one, or judged by the path in one where the other crossed a gate: the gate's is kept).
 
 :func:`~trafficgeo.traffic.movements.vehicle_movements` pairs halves, merges doubles, then pairs the halves that
-merging completed. A joined row's ``track_ids`` lists its pieces; its class is that of the piece seen longest,
-but a truck or bus where one tracker's track cut in two was seen as one in either piece (a piece shows less of a
-vehicle, never more).
+merging completed. A joined row's ``track_ids`` lists its pieces and its class is that of the piece seen longest.
 
 The rows are dicts with the movement columns and private keys (``_t``, ``_xy``: the piece's times and positions;
 ``_t0, _t1, _p0, _p1, _v0, _v1, _d0, _d1``: its first/last time, position, speed (m/s) and unit direction of
-travel (None if unknown); ``_id0, _id1``: the tracker's id at its start and end ('' if unknown); ``_n``: its
-number of points). Positions in CRS units (``metres_per_unit`` gives metres),
+travel (None if unknown); ``_n``: its number of points). Positions in CRS units (``metres_per_unit`` gives metres),
 times in seconds.
 """
 
@@ -51,8 +45,6 @@ SAME_ACROSS_M = 1.5  # m: two pieces of track seen at once, this close across th
 SAME_ALONG_M = {"light": 2.5, "heavy": 6.0}  # ... and this close along it (half the longer vehicle) are one vehicle
 SAME_MIN_OVERLAP_S = 0.3  # s: seen at once for at least this long
 PAIR_OVERLAP_S = 2.0  # s: a tail may begin this long before its head ends if the two stand together meanwhile
-TOUCH_S = 0.5  # s: a piece that begins within this of another's end ...
-TOUCH_M = 2.0  # m: ... this near where it ended (beyond what its speed covers in the gap) continues it
 
 
 def _family(vehicle_class: str) -> str:
@@ -105,30 +97,6 @@ def _together(a: dict, b: dict, metres_per_unit: float, min_overlap_s: float = S
     return share if share <= 1.0 else None
 
 
-def _touching(a: dict, b: dict, metres_per_unit: float) -> float | None:
-    """How far the start of ``b``, beginning within :data:`TOUCH_S` of the end of ``a`` under the same tracker id,
-    lies from where ``a`` ended, as a share of :data:`TOUCH_M` plus what its speed covers in the gap (<= 1: ``b``
-    continues ``a``: one tracker's track of one vehicle, cut by the smoother where it stopped, started or changed
-    box); None if farther, under another tracker id, or if ``b`` ends first."""
-    gap = b["_t0"] - a["_t1"]
-    if gap > TOUCH_S or b["_t1"] <= a["_t1"] or not a["_id1"] or a["_id1"] != b["_id0"]:
-        return None
-    reach_m = TOUCH_M + max(a["_v1"], b["_v0"]) * max(gap, 0.0)
-    share = float(np.hypot(*(b["_p0"] - a["_p1"]))) * metres_per_unit / reach_m
-    return share if share <= 1.0 else None
-
-
-def _merged_class(a: dict, b: dict, heavy_wins: bool) -> str:
-    """The class of two pieces of one vehicle: with ``heavy_wins`` (one tracker's track cut in two) a truck or bus
-    where either was seen as one (a piece of a vehicle shows less of it, never more: the front of a truck looks like
-    a van, no part of a car like a truck); else that of the piece seen longer, else the one known. Pieces only seen
-    together (doubles) keep the longer one's: a car beside a bus is not a bus."""
-    heavy = [r["class"] for r in (a, b) if _family(r["class"]) == "heavy"]
-    if heavy_wins and len(heavy) == 1:
-        return heavy[0]
-    return (a["class"] if a["_n"] >= b["_n"] else b["class"]) or a["class"] or b["class"]
-
-
 def _agree(a: dict, b: dict, end: str) -> bool:
     """The two pieces' ``end`` ("origin" or "destination") can be one vehicle's: equal, or one of them unknown or
     judged by the path where the other crossed a gate."""
@@ -142,23 +110,19 @@ def merge_doubles(rows: list[dict], metres_per_unit: float) -> list[dict]:
     """Pieces of track seen at once that stand together (:func:`_together`: two ids on one vehicle, or a long
     vehicle detected in two boxes) are one vehicle when their ends agree (:func:`_agree`): merged, nearest first,
     the origin taken from the piece seen first (a gate crossing before a path), the destination from the piece seen
-    last, the class by :func:`_merged_class`; never into a U-turn that neither piece shows. So are pieces of one
-    tracker id that continue each other (:func:`_touching`)."""
+    last, the class from the piece seen longer; never into a U-turn that neither piece shows."""
     rows = list(rows)
     order = sorted(range(len(rows)), key=lambda k: rows[k]["_t0"])
     pairs = []
     for x, i in enumerate(order):
         for j in order[x + 1:]:
-            if rows[j]["_t0"] > rows[i]["_t1"] + TOUCH_S:
+            if rows[j]["_t0"] > rows[i]["_t1"] - SAME_MIN_OVERLAP_S:
                 break
-            if rows[j]["_t0"] > rows[i]["_t1"] - SAME_MIN_OVERLAP_S:  # seen one after the other
-                share, touch = _touching(rows[i], rows[j], metres_per_unit), True
-            else:
-                share, touch = _together(rows[i], rows[j], metres_per_unit), False
+            share = _together(rows[i], rows[j], metres_per_unit)
             if share is not None and _agree(rows[i], rows[j], "origin") and _agree(rows[i], rows[j], "destination"):
-                pairs.append((share, i, j, touch))
+                pairs.append((share, i, j))
     merged_into: dict[int, int] = {}
-    for _share, i, j, touch in sorted(pairs):
+    for _share, i, j in sorted(pairs):
         while i in merged_into:
             i = merged_into[i]
         while j in merged_into:
@@ -167,7 +131,7 @@ def merge_doubles(rows: list[dict], metres_per_unit: float) -> list[dict]:
             continue
         a, b = (i, j) if rows[i]["_t0"] <= rows[j]["_t0"] else (j, i)
         both = dict(rows[a])
-        _absorb(both, rows[b], heavy_wins=touch)
+        _absorb(both, rows[b])
         if both["origin"] and both["origin"] == both["destination"] and not any(
                 r["origin"] == r["destination"] != "" for r in (rows[a], rows[b])):
             continue  # no U-turn from two pieces (pair_halves)
@@ -176,9 +140,8 @@ def merge_doubles(rows: list[dict], metres_per_unit: float) -> list[dict]:
     return [r for k, r in enumerate(rows) if k not in merged_into]
 
 
-def _absorb(a: dict, b: dict, heavy_wins: bool = False) -> None:
-    """Merge piece ``b`` (seen with ``a`` or continuing it, starting no earlier) into ``a`` (in place); the class
-    by :func:`_merged_class` (``heavy_wins``) or that of the piece seen longer."""
+def _absorb(a: dict, b: dict) -> None:
+    """Merge piece ``b`` (seen at the same time as ``a``, starting no earlier) into ``a`` (in place)."""
     def pick(end: str, time: str, first: bool) -> None:  # a known end over none, a gate over a path, else ``first``
         mine, other = (a, b) if first else (b, a)
 
@@ -192,12 +155,13 @@ def _absorb(a: dict, b: dict, heavy_wins: bool = False) -> None:
     pick("origin", "entry_time", True)
     pick("destination", "exit_time", not late)
     if late:
-        a.update(_t1=b["_t1"], _p1=b["_p1"], _v1=b["_v1"], _d1=b["_d1"], _id1=b["_id1"])
+        a.update(_t1=b["_t1"], _p1=b["_p1"], _v1=b["_v1"], _d1=b["_d1"])
     t = np.concatenate([a["_t"], b["_t"]])
     xy = np.concatenate([a["_xy"], b["_xy"]])
     keep = np.argsort(t, kind="stable")
     a.update(_t=t[keep], _xy=xy[keep], track_ids=f"{a['track_ids']};{b['track_ids']}",
-             stopped_s=max(a["stopped_s"], b["stopped_s"]), **{"class": _merged_class(a, b, heavy_wins)})
+             stopped_s=max(a["stopped_s"], b["stopped_s"]),
+             **{"class": (a["class"] if a["_n"] >= b["_n"] else b["class"]) or a["class"] or b["class"]})
     a["_n"] += b["_n"]
 
 

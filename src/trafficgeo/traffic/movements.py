@@ -167,8 +167,6 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
     if "stationary" in veh.columns:
         veh = veh[~veh["stationary"].astype(bool)]
     classes = dict(zip(veh["track_id"].astype(str), veh["class"].fillna("").astype(str), strict=True))
-    trackers = dict(zip(veh["track_id"].astype(str), veh["tracker_ids"].fillna("").astype(str).str.split(";"),
-                        strict=True)) if "tracker_ids" in veh.columns else {}
     pts = points[points["track_id"].astype(str).isin(set(classes))]
     events = gate_crossings(pts, junction)
     by_track = dict(tuple(events.groupby("track_id", sort=False))) if len(events) else {}
@@ -209,8 +207,7 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
                      "_v0": float(np.nan_to_num(speed[0])) if len(speed) else 0.0,
                      "_v1": float(np.nan_to_num(speed[-1])) if len(speed) else 0.0, "_n": len(t),
                      "_d0": _travel_direction(xy, True, metres_per_unit),
-                     "_d1": _travel_direction(xy, False, metres_per_unit), "_t": t, "_xy": xy,
-                     "_id0": trackers.get(tid, [""])[0], "_id1": trackers.get(tid, [""])[-1]})
+                     "_d1": _travel_direction(xy, False, metres_per_unit), "_t": t, "_xy": xy})
         _check_u_turn(rows[-1], arms, junction.centre)
     rows = pair_halves(rows, metres_per_unit)
     rows = pair_halves(merge_doubles(rows, metres_per_unit), metres_per_unit)  # halves that doubles completed
