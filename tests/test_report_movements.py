@@ -22,7 +22,7 @@ from trafficgeo.report.movement_figures import (
     movement_diagram,
     movement_flows,
 )
-from trafficgeo.report.movement_section import DIAGRAM_CAPTION, run_junction
+from trafficgeo.report.movement_section import DIAGRAM_CAPTION
 from trafficgeo.site.gates import MOVEMENTS
 from trafficgeo.synth.junction_sumo import JunctionOptions
 from trafficgeo.synth.junction_world import build_junction_world
@@ -118,7 +118,7 @@ def test_the_turning_movement_tables_are_those_of_movements_csv(junction_run) ->
 def test_the_arrows_run_from_the_origin_gate_through_the_centre_to_the_destination_gate(junction_run) -> None:
     world, run, _ = junction_run
     folder = RunFolder(run)
-    junction = run_junction(run, None)
+    junction = folder.junction(None)
     gates = read_gis(world / "gates.gpkg")  # the world's own gates, not the run's layer
     mids = {str(a): np.array(shapely.line_interpolate_point(g, 0.5, normalized=True).coords[0][:2])
             for a, g in zip(gates["arm"], gates.geometry, strict=True)}

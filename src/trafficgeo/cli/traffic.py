@@ -87,7 +87,6 @@ def analyze(
     opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
                              max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
     calibrated = camera_argument(camera)  # a bad camera file is named before the tracks are read
-    cam = calibrated.camera
     with hold_folder(out):  # refused at once while another run writes this folder, held until written
         image_tracks = read_tracks(tracks, fps=fps)
         surf = load_surface(surface, calibrated, surface_crs=surface_crs, resolution_m=resolution)
@@ -97,7 +96,7 @@ def analyze(
             analysis = analyze_tracks(calibrated, surf, image_tracks, lanes, lines, interval_s=interval,
                                       options=opts, progress=lambda i, n: progress.update(task, completed=i),
                                       journeys=journeys, gates=gates, movement_interval_s=movement_interval)
-        written = RunFolder(out).write_traffic(analysis, cam)
+        written = RunFolder(out).write_traffic(analysis, calibrated)
     print_analysis(analysis, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")
     if report_html is not None:

@@ -10,7 +10,6 @@ Every number comes from the run folder: ``movements.csv`` (the movements, comple
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -23,15 +22,9 @@ from trafficgeo.report.movement_figures import movement_diagram, movement_flows
 from trafficgeo.site.gates import MOVEMENTS, Junction
 from trafficgeo.traffic.measurements import HEAVY_CLASSES
 from trafficgeo.traffic.movements import STOPPED_KMH
-from trafficgeo.traffic.run_folder import RunFolder
 
 TABLE_ROWS = 200
 DIAGRAM_CAPTION = "Turning-movement diagram"
-
-
-def run_junction(folder: Path, crs: Any) -> Junction | None:
-    """The junction of the ``gates`` layer of a run's ``trajectories.gpkg`` (in ``crs``); None without one."""
-    return RunFolder(folder).junction(crs)
 
 
 def _arms(movements: pd.DataFrame, junction: Junction | None, info: dict[str, Any]) -> list[tuple[str, str]]:
@@ -52,7 +45,7 @@ def movement_parts(b: ReportContext, run: TrafficRun, name: str) -> list[Part]:
         return []
     mv = folder.movements()
     info = run.summary.junction or {}
-    junction = run_junction(run.folder, b.crs)
+    junction = folder.junction(b.crs)
     arms = _arms(mv, junction, info)
     done = mv[mv["complete"].astype(bool)]
     parts: list[Part] = [(Heading("Turning movements"), Text(completeness_text(mv)))]
