@@ -17,7 +17,7 @@ metres), times in seconds.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -41,12 +41,14 @@ class DuplicateOptions:
 class Merged:
     """``points`` and ``vehicles`` (one row per fragment) after the duplicates were merged; ``absorbed``: each
     fragment whose points were all inside another's span -> that fragment (its tracker id goes with the vehicle);
-    ``dropped_points``: the duplicate points removed."""
+    ``dropped_points``: the duplicate points removed; ``sources``: the tracker id (``source_track``) of every
+    fragment, the pieces a merge cut out of one (``<id>:1``, ``<id>:2``) included."""
 
     points: pd.DataFrame
     vehicles: pd.DataFrame
     absorbed: dict[str, str]
     dropped_points: int
+    sources: dict[str, str] = field(default_factory=dict)
 
 
 def _times_key(t: np.ndarray) -> np.ndarray:
@@ -118,6 +120,9 @@ def merge_duplicates(points: pd.DataFrame, vehicles: pd.DataFrame, *, metres_per
     first; a fragment changed by one merge waits for the next round (at most 3 rounds)."""
     m = float(metres_per_unit)
     absorbed: dict[str, str] = {}
+    ids = vehicles["track_id"].astype(str)
+    sources = dict(zip(ids, vehicles["source_track"].astype(str) if "source_track" in vehicles.columns else ids,
+                       strict=True))
     dropped = 0
     for _round in range(3):
         pairs = find_duplicates(points, vehicles, metres_per_unit=m, options=options)
@@ -151,6 +156,7 @@ def merge_duplicates(points: pd.DataFrame, vehicles: pd.DataFrame, *, metres_per
             if not pieces:
                 absorbed[other] = keep
             for idx, name in pieces:
+                sources[name] = sources.get(other, other)
                 renamed[idx] = name
                 new_rows.append(_piece_row(rows[other], points.iloc[idx], name, m))
         points = points.assign(track_id=renamed)[keep_mask].reset_index(drop=True)
@@ -161,4 +167,4 @@ def merge_duplicates(points: pd.DataFrame, vehicles: pd.DataFrame, *, metres_per
         while v in absorbed:
             v = absorbed[v]
         absorbed[k] = v
-    return Merged(points=points, vehicles=vehicles, absorbed=absorbed, dropped_points=dropped)
+    return Merged(points=points, vehicles=vehicles, absorbed=absorbed, dropped_points=dropped, sources=sources)

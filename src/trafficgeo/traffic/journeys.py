@@ -459,9 +459,8 @@ def join_fragments(world: WorldTracks, *, metres_per_unit: float = 1.0, lanes: L
     dropped = {"short_track": 0, "duplicate": 0}
     if opts.enabled and opts.duplicates is not None and len(frag) > 1:
         merged = merge_duplicates(points, frag, metres_per_unit=metres_per_unit, options=opts.duplicates)
-        source = dict(zip(frag["track_id"].astype(str), frag["source_track"].astype(str), strict=True))
-        for other, keep in merged.absorbed.items():
-            absorbed.setdefault(keep, []).append(source.get(other, other))
+        for other, keep in merged.absorbed.items():  # a piece a merge cut out of a fragment keeps its tracker id
+            absorbed.setdefault(keep, []).append(merged.sources.get(other, other))
         points, frag, dropped["duplicate"] = merged.points, merged.vehicles.reset_index(drop=True), \
             merged.dropped_points
     ends = fragment_ends(points, frag, metres_per_unit=metres_per_unit, lanes=lanes, options=opts)
