@@ -217,8 +217,8 @@ def test_refine_command_refuses_another_place_and_writes_the_original_camera(sce
     ("both", "give the video (--video) or a still without traffic (--frame), one of them"),
     ("no-frame-file", "frame image not found"),
     ("small-frame", "480x270 px but the camera is calibrated for 960x540; use a frame of the calibrated video"),
-    ("no-gcps", "the camera JSON lists no GCPs to judge the refinement by; give the GCP file it was calibrated "
-                "from (--gcps)"),
+    ("no-gcps", "the camera JSON lists no GCPs of the user's to judge the refinement by; give a GCP file of points "
+                "you measured (--gcps)"),
     ("search", "--search = -3.0 must be a positive number"),
 ])
 def test_refine_command_bad_input_is_one_line_and_writes_nothing(scene: Scene, tmp_path: Path, change: str,

@@ -71,6 +71,9 @@ _API: dict[str, str] = {
     "refine_camera": "trafficgeo.registration.refine",
     "RefineOptions": "trafficgeo.registration.refine",
     "OrthoRefinement": "trafficgeo.registration.refine",
+    "calibrate_from_ortho": "trafficgeo.registration.from_ortho",
+    "OrthoPoseOptions": "trafficgeo.registration.from_ortho",
+    "OrthoCalibration": "trafficgeo.registration.from_ortho",
     "drape_orthophoto": "trafficgeo.geo.drape",
     "background_frame": "trafficgeo.video.background_frame",
     # video
@@ -111,6 +114,8 @@ __all__ = [
     "InputError",
     "JourneyOptions",
     "Lanes",
+    "OrthoCalibration",
+    "OrthoPoseOptions",
     "OrthoRefinement",
     "OutputError",
     "ProcessOptions",
@@ -132,6 +137,7 @@ __all__ = [
     "build_sumo_net",
     "build_sumo_scenario",
     "calibrate",
+    "calibrate_from_ortho",
     "close_sumo_loop",
     "compare_with_sumo",
     "drape_orthophoto",
@@ -181,6 +187,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.geo.mapping import GroundPoints, georeference
     from trafficgeo.geo.surface import ConstantSurface
     from trafficgeo.pipeline.run import ProcessResult, process_video, stitch
+    from trafficgeo.registration.from_ortho import OrthoCalibration, OrthoPoseOptions, calibrate_from_ortho
     from trafficgeo.registration.refine import OrthoRefinement, RefineOptions, refine_camera
     from trafficgeo.simulation.loop import SumoLoopResult, SumoValidation, close_sumo_loop, validate_sumo_scenario
     from trafficgeo.simulation.network import SumoNet, build_sumo_net

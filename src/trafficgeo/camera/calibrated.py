@@ -51,7 +51,9 @@ def _json_float(value: float) -> float | None:
 class CameraGCP:
     """One GCP as the calibration used it: world ``x, y, z`` (CRS units), clicked pixel ``u, v``, its projection
     ``u_proj, v_proj`` and reprojection ``error_px`` under the camera, ``inlier`` (control points kept by the fit;
-    None for check points when not stated) and the leave-one-out error ``loo_error_px`` (NaN where unknown)."""
+    None for check points when not stated) and the leave-one-out error ``loo_error_px`` (NaN where unknown);
+    ``source`` is "auto" for a correspondence found by matching the orthophoto (``trafficgeo calibrate-ortho``),
+    "" for a user's point."""
 
     id: str
     role: str
@@ -66,6 +68,7 @@ class CameraGCP:
     inlier: bool | None = True
     loo_error_px: float = math.nan
     sigma_px: float = math.nan
+    source: str = ""
 
     @classmethod
     def from_dict(cls, row: Any) -> CameraGCP:
@@ -82,7 +85,8 @@ class CameraGCP:
         if not all(math.isfinite(c) for c in xyz_uv):
             raise ValueError(f"GCP {row.get('id')!r} has no finite x, y, z, u, v")
         return cls(str(row.get("id", "")), role, *xyz_uv, *(_float(row.get(k)) for k in ("u_proj", "v_proj",
-                   "error_px")), inlier, _float(row.get("loo_error_px")), _float(row.get("sigma_px")))
+                   "error_px")), inlier, _float(row.get("loo_error_px")), _float(row.get("sigma_px")),
+                   str(row.get("source") or ""))
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"id": self.id, "role": self.role, "x": self.x, "y": self.y, "z": self.z,
@@ -91,6 +95,8 @@ class CameraGCP:
                                "inlier": self.inlier, "loo_error_px": _json_float(self.loo_error_px)}
         if math.isfinite(self.sigma_px):
             out["sigma_px"] = self.sigma_px
+        if self.source:
+            out["source"] = self.source
         return out
 
     @property

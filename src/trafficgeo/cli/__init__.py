@@ -250,6 +250,7 @@ def demo(
 
 
 from trafficgeo.cli import batch as _batch  # noqa: E402, F401  (registers batch plan|run|summarize)
+from trafficgeo.cli import calibrate_ortho as _calibrate_ortho  # noqa: E402, F401  (registers calibrate-ortho)
 from trafficgeo.cli import geo as _geo  # noqa: E402, F401  (registers the geospatial commands)
 from trafficgeo.cli import process as _process  # noqa: E402, F401  (registers process and stitch)
 from trafficgeo.cli import refine as _refine  # noqa: E402, F401  (registers the refine command)
@@ -279,7 +280,8 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "n_frames": "--frames", "duration_s": "--duration", "search_px": "--search",
          "report_path": "--report", "refine_report": "--refine-report", "origin": "--origin",
          "world_file": "--world-file", "control": "--corners", "gates": "--gates",
-         "movement_interval_s": "--movement-interval"}
+         "movement_interval_s": "--movement-interval", "near": "--near", "near_crs": "--near-crs",
+         "max_offset_m": "--max-offset", "checks": "--checks"}
 
 
 def main(argv: list[str] | None = None) -> Any:

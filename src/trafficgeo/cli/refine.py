@@ -34,9 +34,12 @@ def refine(
     resolution: Annotated[float, typer.Option(help="grid cell (m) when the surface is a point cloud")] = 0.25,
 ) -> None:
     """Refine CAMERA by matching the orthophoto, draped on the surface, to the video: hundreds of automatic
-    correspondences, a robust re-fit, repeated until the camera stops moving. The user's own GCPs judge it: the
-    refined camera is written only when it lowers their check-point / leave-one-out ground error; otherwise the
-    original camera is written unchanged, the reason printed, and the exit code is 1."""
+    correspondences, a robust re-fit, repeated until the camera stops moving. The user's own GCPs judge it by their
+    check-point / leave-one-out error in pixels, where every click's noise weighs the same (on the ground a click's
+    noise grows with its distance, so the farthest clicks would decide): the refined camera is written when it
+    misses them less, or no worse than their noise can tell; the ground errors before and after are printed beside.
+    Otherwise the original camera is written unchanged, the reason printed, and the exit code is 1. A camera from
+    'calibrate-ortho' has no clicks of the user's: give them with --gcps."""
     from trafficgeo.cli.geo import camera_argument, surface_argument
     from trafficgeo.registration.refine import RefineOptions
     from trafficgeo.registration.run import read_frame_image, refine_camera_files
@@ -57,8 +60,8 @@ def refine(
     result = refine_camera_files(calibrated, still, ortho, ground, output, gcps=gcps, report_path=report,
                                  options=options, progress=console.print)
     b, a = result.before, result.after
-    console.print(f"user's points, held-out ground error RMS: before {b.rmse_m:.3f} m"
-                  + (f", after {a.rmse_m:.3f} m" if a is not None else ""))
+    console.print(f"user's points, held-out error RMS: before {b.rmse_px:.2f} px ({b.rmse_m:.3f} m on the ground)"
+                  + (f", after {a.rmse_px:.2f} px ({a.rmse_m:.3f} m)" if a is not None else ""))
     if result.accepted:
         console.print(f"[green]refined[/green]: {result.reason}; wrote {output}")
         return

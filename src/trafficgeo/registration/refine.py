@@ -216,36 +216,25 @@ def _check_frame(frame: np.ndarray, camera: Camera) -> np.ndarray:
     return a
 
 
-def refine_camera(camera: Camera, gcps: GCPTable, frame: np.ndarray, ortho: GeoRaster, surface: Surface, *,
-                  model: ParameterModel | None = None, use: np.ndarray | None = None,
-                  options: RefineOptions | None = None,
-                  progress: Callable[[str], None] | None = None) -> OrthoRefinement:
-    """Refine ``camera`` (calibrated from ``gcps``) by registering ``ortho`` draped on ``surface`` to ``frame``.
+@dataclass(frozen=True)
+class Registration:
+    """The outcome of :func:`register`: the last re-fit that passed (None when none did), the automatic
+    correspondences of the last pass and which of them the re-fit kept, the passes run, and why it stopped early
+    or failed ("" when it converged)."""
 
-    Args:
-        camera: the rough camera, in the CRS of the orthophoto and the surface.
-        gcps: the user's GCPs (control and check points) that calibrated it: the judges.
-        frame: (H, W, 3) BGR uint8 (as OpenCV and :func:`trafficgeo.video.background_frame` give it) or (H, W)
-            grey: a frame without traffic, e.g. the temporal mode of a stretch of video.
-        ortho: the orthophoto (RGB or grey).
-        surface: the ground the orthophoto lies on (DEM, point cloud or plane).
-        model: the free parameters of the original calibration (for its leave-one-out errors); default one focal
-            length, no distortion.
-        use: (N,) bool, the control points the original calibration kept (default all).
-        options: search radius, passes, thresholds; see :class:`RefineOptions`.
-        progress: called with a line of text after each pass.
-    """
-    options = options or RefineOptions()
-    frame = _check_frame(frame, camera)
-    if gcps.crs is not None and camera.crs is not None and not gcps.crs.equals(camera.crs):
-        raise InputError("the GCPs and the camera are in different CRSs; use the GCP file the camera was "
-                         "calibrated from", parameters=("gcps",))
-    model = model or ParameterModel()
+    calibration: Calibration | None
+    matches: Matches
+    kept: np.ndarray
+    passes: tuple[Pass, ...]
+    reason: str
+
+
+def register(camera: Camera, gcps: GCPTable, use: np.ndarray, frame_gray: np.ndarray, pyramid: OrthoPyramid,
+             surface: Surface, options: RefineOptions, *, progress: Callable[[str], None] | None = None
+             ) -> Registration:
+    """The passes of match + re-fit from ``camera`` (see the module docstring), with the control points of
+    ``gcps`` marked in ``use`` fitted beside the automatic correspondences (``gcps`` may be empty)."""
     control = np.asarray(gcps.is_control, dtype=bool)
-    use = control.copy() if use is None else np.asarray(use, dtype=bool) & control
-    before = held_out_errors(camera, gcps, model, use=use)
-    fg = gray(frame, bgr=True)
-    pyramid = OrthoPyramid(_seen_part(ortho, camera, surface, options.search_px, options.max_distance_m))
     passes: list[Pass] = []
     current, cal, matches = camera, None, Matches.empty()
     kept = np.zeros(0, dtype=bool)
@@ -256,7 +245,7 @@ def refine_camera(camera: Camera, gcps: GCPTable, frame: np.ndarray, ortho: GeoR
     for _ in range(options.max_iterations):
         settings = MatchSettings(scale=1.0, search_px=radius, patch_px=options.patch_px, cell_px=cell_px,
                                  min_ncc=options.min_ncc)
-        found = _dedupe(match_orthophoto(current, surface, pyramid, fg, settings), gcps.pixels[use | ~control])
+        found = _dedupe(match_orthophoto(current, surface, pyramid, frame_gray, settings), gcps.pixels[use | ~control])
         if len(found) < options.min_matches:
             reason = (f"only {len(found)} orthophoto patches matched the frame (need {options.min_matches}): the "
                       "orthophoto may show another place or season, or the camera is too far off")
@@ -297,10 +286,45 @@ def refine_camera(camera: Camera, gcps: GCPTable, frame: np.ndarray, ortho: GeoR
                   f"px, at most {options.max_rmse_px:g} expected): the orthophoto may show another place, or the "
                   "camera is too far off")
         cal = None
+    return Registration(calibration=cal, matches=matches, kept=kept, passes=tuple(passes), reason=reason)
+
+
+def refine_camera(camera: Camera, gcps: GCPTable, frame: np.ndarray, ortho: GeoRaster, surface: Surface, *,
+                  model: ParameterModel | None = None, use: np.ndarray | None = None,
+                  options: RefineOptions | None = None,
+                  progress: Callable[[str], None] | None = None) -> OrthoRefinement:
+    """Refine ``camera`` (calibrated from ``gcps``) by registering ``ortho`` draped on ``surface`` to ``frame``.
+
+    Args:
+        camera: the rough camera, in the CRS of the orthophoto and the surface.
+        gcps: the user's GCPs (control and check points) that calibrated it: the judges.
+        frame: (H, W, 3) BGR uint8 (as OpenCV and :func:`trafficgeo.video.background_frame` give it) or (H, W)
+            grey: a frame without traffic, e.g. the temporal mode of a stretch of video.
+        ortho: the orthophoto (RGB or grey).
+        surface: the ground the orthophoto lies on (DEM, point cloud or plane).
+        model: the free parameters of the original calibration (for its leave-one-out errors); default one focal
+            length, no distortion.
+        use: (N,) bool, the control points the original calibration kept (default all).
+        options: search radius, passes, thresholds; see :class:`RefineOptions`.
+        progress: called with a line of text after each pass.
+    """
+    options = options or RefineOptions()
+    frame = _check_frame(frame, camera)
+    if gcps.crs is not None and camera.crs is not None and not gcps.crs.equals(camera.crs):
+        raise InputError("the GCPs and the camera are in different CRSs; use the GCP file the camera was "
+                         "calibrated from", parameters=("gcps",))
+    model = model or ParameterModel()
+    control = np.asarray(gcps.is_control, dtype=bool)
+    use = control.copy() if use is None else np.asarray(use, dtype=bool) & control
+    before = held_out_errors(camera, gcps, model, use=use)
+    fg = gray(frame, bgr=True)
+    pyramid = OrthoPyramid(_seen_part(ortho, camera, surface, options.search_px, options.max_distance_m))
+    reg = register(camera, gcps, use, fg, pyramid, surface, options, progress=progress)
+    cal, matches, kept, passes, reason = reg.calibration, reg.matches, reg.kept, reg.passes, reg.reason
     if cal is None:
         return OrthoRefinement(camera=camera, accepted=False, reason=reason or "no pass ran", original=camera,
                                refined=None, calibration=None, matches=matches, kept=kept, before=before,
-                               after=None, passes=tuple(passes))
+                               after=None, passes=passes)
     after = held_out_errors(cal.camera, gcps, cal.fit.model, use=use, extra_world=matches.world[kept],
                             extra_pixels=matches.pixels[kept],
                             extra_sigma_px=match_sigma_px(matches, options.match_sigma_px)[kept])

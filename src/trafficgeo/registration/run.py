@@ -32,6 +32,7 @@ from trafficgeo.errors import InputError, OutputError
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.geo.raster import GeoRaster, read_raster
 from trafficgeo.io.atomic import atomic_path, write_json_atomic
+from trafficgeo.registration.from_ortho import OrthoCalibration, OrthoPoseOptions, calibrate_from_ortho
 from trafficgeo.registration.judge import model_from_names
 from trafficgeo.registration.refine import AUTO_PREFIX, OrthoRefinement, RefineOptions, match_sigma_px, refine_camera
 from trafficgeo.site.surface import load_surface
@@ -44,10 +45,12 @@ MATCH_COLUMNS = ("x", "y", "z", "u", "v", "u_predicted", "v_predicted", "ncc", "
 def user_gcps(camera: CalibratedCamera) -> tuple[GCPTable, np.ndarray]:
     """The user's GCPs stored in a camera JSON by ``trafficgeo calibrate`` (its ``gcps`` list), without automatic
     correspondences of an earlier refinement; and which control points that calibration kept (its ``inlier``)."""
-    rows = [g for g in camera.gcps or () if not g.id.startswith(AUTO_PREFIX)]
+    rows = [g for g in camera.gcps or () if not g.id.startswith(AUTO_PREFIX) and g.source != "auto"]
     if not rows:
-        raise InputError(f"{camera.where}: the camera JSON lists no GCPs to judge the refinement by; give the GCP "
-                         "file it was calibrated from (`gcps`)", parameters=("gcps",))
+        auto = any(g.source == "auto" for g in camera.gcps or ())
+        raise InputError(f"{camera.where}: the camera JSON lists no GCPs of the user's to judge the refinement by"
+                         + (" (only the automatic correspondences of 'trafficgeo calibrate-ortho')" if auto else "")
+                         + "; give a GCP file of points you measured (`gcps`)", parameters=("gcps",))
     table = GCPTable(ids=tuple(g.id for g in rows), world=np.array([(g.x, g.y, g.z) for g in rows]),
                      pixels=np.array([(g.u, g.v) for g in rows]),
                      roles=tuple(ROLE_CHECK if g.role == ROLE_CHECK else ROLE_CONTROL for g in rows),
@@ -156,4 +159,96 @@ def refine_camera_files(camera_path: CalibratedCamera | str | Path, frame: np.nd
     result = refine_camera(camera, table, frame, raster, ground, model=model, use=use, options=options,
                            progress=progress)
     write_refinement(result, out_camera, frame, report_path=report_path, options=options, original=calibrated)
+    return result
+
+
+# ------------------------------------------------------------------------------------------ calibrate-ortho
+ORTHO_CALIBRATION_FORMAT = "trafficgeo-calibrate-ortho/1"
+VIEW_COLUMNS = ("focal_px", "tilt_deg", "keypoints", "matched", "agreeing", "height_m", "x", "y")
+
+
+def ortho_calibration_record(result: OrthoCalibration, near_xy: tuple[float, float],
+                             checks: GCPTable | None) -> dict[str, Any]:
+    """The ``calibrate-ortho`` report as a JSON object (format :data:`ORTHO_CALIBRATION_FORMAT`): the verdict, the
+    ground views tried (best first), the registration passes, every automatic correspondence (as in the refinement
+    report) and the check points' ground errors."""
+    m = result.matches
+    cam = result.calibration.camera if result.calibration is not None else None
+    projected = cam.project(m.world) if cam is not None and len(m) else np.full((len(m), 2), np.nan)
+    sigma = match_sigma_px(m, RefineOptions().match_sigma_px)
+    rows = [[*(round(float(a), 4) for a in m.world[i]), *(round(float(a), 3) for a in m.pixels[i]),
+             *(round(float(a), 3) for a in m.predicted[i]), round(float(m.ncc[i]), 3),
+             round(float(m.roundness[i]), 3), round(float(sigma[i]), 3), bool(result.kept[i]),
+             *(_num(a) for a in projected[i])] for i in range(len(m))]
+    e = result.check_errors_m
+    finite = e[np.isfinite(e)]
+    return {
+        "format": ORTHO_CALIBRATION_FORMAT,
+        "accepted": result.accepted,
+        "reason": result.reason,
+        "position_given": [float(near_xy[0]), float(near_xy[1])],
+        "offset_m": _num(result.offset_m),
+        "matches_kept": int(np.count_nonzero(result.kept)),
+        "camera": None if cam is None else camera_to_dict(cam),
+        "views": {"columns": list(VIEW_COLUMNS),
+                  "rows": [[round(v.focal_px, 1), v.tilt_deg, v.keypoints, v.matched, v.agreeing,
+                            round(v.height_m, 2), round(v.position[0], 3), round(v.position[1], 3)]
+                           for v in result.views[:50]]},
+        "passes": [{"search_px": p.search_px, "tried": p.tried, "matched": p.matched, "kept": p.kept,
+                    "rmse_px": _num(p.rmse_px), "moved_px": _num(p.moved_px)} for p in result.passes],
+        "matches": {"columns": list(MATCH_COLUMNS), "rows": rows},
+        "checks": None if checks is None else {
+            "median_m": _num(float(np.median(finite))) if finite.size else None,
+            "rmse_m": _num(float(np.sqrt(np.mean(finite ** 2)))) if finite.size else None,
+            "points": [{"id": i, "ground_error_m": _num(float(x))} for i, x in zip(checks.ids, e, strict=True)]},
+    }
+
+
+def calibrate_ortho_files(frame: np.ndarray, ortho: str | Path | GeoRaster, surface: str | Surface,
+                          near_xy: tuple[float, float], out_camera: str | Path, *,
+                          checks: str | Path | GCPTable | None = None, report_path: str | Path | None = None,
+                          options: OrthoPoseOptions | None = None, surface_crs: str | None = None,
+                          resolution_m: float = 0.25, progress: Callable[[str], None] | None = None
+                          ) -> OrthoCalibration:
+    """Calibrate from the orthophoto alone (:func:`~trafficgeo.registration.from_ortho.calibrate_from_ortho`) and
+    write: with ``report_path`` the report (:func:`ortho_calibration_record`) and the frame beside it
+    (``<report stem>_frame.jpg``); when accepted, the camera JSON ``out_camera`` as ``trafficgeo calibrate`` writes
+    it, its GCPs the automatic correspondences (``source`` "auto"). A refused calibration writes no camera."""
+    raster = ortho if isinstance(ortho, GeoRaster) else read_raster(ortho)
+    if raster.crs is None:
+        raise InputError(f"{ortho}: the orthophoto has no CRS; give a GeoTIFF georeferenced in a projected CRS",
+                         parameters=("ortho",))
+    if isinstance(surface, str):
+        from trafficgeo.site.surface import surface_in_crs
+
+        ground = surface_in_crs(surface, raster.crs, surface_crs=surface_crs, resolution_m=resolution_m)
+    else:
+        ground = surface
+    table = None
+    if checks is not None:
+        table = checks if isinstance(checks, GCPTable) else read_gcps(checks, crs=raster.crs)
+        table = GCPTable(ids=table.ids, world=table.world, pixels=table.pixels, roles=(ROLE_CHECK,) * table.n,
+                         sigma_px=table.sigma_px, crs=table.crs, source=table.source, lines=table.lines)
+    result = calibrate_from_ortho(frame, raster, ground, near_xy, crs=raster.crs, checks=table, options=options,
+                                  progress=progress)
+    if report_path is not None:
+        report = Path(report_path)
+        frame_file = report.with_name(report.stem + "_frame.jpg")
+        with atomic_path(frame_file) as tmp:
+            if not cv2.imwrite(str(tmp), frame, [cv2.IMWRITE_JPEG_QUALITY, 92]):
+                raise OutputError(f"{frame_file}: OpenCV could not write the frame image; check the folder")
+        record = ortho_calibration_record(result, near_xy, table)
+        record["frame"] = frame_file.name
+        write_json_atomic(report, record)
+    if result.accepted and result.calibration is not None:
+        found = calibrated_camera(result.calibration)
+        gcps = tuple(replace(g, source="auto") for g in found.gcps or ())
+        e = result.check_errors_m
+        extras = {"calibrate_ortho": {"reason": result.reason, "position_given": [float(near_xy[0]),
+                                                                                  float(near_xy[1])],
+                                      "offset_m": _num(result.offset_m),
+                                      "check_median_m": _num(float(np.nanmedian(e))) if np.isfinite(e).any()
+                                      else None,
+                                      "report": None if report_path is None else Path(report_path).name}}
+        replace(found, gcps=gcps, extras=extras).write(out_camera)
     return result

@@ -74,8 +74,21 @@ def load_surface(surface: Surface | float | str | os.PathLike, camera: Calibrate
     if isinstance(surface, bool) or not isinstance(surface, int | float | str | os.PathLike):
         raise InputError(f"surface: {type(surface).__name__} is not a surface, a number, 'plane' or a file path",
                          parameters=("surface",))
+    if isinstance(surface, str) and surface.strip().lower() == "plane":
+        return plane_from_gcps(calibrated)
+    return surface_in_crs(surface, camera_crs(calibrated.camera), surface_crs=surface_crs, resolution_m=resolution_m)
+
+
+def surface_in_crs(surface: float | str | os.PathLike, crs: pyproj.CRS | None, *, surface_crs: str | None = None,
+                   resolution_m: float = 0.25) -> Surface:
+    """The surface named by a constant elevation or a DEM / point-cloud file, in ``crs`` (files in another CRS are
+    refused); 'plane' needs a calibrated camera's GCPs (:func:`load_surface`)."""
+    check_resolution(resolution_m)
+    if isinstance(surface, bool) or not isinstance(surface, int | float | str | os.PathLike):
+        raise InputError(f"surface: {type(surface).__name__} is not a surface, a number or a file path",
+                         parameters=("surface",))
     spec = repr(float(surface)) if isinstance(surface, int | float) else os.fspath(surface)
-    cam_crs = camera_crs(calibrated.camera)
+    cam_crs = crs
     text = spec.strip()
     try:
         z = float(text)
@@ -87,7 +100,8 @@ def load_surface(surface: Surface | float | str | os.PathLike, camera: Calibrate
                              parameters=("surface",))
         return ConstantSurface(z, crs=cam_crs)
     if text.lower() == "plane":
-        return plane_from_gcps(calibrated)
+        raise InputError("surface 'plane' is fitted to a camera's GCPs, and there are none yet; give a DEM, a "
+                         "point cloud or a constant elevation", parameters=("surface",))
     path = Path(text)
     suffix = path.suffix.lower()
     given = parse_crs(surface_crs) if surface_crs else None

@@ -13,6 +13,9 @@ A scene is a road (crowned, on a grade) with its lane markings and textured verg
 * the **user's GCPs**: ``n_control`` lane-marking corners and pole bases clicked with ``click_sigma_px`` noise (per
   axis), ``n_check`` more as check points; **perfect GCPs**: ``n_perfect`` points with exact world coordinates,
   clicked at the nearest whole pixel (the best a click can do);
+* **another day** (issue 40, all off by default): the orthophoto's grass in another season (``ortho_season``),
+  shadows of trees and buildings (``ortho_shadows``), cars of its own (``ortho_vehicles``), or winter
+  (``ortho_snow``: verges white, markings under slush: a ground no matcher should claim to know);
 * **truth points** on the ground 20-110 m along the road from the camera to score a camera by its ground error.
 
 Deterministic for a seed.
@@ -64,6 +67,10 @@ class RegistrationSceneOptions:
     sensor_noise: float = 2.0
     supersample: int = 3  # the frame's ground is rendered at 3x and averaged over each pixel
     wrong_place: bool = False
+    ortho_season: float = 0.0  # 0: the frame's season; 1: grass dried to straw, its pattern faded and partly new
+    ortho_shadows: int = 0  # soft shadows of trees and buildings cast on the orthophoto only
+    ortho_vehicles: int = 0  # cars parked or driving in the orthophoto (not the frame's)
+    ortho_snow: bool = False  # the orthophoto flown in winter: snow on the verges, slush over the markings
 
 
 @dataclass(frozen=True)
@@ -133,6 +140,57 @@ def _flown_again(ortho: GeoRaster, opts: RegistrationSceneOptions, rng: np.rando
     return GeoRaster(data=data, transform=ortho.transform, crs=ortho.crs, descriptions=ortho.descriptions)
 
 
+def _another_day(texture: GeoRaster, road: RoadSurface, markings: RoadMarkings, opts: RegistrationSceneOptions
+                 ) -> GeoRaster:
+    """The world's texture on the day the orthophoto was flown (see ``ortho_season``, ``ortho_shadows``,
+    ``ortho_vehicles``, ``ortho_snow``); its own random stream, so scenes without these are unchanged."""
+    if not (opts.ortho_season > 0 or opts.ortho_shadows or opts.ortho_vehicles or opts.ortho_snow):
+        return texture
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng(opts.seed + 4000)
+    img = texture.data.transpose(1, 2, 0).astype(np.float32)
+    rows, cols = img.shape[:2]
+    res = float(texture.transform.a)
+    X, Y = texture.pixel_to_map(*np.meshgrid(np.arange(cols) + 0.5, np.arange(rows) + 0.5))
+    s, o = road.station_offset(X, Y)
+    verge = (o < markings.left_edge - markings.shoulder) | (o > markings.right_edge + markings.shoulder)
+    if opts.ortho_season > 0:  # the grass turns to straw: its patches stay where they were, a third is new
+        blotch = gaussian_filter(rng.normal(0.0, 1.0, (rows, cols)), 10.0)
+        blotch = (blotch / max(float(blotch.std()), 1e-9))[..., None]
+        w = np.float32(opts.ortho_season)
+        pattern = img - np.float32(img[verge].mean(axis=0))
+        straw = np.array([150.0, 132.0, 82.0], dtype=np.float32) + 0.8 * pattern + 4.0 * blotch
+        img[verge] = (1 - w) * img[verge] + w * straw[verge]
+    if opts.ortho_snow:
+        slush = gaussian_filter(rng.normal(0.0, 1.0, (rows, cols)), 3.0)
+        slush = (slush / max(float(slush.std()), 1e-9))[..., None]
+        snow = np.float32(236.0) + 6.0 * slush
+        road_slush = np.float32(112.0) + 10.0 * slush
+        img = np.broadcast_to(np.where(verge[..., None], snow, road_slush), img.shape).astype(np.float32)
+    if opts.ortho_vehicles:
+        length, width = 4.6, 1.8
+        lanes = np.array([markings.lane_width * (k + 0.5) for k in range(markings.lanes_right)]
+                         + [-markings.lane_width * (k + 0.5) for k in range(markings.lanes_left)])
+        for st, lo, colour in zip(rng.uniform(-40.0, 130.0, opts.ortho_vehicles),
+                                  rng.choice(lanes, opts.ortho_vehicles),
+                                  rng.uniform(20, 235, (opts.ortho_vehicles, 3)), strict=True):
+            car = (np.abs(s - st) < length / 2) & (np.abs(o - lo) < width / 2)
+            img[car] = colour.astype(np.float32)
+            shade = (np.abs(s - st) < length / 2) & (o - lo >= width / 2) & (o - lo < width / 2 + 1.0)
+            img[shade] *= 0.55
+    if opts.ortho_shadows:
+        dark = np.zeros((rows, cols), dtype=np.float32)
+        for _ in range(opts.ortho_shadows):
+            cs, co = rng.uniform(-20.0, 120.0), rng.uniform(-25.0, 25.0)
+            a, b = rng.uniform(3.0, 9.0), rng.uniform(2.0, 6.0)
+            dark = np.maximum(dark, (((s - cs) / a) ** 2 + ((o - co) / b) ** 2 < 1.0).astype(np.float32))
+        dark = gaussian_filter(dark, 0.4 / res)
+        img *= (1.0 - 0.5 * dark)[..., None]
+    data = np.clip(np.rint(img), 0, 255).astype(np.uint8).transpose(2, 0, 1)
+    return GeoRaster(data=data, transform=texture.transform, crs=texture.crs, descriptions=texture.descriptions)
+
+
 def _elsewhere(opts: RegistrationSceneOptions, origin: np.ndarray, bounds: tuple[float, float, float, float],
                crs: str, rng: np.random.Generator) -> GeoRaster:
     """The ground texture of another place under the same coordinates: another road (35 deg off, 3 + 1 lanes,
@@ -182,6 +240,8 @@ def make_registration_scene(opts: RegistrationSceneOptions | None = None) -> Reg
     frame_bgr = np.clip(np.rint(frame), 0, 255).astype(np.uint8)[..., ::-1].copy()
     if opts.wrong_place:
         texture = _elsewhere(opts, origin, bounds, world_opts.crs, rng)
+    else:
+        texture = _another_day(texture, road, markings, opts)
     ortho = _flown_again(texture, opts, rng)
 
     world, uv = _candidates(camera, road, markings)
