@@ -76,7 +76,7 @@ def test_the_views_rank_the_right_focal_and_tilt_first(scene: RegistrationScene,
 
 @pytest.mark.parametrize(("case", "words"), [
     ("winter", "matches the orthophoto in too few places"),
-    ("wrong-pole", "from the given position"),
+    ("wrong-pole", "or the position is not the camera's"),
     ("no-texture", "matches the orthophoto in too few places"),
     ("elsewhere", "matches the orthophoto in too few places"),
 ])
@@ -175,3 +175,38 @@ def test_calibrate_ortho_bad_input_writes_nothing(scene: RegistrationScene, file
     assert got == code, said + err
     assert words in said + err and "Traceback" not in said + err
     assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_a_real_orthophoto_in_feet() -> None:
+    """The real Autzen orthophoto (1 ft cells, EPSG:2994 international feet: tests/data/autzen) draped on its lidar
+    surface through a camera 35 m up: real texture (a stadium's car parks, roads, trees), not an independent photo.
+    The position is given 15.6 ft (4.8 m) off; offsets and heights are reported in metres."""
+    from trafficgeo.camera.model import Camera
+    from trafficgeo.geo.mapping import pixels_to_world
+    from trafficgeo.geo.pointcloud import cloud_to_dem, read_point_cloud
+    from trafficgeo.geo.raster import read_raster
+    from trafficgeo.geo.surface import DEMSurface
+    from trafficgeo.synth.registration_scene import _integrated_background
+
+    data = Path(__file__).parent / "data" / "autzen"
+    ortho = read_raster(data / "autzen_ortho_trim.tif")
+    dem = DEMSurface.from_raster(cloud_to_dem(read_point_cloud(data / "autzen_trim.laz", crs="EPSG:2994"), 1.0))
+    ft = 0.3048
+    x, y = 636450.0, 849250.0
+    truth = Camera.from_orientation((960, 540), 800.0, [x, y, float(dem.elevation(x, y)) + 35.0 / ft], 100.0, 30.0,
+                                    crs="EPSG:2994")
+    rng = np.random.default_rng(0)
+    frame = cv2.GaussianBlur(np.clip(_integrated_background(truth, dem, ortho, 2) * 0.8 + 10, 0, 255), (0, 0), 0.6)
+    frame = np.clip(np.rint(frame + rng.normal(0, 2, frame.shape)), 0, 255).astype(np.uint8)[..., ::-1].copy()
+    result = calibrate_from_ortho(frame, ortho, dem, (x + 12.0, y - 10.0))
+    assert result.accepted, result.reason
+    assert 4.5 < result.offset_m < 5.1 and "units above" in result.reason
+    cam = result.camera
+    u, v = np.meshgrid(np.arange(4, 960, 8), np.arange(4, 540, 8))
+    g = pixels_to_world(truth, np.column_stack([u.ravel(), v.ravel()]), dem, with_lonlat=False)
+    xyz = g.xyz[g.ok]
+    d = np.hypot(*(xyz[:, :2] - truth.position[:2]).T) * ft
+    pts = xyz[(d >= 20) & (d <= 120)]
+    e = ground_errors_m(cam, truth, pts) * ft
+    assert len(pts) > 1000 and np.median(e) < 0.05, np.median(e)
+    assert abs(cam.focal_px - 800.0) < 8.0

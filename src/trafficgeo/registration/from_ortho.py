@@ -9,9 +9,9 @@ The search (:func:`calibrate_from_ortho`):
    :data:`VIEW_HEIGHT_M`, its shift the camera's position.
 2. **Matching.** SIFT keypoints of each view are matched (Lowe's ratio test) to those of the orthophoto within
    ``radius_m`` of the given position (both contrast-equalised: an orthophoto flown at another time or season has
-   another brightness), and the similarity is fitted by RANSAC. The candidates with the most agreeing matches go on,
-   best first; one whose similarity puts the camera farther than ``max_offset_m`` from the given position is
-   skipped, with the distance in the reason.
+   another brightness), and the similarity is fitted by RANSAC among the hypotheses that put the camera within
+   ``max_offset_m`` of the given position at a plausible height (the prior is tested before any inlier is counted,
+   so a loose ratio test can be afforded). The candidates with the most agreeing matches go on, best first.
 3. **Start.** The agreeing matches are correspondences (frame pixel; orthophoto X, Y with Z from the surface); the
    calibration pipeline (:func:`trafficgeo.calibration.calibrate`: robust start, consensus) fits a camera to them,
    no distortion yet.
@@ -56,6 +56,7 @@ MIN_HEIGHT_M, MAX_HEIGHT_M = 1.5, 300.0
 """Heights (m) of a camera above the ground a ground view's match may imply."""
 
 SIFT_FEATURES = 30000  # at most this many keypoints per image
+RATIO = 0.85  # Lowe's ratio test, loose: the position prior and RANSAC sort the rest
 
 FOCAL_WIDTHS = (0.45, 0.57, 0.72, 0.9, 1.13, 1.42)
 """Candidate focal lengths as a multiple of the image width: horizontal fields of view of about 96 to 39 degrees."""
@@ -78,10 +79,8 @@ class OrthoPoseOptions:
         candidates: this many best ground views are tried in turn.
         max_rmse_px: a camera is accepted only when its registration converged and the correspondences it kept
             miss it by at most this (RMS, px): with no user's points to judge it, the correspondences must agree
-            tightly (on generated worlds a right camera's are 0.3-0.5 px RMS; a wrong start that the passes
-            dragged along ended at 2.3 px, unconverged).
-        refine: the registration passes (first search radius, thresholds); see
-            :class:`~trafficgeo.registration.refine.RefineOptions`.
+            (on development worlds right cameras ended at 0.3-0.9 px, 1.5-1.6 px under the harshest lighting; a
+            wrong start the passes dragged along ended unconverged at 2.3 px).
     """
 
     max_offset_m: float = 20.0
@@ -92,7 +91,7 @@ class OrthoPoseOptions:
     focal_px: float | None = None
     min_view_matches: int = 8
     candidates: int = 4
-    max_rmse_px: float = 1.2
+    max_rmse_px: float = 2.0
     refine: RefineOptions = field(default_factory=lambda: RefineOptions(search_px=40.0, max_iterations=6))
 
     def __post_init__(self) -> None:
@@ -165,15 +164,18 @@ class OrthoCalibration:
 
 # ------------------------------------------------------------------------------------------------ ground views
 def _equalised(g: np.ndarray) -> np.ndarray:
-    return cv2.createCLAHE(clipLimit=2.0, tileGridSize=(8, 8)).apply(np.clip(g, 0, 255).astype(np.uint8))
+    return cv2.createCLAHE(clipLimit=4.0, tileGridSize=(8, 8)).apply(np.clip(g, 0, 255).astype(np.uint8))
 
 
 class _OrthoFeatures:
     """SIFT keypoints of the orthophoto within ``radius`` (CRS units) of ``centre``, resampled to ``res`` (CRS
     units per pixel), with a FLANN index over their descriptors."""
 
-    def __init__(self, ortho: GeoRaster, centre: np.ndarray, radius: float, res: float, sift: cv2.SIFT) -> None:
+    def __init__(self, ortho: GeoRaster, centre: np.ndarray, radius: float, res: float, sift: cv2.SIFT,
+                 max_offset: float) -> None:
         n = math.ceil(2.0 * radius / res)
+        self.centre_px = np.array([radius / res - 0.5, radius / res - 0.5])  # ``centre`` in view pixels
+        self.max_offset_px = max_offset / res
         self.left, self.top, self.res = float(centre[0] - radius), float(centre[1] + radius), res
         # view pixel (i, j) centre -> map (left + (j + 0.5) res, top - (i + 0.5) res) -> ortho pixel (corner conv.)
         c0, r0 = ortho.map_to_pixel(self.left + 0.5 * res, self.top - 0.5 * res)
@@ -231,6 +233,51 @@ def _ground_view(frame_gray: np.ndarray, focal_px: float, tilt_deg: float, res_m
     return view, mask, Hb
 
 
+def _similarity_ransac(src: np.ndarray, dst: np.ndarray, foot_src: np.ndarray, centre_dst: np.ndarray,
+                       max_offset_px: float, threshold_px: float, hypotheses: int = 4000
+                       ) -> tuple[complex, complex, np.ndarray] | None:
+    """The similarity ``dst = a src + b`` (complex: rotation and scale in ``a``, shift in ``b``) that most matches
+    agree with (within ``threshold_px``), among those that put the camera's foot ``foot_src`` within
+    ``max_offset_px`` of ``centre_dst`` and imply a height in [MIN_HEIGHT_M, MAX_HEIGHT_M]: hypotheses from random
+    pairs of matches (seeded: deterministic), the prior tested before any inlier is counted, the best refined by
+    least squares on its inliers. None when no hypothesis has 6 inliers."""
+    n = len(src)
+    if n < 6:
+        return None
+    zs = src[:, 0] + 1j * src[:, 1]
+    zd = dst[:, 0] + 1j * dst[:, 1]
+    rng = np.random.default_rng(0)
+    i, j = rng.integers(0, n, hypotheses), rng.integers(0, n, hypotheses)
+    i, j = i[i != j], j[i != j]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = (zd[j] - zd[i]) / (zs[j] - zs[i])
+    b = zd[i] - a * zs[i]
+    foot = a * complex(*foot_src) + b
+    ok = (np.isfinite(a) & (np.abs(a) * VIEW_HEIGHT_M >= MIN_HEIGHT_M) & (np.abs(a) * VIEW_HEIGHT_M <= MAX_HEIGHT_M)
+          & (np.abs(foot - complex(*centre_dst)) <= max_offset_px))
+    a, b = a[ok], b[ok]
+    if a.size == 0:
+        return None
+    best_count, best = 0, None
+    for k in range(0, a.size, 512):  # (hypotheses, matches) in blocks
+        r = np.abs(a[k:k + 512, None] * zs[None, :] + b[k:k + 512, None] - zd[None, :]) < threshold_px
+        counts = r.sum(axis=1)
+        m = int(np.argmax(counts))
+        if counts[m] > best_count:
+            best_count, best = int(counts[m]), (a[k + m], b[k + m])
+    if best is None or best_count < 6:
+        return None
+    inl = np.abs(best[0] * zs + best[1] - zd) < threshold_px
+    for _ in range(2):  # least squares on the inliers, then their new set
+        A = np.column_stack([zs[inl], np.ones(int(inl.sum()))])
+        (a1, b1), *_ = np.linalg.lstsq(A, zd[inl], rcond=None)
+        new = np.abs(a1 * zs + b1 - zd) < threshold_px
+        if new.sum() < 6:
+            break
+        best, inl = (complex(a1), complex(b1)), new
+    return best[0], best[1], inl
+
+
 def _match_view(frame_gray: np.ndarray, focal_px: float, tilt_deg: float, res_m: float, ortho: _OrthoFeatures,
                 sift: cv2.SIFT, options: OrthoPoseOptions, image_size: tuple[int, int],
                 lock: threading.Lock) -> ViewMatch | None:
@@ -244,30 +291,31 @@ def _match_view(frame_gray: np.ndarray, focal_px: float, tilt_deg: float, res_m:
         return None
     with lock:
         pairs = ortho.matcher.knnMatch(desc, k=2)
-    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
+    good = sorted((p[0] for p in pairs if len(p) == 2 and p[0].distance < RATIO * p[1].distance),
+                  key=lambda m: m.distance)
     if len(good) < 6:
         return None
     src = np.float64([kp[m.queryIdx].pt for m in good]) + [c0, r0]
     dst = np.float64([ortho.keypoints[m.trainIdx].pt for m in good])
-    M, inl = cv2.estimateAffinePartial2D(src, dst, method=cv2.RANSAC, ransacReprojThreshold=3.0, maxIters=4000,
-                                         confidence=0.999)
-    if M is None or inl is None:
-        return None
-    agree = inl.ravel().astype(bool)
-    # SIFT gives one keypoint per orientation at a spot, and two spots may match one: one match per spot, each side
+    # SIFT gives one keypoint per orientation at a spot, and two spots may match one: the closest match per spot
+    keep = np.ones(len(src), dtype=bool)
     for pts in (src, dst):
         _, first = np.unique(np.round(pts / 0.5), axis=0, return_index=True)
         once = np.zeros(len(pts), dtype=bool)
         once[first] = True
-        agree &= once
-    scale = float(math.hypot(M[0, 0], M[1, 0]))  # ortho view pixels per ground-view pixel
-    if not MIN_HEIGHT_M <= VIEW_HEIGHT_M * scale <= MAX_HEIGHT_M:
-        return None  # no camera pole is that high or low: the matches agree by chance
+        keep &= once
+    src, dst = src[keep], dst[keep]
     n = view.shape[0]
-    foot = M @ np.array([(n - 1) / 2.0, (n - 1) / 2.0, 1.0])  # the candidate camera's foot, in the ortho view
-    position = ortho.to_map(foot[None, :])[0]
+    found = _similarity_ransac(src, dst, np.array([(n - 1) / 2.0, (n - 1) / 2.0]), ortho.centre_px,
+                               ortho.max_offset_px, 3.0)
+    if found is None:
+        return None
+    a, b, agree = found
+    scale = abs(a)  # ortho view pixels per ground-view pixel
+    foot = a * complex((n - 1) / 2.0, (n - 1) / 2.0) + b  # the candidate camera's foot, in the ortho view
+    position = ortho.to_map(np.array([[foot.real, foot.imag]]))[0]
     fp = Hb @ np.column_stack([src[agree], np.ones(int(agree.sum()))]).T
-    return ViewMatch(focal_px=focal_px, tilt_deg=tilt_deg, resolution_m=res_m, keypoints=len(kp), matched=len(good),
+    return ViewMatch(focal_px=focal_px, tilt_deg=tilt_deg, resolution_m=res_m, keypoints=len(kp), matched=len(src),
                      agreeing=int(agree.sum()), height_m=VIEW_HEIGHT_M * scale,
                      position=(float(position[0]), float(position[1])), frame_pixels=(fp[:2] / fp[2]).T,
                      map_xy=ortho.to_map(dst[agree]))
@@ -287,7 +335,8 @@ def search_views(frame_gray: np.ndarray, ortho: GeoRaster, near_xy: np.ndarray, 
     local = threading.local()
     for res_m in options.resolutions_m:
         features = _OrthoFeatures(ortho, np.asarray(near_xy, dtype=np.float64), options.radius_m / m_per_unit,
-                                  res_m / m_per_unit, cv2.SIFT_create(nfeatures=SIFT_FEATURES))
+                                  res_m / m_per_unit, cv2.SIFT_create(nfeatures=SIFT_FEATURES),
+                                  (options.max_offset_m + 5.0) / m_per_unit)
         if features.matcher is None:
             continue
 
