@@ -28,12 +28,14 @@ from trafficgeo.calibration.gcp_table import ROLE_CHECK, ROLE_CONTROL, GCPTable
 from trafficgeo.calibration.run import calibrated_camera
 from trafficgeo.camera.calibrated import CalibratedCamera, RefinementSummary, load_calibrated_camera
 from trafficgeo.camera.io import camera_to_dict
+from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError, OutputError
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.geo.raster import GeoRaster, read_raster
 from trafficgeo.io.atomic import atomic_path, write_json_atomic
 from trafficgeo.registration.from_ortho import OrthoCalibration, OrthoPoseOptions, calibrate_from_ortho
 from trafficgeo.registration.judge import model_from_names
+from trafficgeo.registration.matching import Matches
 from trafficgeo.registration.refine import AUTO_PREFIX, OrthoRefinement, RefineOptions, match_sigma_px, refine_camera
 from trafficgeo.site.surface import load_surface
 
@@ -76,16 +78,20 @@ def _num(v: float) -> float | None:
     return round(float(v), 4) if np.isfinite(v) else None
 
 
+def match_rows(m: Matches, kept: np.ndarray, camera: Camera | None, sigma_px: float) -> list[list[Any]]:
+    """The rows of a report's ``matches`` table (:data:`MATCH_COLUMNS`): each automatic correspondence, whether the
+    fit kept it, and where ``camera`` (the re-fitted one, if any) projects it."""
+    projected = camera.project(m.world) if camera is not None and len(m) else np.full((len(m), 2), np.nan)
+    sigma = match_sigma_px(m, sigma_px)
+    return [[*(round(float(a), 4) for a in m.world[i]), *(round(float(a), 3) for a in m.pixels[i]),
+             *(round(float(a), 3) for a in m.predicted[i]), round(float(m.ncc[i]), 3),
+             round(float(m.roundness[i]), 3), round(float(sigma[i]), 3), bool(kept[i]) if len(kept) else False,
+             *(_num(a) for a in projected[i])] for i in range(len(m))]
+
+
 def refinement_record(result: OrthoRefinement, options: RefineOptions) -> dict[str, Any]:
     """The refinement report as a JSON object (format :data:`REFINE_FORMAT`)."""
-    m = result.matches
-    refined = result.refined.project(m.world) if result.refined is not None and len(m) else np.full((len(m), 2),
-                                                                                                     np.nan)
-    sigma = match_sigma_px(m, options.match_sigma_px)
-    rows = [[*(round(float(a), 4) for a in m.world[i]), *(round(float(a), 3) for a in m.pixels[i]),
-             *(round(float(a), 3) for a in m.predicted[i]), round(float(m.ncc[i]), 3),
-             round(float(m.roundness[i]), 3), round(float(sigma[i]), 3), bool(result.kept[i]) if len(result.kept)
-             else False, *(_num(a) for a in refined[i])] for i in range(len(m))]
+    rows = match_rows(result.matches, result.kept, result.refined, options.match_sigma_px)
     return {
         "format": REFINE_FORMAT,
         "accepted": result.accepted,
@@ -172,14 +178,8 @@ def ortho_calibration_record(result: OrthoCalibration, near_xy: tuple[float, flo
     """The ``calibrate-ortho`` report as a JSON object (format :data:`ORTHO_CALIBRATION_FORMAT`): the verdict, the
     ground views tried (best first), the registration passes, every automatic correspondence (as in the refinement
     report) and the check points' ground errors."""
-    m = result.matches
     cam = result.calibration.camera if result.calibration is not None else None
-    projected = cam.project(m.world) if cam is not None and len(m) else np.full((len(m), 2), np.nan)
-    sigma = match_sigma_px(m, RefineOptions().match_sigma_px)
-    rows = [[*(round(float(a), 4) for a in m.world[i]), *(round(float(a), 3) for a in m.pixels[i]),
-             *(round(float(a), 3) for a in m.predicted[i]), round(float(m.ncc[i]), 3),
-             round(float(m.roundness[i]), 3), round(float(sigma[i]), 3), bool(result.kept[i]),
-             *(_num(a) for a in projected[i])] for i in range(len(m))]
+    rows = match_rows(result.matches, result.kept, cam, RefineOptions().match_sigma_px)
     e = result.check_errors_m
     finite = e[np.isfinite(e)]
     return {
