@@ -128,7 +128,7 @@ def test_calibrate_ortho_writes_a_camera_json_others_read(scene: RegistrationSce
     out, report = tmp_path / "camera.json", tmp_path / "auto.json"
     code, said, err = invoke("calibrate-ortho", files / "frame.png", "--ortho", files / "ortho.tif", "--surface",
                              files / "dem.tif", "--near", f"{x},{y}", "-o", out, "--checks", files / "gcps.csv",
-                             "--report", report)
+                             "--report", report, "--gcps-out", tmp_path / "review.csv")
     assert code == 0, said + err
     assert "calibrated" in said and "check points: ground error median" in said
     cal = CalibratedCamera.read(out)
@@ -138,6 +138,22 @@ def test_calibrate_ortho_writes_a_camera_json_others_read(scene: RegistrationSce
     doc = json.loads(report.read_text(encoding="utf-8"))
     assert doc["accepted"] is True and doc["views"]["rows"] and doc["checks"]["median_m"] < 1.0
     assert (tmp_path / doc["frame"]).is_file()
+    # 40 of the correspondences, spread over the frame, open in the GCP web app for review: drop some, it recalibrates
+    from fastapi.testclient import TestClient
+
+    from trafficgeo.ui.server import create_app
+    from trafficgeo.ui.startup import open_session
+
+    session, _ = open_session(frame=files / "frame.png", ortho=files / "ortho.tif", dem=files / "dem.tif",
+                              gcps=tmp_path / "review.csv")
+    with TestClient(create_app(session)) as client:
+        pairs = client.get("/api/state").json()["pairs"]
+        assert len(pairs) == 40 and all(p["id"].startswith("auto") for p in pairs)
+        for p in pairs[:5]:
+            assert client.delete(f"/api/pairs/{p['id']}").status_code == 200
+        assert len(client.get("/api/state").json()["pairs"]) == 35
+        cal = client.get("/api/calibration").json()
+        assert cal["status"] == "ok" and np.median([q["error_px"] for q in cal["points"]]) < 1.0, cal
     # refine needs the user's own points to judge by, and says so
     code, said, err = invoke("refine", out, "--ortho", files / "ortho.tif", "--surface", files / "dem.tif",
                              "--frame", files / "frame.png", "-o", tmp_path / "refined.json")

@@ -281,7 +281,8 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "report_path": "--report", "refine_report": "--refine-report", "origin": "--origin",
          "world_file": "--world-file", "control": "--corners", "gates": "--gates",
          "movement_interval_s": "--movement-interval", "near": "--near", "near_crs": "--near-crs",
-         "max_offset_m": "--max-offset", "checks": "--checks"}
+         "max_offset_m": "--max-offset", "checks": "--checks",
+         "gcps_out": "--gcps-out"}
 
 
 def main(argv: list[str] | None = None) -> Any:

@@ -56,6 +56,9 @@ def calibrate_ortho(
     report: Annotated[Path | None, typer.Option("--report", help="report JSON to write (ground views tried, "
                                                                  "passes, every correspondence; the frame beside "
                                                                  "it)")] = None,
+    gcps_out: Annotated[Path | None, typer.Option("--gcps-out", help="write 40 of the automatic correspondences, "
+                                                                     "spread over the frame, as a GCP file to review "
+                                                                     "in 'trafficgeo gcp-ui --gcps FILE'")] = None,
     max_offset: Annotated[float, typer.Option("--max-offset", help="how far (m) the camera may stand from "
                                                                    "--near")] = 20.0,
     start: Annotated[float, typer.Option("--start", help="video: first second of the stretch")] = 0.0,
@@ -89,8 +92,8 @@ def calibrate_ortho(
             still = background_frame(video, start_s=start, duration_s=duration, n_frames=frames)
     with console.status("searching the orthophoto for the camera's view") as status:
         result = calibrate_ortho_files(still, raster, surface, position, output, checks=checks, report_path=report,
-                                       options=options, surface_crs=surface_crs, resolution_m=resolution,
-                                       progress=lambda line: status.update(line))
+                                       gcps_out=gcps_out, options=options, surface_crs=surface_crs,
+                                       resolution_m=resolution, progress=lambda line: status.update(line))
     if not result.accepted:
         console.print(f"[yellow]no camera[/yellow]: {result.reason}; nothing written to {output}")
         raise SystemExit(1)  # exit code 1: the job ran, no trustworthy camera came out of it
@@ -99,6 +102,9 @@ def calibrate_ortho(
     console.print(f"[green]calibrated[/green]: {result.reason}")
     console.print(f"heading {o.heading_deg:.2f} deg, tilt {o.tilt_deg:.2f} deg, roll {o.roll_deg:.2f} deg, focal "
                   f"{cam.focal_px:.1f} px; wrote {output}")
+    if gcps_out is not None:
+        console.print(f"wrote {gcps_out}: review it with 'trafficgeo gcp-ui --gcps {gcps_out}' (drop or move pairs, "
+                      "then save the camera)")
     e = result.check_errors_m
     if e.size:
         import numpy as np

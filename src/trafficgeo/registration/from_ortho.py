@@ -481,6 +481,27 @@ def calibrate_from_ortho(frame: np.ndarray, ortho: GeoRaster, surface: Surface, 
     return refused("no ground view led to a camera: " + "; ".join(reasons))
 
 
+def review_gcps(result: OrthoCalibration, n: int = 40) -> GCPTable:
+    """``n`` of the correspondences the final fit kept, spread over the frame (farthest-point sampling from the
+    strongest), as a GCP table (ids ``auto01``...; control points with their pixel sigma): a set a person can review
+    in ``trafficgeo gcp-ui`` (drop or move a pair, see the camera change) without wading through hundreds."""
+    from trafficgeo.registration.refine import match_sigma_px
+
+    m = result.matches.select(result.kept) if len(result.kept) else result.matches
+    if len(m) == 0:
+        raise InputError("there are no automatic correspondences to review", parameters=("gcps_out",))
+    chosen = [int(np.argmax(m.ncc))]
+    d2 = np.full(len(m), np.inf)
+    while len(chosen) < min(n, len(m)):
+        d2 = np.minimum(d2, np.sum((m.pixels - m.pixels[chosen[-1]]) ** 2, axis=1))
+        chosen.append(int(np.argmax(d2)))
+    idx = np.asarray(chosen)
+    crs = result.calibration.camera.crs if result.calibration is not None else None
+    return GCPTable(ids=tuple(f"auto{k + 1:02d}" for k in range(len(idx))), world=m.world[idx], pixels=m.pixels[idx],
+                    roles=(ROLE_CONTROL,) * len(idx), sigma_px=match_sigma_px(m, RefineOptions().match_sigma_px)[idx],
+                    crs=crs, source="calibrate-ortho", lines=(0,) * len(idx))
+
+
 def _crop(ortho: GeoRaster, centre: np.ndarray, radius: float) -> GeoRaster:
     left, bottom, right, top = ortho.bounds
     box = (max(left, centre[0] - radius), max(bottom, centre[1] - radius), min(right, centre[0] + radius),
@@ -489,4 +510,4 @@ def _crop(ortho: GeoRaster, centre: np.ndarray, radius: float) -> GeoRaster:
 
 
 __all__ = ["FOCAL_WIDTHS", "VIEW_HEIGHT_M", "OrthoCalibration", "OrthoPoseOptions", "ViewMatch",
-           "calibrate_from_ortho", "search_views"]
+           "calibrate_from_ortho", "review_gcps", "search_views"]

@@ -33,7 +33,7 @@ from trafficgeo.errors import InputError, OutputError
 from trafficgeo.geo.mapping import Surface
 from trafficgeo.geo.raster import GeoRaster, read_raster
 from trafficgeo.io.atomic import atomic_path, write_json_atomic
-from trafficgeo.registration.from_ortho import OrthoCalibration, OrthoPoseOptions, calibrate_from_ortho
+from trafficgeo.registration.from_ortho import OrthoCalibration, OrthoPoseOptions, calibrate_from_ortho, review_gcps
 from trafficgeo.registration.judge import model_from_names
 from trafficgeo.registration.matching import Matches
 from trafficgeo.registration.refine import AUTO_PREFIX, OrthoRefinement, RefineOptions, match_sigma_px, refine_camera
@@ -207,13 +207,16 @@ def ortho_calibration_record(result: OrthoCalibration, near_xy: tuple[float, flo
 def calibrate_ortho_files(frame: np.ndarray, ortho: str | Path | GeoRaster, surface: str | Surface,
                           near_xy: tuple[float, float], out_camera: str | Path, *,
                           checks: str | Path | GCPTable | None = None, report_path: str | Path | None = None,
-                          options: OrthoPoseOptions | None = None, surface_crs: str | None = None,
+                          gcps_out: str | Path | None = None, options: OrthoPoseOptions | None = None,
+                          surface_crs: str | None = None,
                           resolution_m: float = 0.25, progress: Callable[[str], None] | None = None
                           ) -> OrthoCalibration:
     """Calibrate from the orthophoto alone (:func:`~trafficgeo.registration.from_ortho.calibrate_from_ortho`) and
     write: with ``report_path`` the report (:func:`ortho_calibration_record`) and the frame beside it
     (``<report stem>_frame.jpg``); when accepted, the camera JSON ``out_camera`` as ``trafficgeo calibrate`` writes
-    it, its GCPs the automatic correspondences (``source`` "auto"). A refused calibration writes no camera."""
+    it, its GCPs the automatic correspondences (``source`` "auto"), and with ``gcps_out`` 40 of them spread over the
+    frame as a GCP file to review in ``trafficgeo gcp-ui`` (:func:`~.from_ortho.review_gcps`). A refused calibration
+    writes no camera and no GCP file."""
     raster = ortho if isinstance(ortho, GeoRaster) else read_raster(ortho)
     if raster.crs is None:
         raise InputError(f"{ortho}: the orthophoto has no CRS; give a GeoTIFF georeferenced in a projected CRS",
@@ -250,5 +253,7 @@ def calibrate_ortho_files(frame: np.ndarray, ortho: str | Path | GeoRaster, surf
                                       "check_median_m": _num(float(np.nanmedian(e))) if np.isfinite(e).any()
                                       else None,
                                       "report": None if report_path is None else Path(report_path).name}}
+        if gcps_out is not None:
+            review_gcps(result).to_csv(gcps_out)
         replace(found, gcps=gcps, extras=extras).write(out_camera)
     return result
