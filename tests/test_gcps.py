@@ -162,8 +162,39 @@ def test_header_only(tmp_path: Path) -> None:
 
 
 def test_missing_columns(tmp_path: Path) -> None:
-    msg = raises_input(write(tmp_path, "id,x,y,col,row\nA,1,2,3,4\n"), "gcps.csv line 1", "'z'", "'u'", "'v'")
+    msg = raises_input(write(tmp_path, "id,x,y,a,b\nA,1,2,3,4\n"), "gcps.csv line 1", "'z'", "'u'", "'v'")
     assert "'x'" not in msg
+    # col, row are pixel columns people use (issue 42): only the height is missing, and said to be a height
+    msg = raises_input(write(tmp_path, "id,x,y,col,row\nA,1,2,3,4\n"), "gcps.csv line 1", "'z'", "a height")
+    assert "'u'" not in msg and "'x'" not in msg
+
+
+def test_peers_column_names_are_read_with_a_note(tmp_path: Path) -> None:
+    """GCP files as people have them (issue 42): a drone author's pixel_x/pixel_y/lat_deg/lon_deg with spaces
+    after the commas and no id, surveyors' easting/northing/elevation with col/row, pixel x/y beside lat/lon."""
+    from pyproj import Transformer
+
+    lon, lat = -123.0712, 44.0521
+    e, n = Transformer.from_crs("EPSG:4326", "EPSG:32610", always_xy=True).transform(lon, lat)
+    author = write(tmp_path, f"pixel_x, pixel_y, lat_deg, lon_deg, alt\n100.5, 200.25, {lat}, {lon}, 131.5\n"
+                             f"300, 400, {lat + 0.0001}, {lon + 0.0001}, 132\n", "author.csv")
+    t = read_gcps(author, crs="EPSG:32610")
+    assert t.ids == ("line2", "line3")
+    np.testing.assert_allclose(t.pixels, [[100.5, 200.25], [300.0, 400.0]])
+    np.testing.assert_allclose(t.world[0], [e, n, 131.5], atol=1e-6)
+    assert t.columns_note == ("pixel_x -> u, pixel_y -> v, lon_deg -> x, lat_deg -> y, alt -> z (longitude, "
+                              "latitude by their names), no id column: points named by their line")
+    survey = write(tmp_path, "Name;Easting;Northing;Elevation;Col;Row\nP1;500000.5;4877000.25;131.5;10;20\n",
+                   "survey.csv")
+    t = read_gcps(survey, crs="EPSG:32610")
+    assert t.ids == ("P1",) and t.columns_note.startswith("Name -> id, Col -> u, Row -> v, Easting -> x")
+    np.testing.assert_allclose(t.world, [[500000.5, 4877000.25, 131.5]])
+    beside = write(tmp_path, f"id,x,y,lat,lon,height\nA,12,34,{lat},{lon},130\n", "beside.csv")
+    t = read_gcps(beside, crs="EPSG:32610")
+    np.testing.assert_allclose(t.pixels, [[12.0, 34.0]])
+    np.testing.assert_allclose(t.world[0, :2], [e, n], atol=1e-6)
+    assert "x -> u, y -> v, lon -> x, lat -> y, height -> z" in t.columns_note
+    assert read_gcps(write(tmp_path, HEADER + "A,500000,4877000,3,4,5\n", "plain.csv")).columns_note == ""
 
 
 def test_not_a_header_nor_crs(tmp_path: Path) -> None:

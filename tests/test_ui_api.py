@@ -242,3 +242,28 @@ def test_unexpected_errors_are_json_500_and_the_server_keeps_going(client, scene
         r = c.get("/api/state")
         assert r.status_code == 500 and "internal error" in r.json()["detail"]
         assert c.post("/api/pairs", json=_pair(scene, 0)).status_code == 201
+
+
+def test_a_peers_gcp_file_is_read_and_kept_as_it_is(work, scene):
+    """A GCP file with other column names (issue 42: easting/northing/elevation, col/row, no id) opens with a note
+    of how its columns were read; Save writes trafficgeo's layout beside it and leaves the user's file unchanged."""
+    rows = ["Easting,Northing,Elevation,Col,Row"]
+    for i in range(8):
+        x, y, z = (float(c) for c in scene.truth_world[i])
+        u, v = (float(c) for c in scene.truth_pixels[i])
+        rows.append(f"{x!r}, {y!r}, {z!r}, {u!r}, {v!r}")
+    theirs = work / "theirs.csv"
+    theirs.write_text("\n".join(rows) + "\n", encoding="utf-8")
+    before = theirs.read_bytes()
+    session, note = open_session(frame=work / "frame.png", ortho=work / "ortho.tif", dem=work / "dem.tif",
+                                 gcps=theirs)
+    assert "columns read as Col -> u, Row -> v, Easting -> x, Northing -> y, Elevation -> z" in note
+    assert "theirs_trafficgeo.csv" in note
+    with TestClient(create_app(session)) as c:
+        assert len(c.get("/api/state").json()["pairs"]) == 8
+        assert c.get("/api/calibration").json()["status"] == "ok"
+        assert c.post("/api/gcps/save", json={}).json() == {"path": "theirs_trafficgeo.csv", "n": 8}
+    assert theirs.read_bytes() == before
+    saved = read_gcps(work / "theirs_trafficgeo.csv", crs=CRS)
+    np.testing.assert_allclose(saved.world, scene.truth_world[:8])
+    assert saved.columns_note == ""

@@ -7,6 +7,7 @@ import csv
 import io
 import math
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,10 +15,9 @@ import numpy as np
 import pyproj
 
 from trafficgeo.calibration.gcp_table import (
+    COLUMN_ALIASES,
     COLUMN_HINTS,
-    CSV_COLUMNS,
     ODM_COLUMNS,
-    REQUIRED_COLUMNS,
     ROLE_CONTROL,
     ROLES,
     GCPTable,
@@ -86,12 +86,56 @@ def _read_text(path: Path, source: str) -> str:
         ) from None
 
 
+def _normal(name: str) -> str:
+    """A column name as the aliases are written: lower case, runs of other characters as one underscore."""
+    return re.sub(r"[^a-z0-9]+", "_", name.strip().lower()).strip("_")
+
+
+@dataclass(frozen=True)
+class _Header:
+    """How a CSV header was understood: the column index of each of id, x, y, z, u, v, role, sigma_px that is
+    there, the file's own name of each, whether x, y are longitude, latitude by their names, and the note."""
+
+    col: dict[str, int]
+    names: dict[str, str]
+    lonlat: bool
+    note: str
+
+
+def _understand(raw: list[str]) -> _Header:
+    """Map a header's columns to id, x, y, z, u, v, role, sigma_px by :data:`COLUMN_ALIASES` (see
+    :func:`read_gcps`)."""
+    normal = [_normal(c) for c in raw]
+
+    def find(key: str) -> int | None:
+        for alias in COLUMN_ALIASES[key]:
+            if alias in normal:
+                return normal.index(alias)
+        return None
+
+    col = {k: i for k in ("id", "u", "v", "x", "y", "z", "role", "sigma_px") if (i := find(k)) is not None}
+    lon, lat = find("lon"), find("lat")
+    lonlat = False
+    if lon is not None and lat is not None:
+        if "u" not in col and "v" not in col and "x" in col and "y" in col:
+            col["u"], col["v"] = col.pop("x"), col.pop("y")  # x, y beside lon, lat are the pixel's
+        if "x" not in col and "y" not in col:
+            col["x"], col["y"], lonlat = lon, lat, True
+    names = {k: raw[i].strip() for k, i in col.items()}
+    renamed = [f"{names[k]} -> {k}" for k in ("id", "u", "v", "x", "y", "z", "role", "sigma_px")
+               if k in names and _normal(names[k]) != k]
+    note = ", ".join(renamed)
+    if lonlat:
+        note += " (longitude, latitude by their names)"
+    return _Header(col, names, lonlat, note)
+
+
 def _split_header(line: str) -> tuple[str, list[str]]:
-    """Best delimiter for a CSV header line and its lower-cased column names."""
+    """Best delimiter for a CSV header line and its column names as written (stripped)."""
     best: tuple[int, str, list[str]] | None = None
     for delim in (",", ";", "\t"):
-        names = [c.strip().lower() for c in next(csv.reader([line], delimiter=delim))]
-        score = len(set(names) & set(CSV_COLUMNS))
+        names = [c.strip() for c in next(csv.reader([line], delimiter=delim))]
+        score = len(_understand(names).col)
         if best is None or score > best[0]:
             best = (score, delim, names)
     assert best is not None
@@ -99,7 +143,7 @@ def _split_header(line: str) -> tuple[str, list[str]]:
 
 
 def _parse_csv(text: str, source: str, delim: str) -> _Rows:
-    reader = csv.reader(io.StringIO(text, newline=""), delimiter=delim)
+    reader = csv.reader(io.StringIO(text, newline=""), delimiter=delim, skipinitialspace=True)
     header: list[str] | None = None
     col: dict[str, int] = {}
     rows = _Rows([], [], [], [], [], [])
@@ -108,16 +152,17 @@ def _parse_csv(text: str, source: str, delim: str) -> _Rows:
         if all(not c.strip() for c in row):
             continue
         if header is None:
-            header = [c.strip().lower() for c in row]
-            for name in CSV_COLUMNS:
-                hits = [k for k, h in enumerate(header) if h == name]
-                if len(hits) > 1:
+            header = [c.strip() for c in row]
+            understood = _understand(header)
+            for k in understood.col.values():
+                same = [j for j, h in enumerate(header) if _normal(h) == _normal(header[k])]
+                if len(same) > 1:
                     raise InputError(
-                        f'{source} line {line}: column "{name}" appears {len(hits)} times in the '
+                        f'{source} line {line}: column "{header[k]}" appears {len(same)} times in the '
                         "header; keep one"
                     )
-                if hits:
-                    col[name] = hits[0]
+            col = understood.col
+            named = understood.names
             continue
         ncols = len(header)
         if len(row) < ncols or any(c.strip() for c in row[ncols:]):
@@ -125,11 +170,11 @@ def _parse_csv(text: str, source: str, delim: str) -> _Rows:
                 f"{source} line {line}: {len(row)} values but the header has {ncols} columns; "
                 "check for missing or extra delimiters (quote text that contains them)"
             )
-        gcp_id = row[col["id"]].strip()
+        gcp_id = row[col["id"]].strip() if "id" in col else f"line{line}"
         if not gcp_id:
-            raise InputError(f'{source} line {line}: column "id" is empty; give every GCP a unique id')
+            raise InputError(f'{source} line {line}: column "{named["id"]}" is empty; give every GCP a unique id')
         where = f"{source} line {line} (id {quote_text(gcp_id)})"
-        vals = tuple(_number(row[col[c]], c, where, COLUMN_HINTS[c]) for c in ("x", "y", "z", "u", "v"))
+        vals = tuple(_number(row[col[c]], named[c], where, COLUMN_HINTS[c]) for c in ("x", "y", "z", "u", "v"))
         role = row[col["role"]].strip().lower() if "role" in col else ""
         role = role or ROLE_CONTROL
         if role not in ROLES:
@@ -373,18 +418,28 @@ def read_gcps(
         )
     header = lines[first].strip()
     delim, names = _split_header(header)
+    understood = _understand(names)
     gcp_crs_obj = _parse_option_crs(gcp_crs, "gcp_crs")
     crs_obj = _parse_option_crs(crs, "crs")
     declared_by = "given with gcp_crs"
-    if set(REQUIRED_COLUMNS) <= set(names):
+    note = understood.note
+    if {"x", "y", "z", "u", "v"} <= set(understood.col):
         rows = _parse_csv(text, source, delim)
-        xy_names = ("x", "y")
-    elif len(set(names) & set(CSV_COLUMNS)) >= 2:
-        missing = [c for c in REQUIRED_COLUMNS if c not in names]
+        xy_names = (understood.names["x"], understood.names["y"])
+        if "id" not in understood.col:
+            note = ", ".join(filter(None, [note, "no id column: points named by their line"]))
+        if understood.lonlat and gcp_crs_obj is None:
+            gcp_crs_obj = parse_crs("EPSG:4326")
+            declared_by = "taken as EPSG:4326 from the column names"
+    elif len(understood.col) >= 2:
+        missing = [c for c in ("x", "y", "z", "u", "v") if c not in understood.col]
+        height = (" (a height: z, elevation or alt; the GCP web app takes it from a DEM)"
+                  if missing == ["z"] else "")
         raise InputError(
             f"{source} line {first + 1}: the header lacks the column(s) "
-            f"{', '.join(repr(c) for c in missing)}; "
-            f"a GCP CSV needs the columns id,x,y,z,u,v (any order, any case; found {quote_text(header, 60)})"
+            f"{', '.join(repr(c) for c in missing)}{height}; "
+            "a GCP CSV needs id,x,y,z,u,v (any order, any case; also pixel_x/pixel_y, col/row, lat/lon, "
+            f"easting/northing, elevation, ...; found {quote_text(header, 60)})"
         )
     else:
         try:
@@ -420,6 +475,7 @@ def read_gcps(
     _check_unique_ids(rows, idx, source)
     world = np.column_stack([x[idx], y[idx], values[idx, 2]])
     return GCPTable(
+        columns_note=note if xy_names[0] != "geo_x" else "",
         ids=tuple(rows.ids[i] for i in idx),
         world=world,
         pixels=values[idx, 3:5],

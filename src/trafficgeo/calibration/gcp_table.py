@@ -55,6 +55,24 @@ OPTIONAL_COLUMNS: tuple[str, ...] = ("role", "sigma_px")
 CSV_COLUMNS: tuple[str, ...] = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
 
 ODM_COLUMNS = ("geo_x", "geo_y", "geo_z", "im_x", "im_y")
+#: Other names people's GCP files give the columns (lower case, spaces and dashes read as underscores), in the
+#: order they are tried. World x/y as longitude/latitude names mean a geographic file (EPSG:4326 unless said).
+COLUMN_ALIASES: dict[str, tuple[str, ...]] = {
+    "id": ("id", "name", "point", "point_id", "gcp", "gcp_id", "gcp_name", "label", "pt", "fid"),
+    "u": ("u", "pixel_x", "px", "image_x", "img_x", "im_x", "col", "column", "pixel_u", "x_px", "u_px",
+          "sourcex", "source_x"),
+    "v": ("v", "pixel_y", "py", "image_y", "img_y", "im_y", "row", "pixel_v", "y_px", "v_px", "sourcey",
+          "source_y"),
+    "x": ("x", "easting", "east", "e", "mapx", "map_x", "world_x", "geo_x", "x_m"),
+    "y": ("y", "northing", "north", "n", "mapy", "map_y", "world_y", "geo_y", "y_m"),
+    "z": ("z", "elevation", "elev", "height", "h", "altitude", "alt", "geo_z", "z_m", "elevation_m", "alt_m",
+          "height_m", "ellipsoidal_height", "orthometric_height"),
+    "lon": ("lon", "lon_deg", "longitude", "long", "lng", "longitude_deg"),
+    "lat": ("lat", "lat_deg", "latitude", "latitude_deg"),
+    "role": ("role", "type", "use"),
+    "sigma_px": ("sigma_px", "sigma", "pixel_sigma", "sigma_pixel"),
+}
+
 COLUMN_HINTS = {
     "x": "give world coordinates as numbers",
     "y": "give world coordinates as numbers",
@@ -90,6 +108,8 @@ class GCPTable:
         crs: working projected CRS of ``world``; ``None`` = unknown local coordinates.
         source: where the table came from (file name), for messages.
         lines: 1-based line number of each row in ``source`` (0 when the row has no line, e.g. built in code).
+        columns_note: how a file's columns were understood when they were not ``id,x,y,z,u,v`` by name (e.g.
+            "pixel_x -> u, lat_deg -> y (EPSG:4326)"), "" otherwise: say it to the user.
 
     Arrays are copied to read-only float64 arrays. Equality is identity (``eq=False``) because the fields are
     arrays; compare fields explicitly. Building a table with inconsistent shapes, non-finite values, unknown
@@ -105,6 +125,7 @@ class GCPTable:
     crs: pyproj.CRS | None
     source: str
     lines: tuple[int, ...]
+    columns_note: str = ""
 
     def __post_init__(self) -> None:
         ids = tuple(str(i) for i in self.ids)

@@ -111,6 +111,8 @@ def calibrate(
         intrinsics=intr, fix_intrinsics=intr is not None and not refine_intrinsics, loss=loss,
         survey_sigma_m=survey_sigma)
     table = read_gcps(gcps, gcp_crs=gcp_crs, crs=crs, odm_image=odm_image)
+    if table.columns_note:
+        console.print(f"{gcps}: columns read as {table.columns_note}")
     if gis is not None and table.crs is None:
         raise InputError(f"--gis {gis}: the GCPs have no CRS, so nothing can be placed on a map; give --crs")
     result = run_calibration(table, size, options, camera_path=output, report_path=report)

@@ -57,7 +57,14 @@ def refine(
             still = background_frame(video, start_s=start, duration_s=duration, n_frames=frames)
     else:
         still = read_frame_image(frame)
-    result = refine_camera_files(calibrated, still, ortho, ground, output, gcps=gcps, report_path=report,
+    table = None
+    if gcps is not None:
+        from trafficgeo.calibration.gcp_read import read_gcps
+
+        table = read_gcps(gcps, crs=calibrated.camera.crs)
+        if table.columns_note:
+            console.print(f"{gcps}: columns read as {table.columns_note}")
+    result = refine_camera_files(calibrated, still, ortho, ground, output, gcps=table, report_path=report,
                                  options=options, progress=console.print)
     b, a = result.before, result.after
     console.print(f"user's points, held-out error RMS: before {b.rmse_px:.2f} px ({b.rmse_m:.3f} m on the ground)"

@@ -230,6 +230,8 @@ def calibrate_ortho_files(frame: np.ndarray, ortho: str | Path | GeoRaster, surf
     table = None
     if checks is not None:
         table = checks if isinstance(checks, GCPTable) else read_gcps(checks, crs=raster.crs)
+        if table.columns_note and progress is not None:
+            progress(f"{checks}: columns read as {table.columns_note}")
         table = GCPTable(ids=table.ids, world=table.world, pixels=table.pixels, roles=(ROLE_CHECK,) * table.n,
                          sigma_px=table.sigma_px, crs=table.crs, source=table.source, lines=table.lines)
     result = calibrate_from_ortho(frame, raster, ground, near_xy, crs=raster.crs, checks=table, options=options,

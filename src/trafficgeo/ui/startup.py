@@ -103,6 +103,11 @@ def open_session(*, frame: str | Path | None = None, video: str | Path | None = 
         note = f"continuing with {table.n} GCP(s) from {source}"
         if source == session.autosave_path and gcps_path is not None and gcps_path.is_file():
             note += f" (newer than {gcps_path}: unsaved changes of the last session)"
+        if table.columns_note and source == gcps_path:
+            # the user's file keeps its own layout: Save writes trafficgeo's beside it
+            session.gcps_path = gcps_path.with_name(gcps_path.stem + "_trafficgeo.csv")
+            note += (f" (columns read as {table.columns_note}; Save writes id,x,y,z,u,v in the orthophoto's CRS to "
+                     f"{session.gcps_path.name}, your file stays as it is)")
     elif source is not None:
         note = f"the autosave {source} holds no GCPs; starting empty"
     else:
