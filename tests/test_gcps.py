@@ -642,3 +642,38 @@ def test_validate_small_coverage_warning() -> None:
     px = t.pixels * 0.1 + 50
     warnings = validate_gcps(GCPTable.from_arrays(t.ids, t.world, px), (1920, 1080))
     assert len(warnings) == 1 and "cover only" in warnings[0]
+
+
+def test_calibrate_reads_a_lon_lat_file_and_asks_for_its_accuracy(tmp_path: Path) -> None:
+    """``trafficgeo calibrate`` on a GCP file in lat_deg/lon_deg/alt (no --gcp-crs): the columns are said, the points
+    are projected to --crs, the camera is right, and the terminal asks for --survey-sigma (map-picked points) unless
+    it was given."""
+    from cli_support import invoke
+    from trafficgeo.camera.calibrated import read_camera_json
+    from trafficgeo.camera.model import Camera
+
+    truth = Camera.from_orientation((1920, 1080), 1500.0, (500000.0, 4877000.0, 112.0), 40.0, 12.0,
+                                    crs="EPSG:32610")
+    rng = np.random.default_rng(3)
+    s, o = rng.uniform(20, 90, 12), rng.uniform(-12, 12, 12)
+    h = np.radians(40.0)
+    x = 500000.0 + s * np.sin(h) + o * np.cos(h)
+    y = 4877000.0 + s * np.cos(h) - o * np.sin(h)
+    z = 100.0 + rng.uniform(0, 3, 12)
+    uv = truth.project(np.column_stack([x, y, z]))
+    lon, lat = pyproj.Transformer.from_crs("EPSG:32610", "EPSG:4326", always_xy=True).transform(x, y)
+    path = tmp_path / "map.csv"
+    path.write_text("name, pixel_x, pixel_y, lat_deg, lon_deg, alt\n" + "".join(
+        f"G{k}, {uv[k, 0]:.6f}, {uv[k, 1]:.6f}, {lat[k]:.9f}, {lon[k]:.9f}, {z[k]:.4f}\n" for k in range(12)),
+        encoding="utf-8")
+    code, out, err = invoke("calibrate", path, "--image-size", "1920x1080", "--crs", "EPSG:32610", "-o",
+                            tmp_path / "camera.json", "--quiet")
+    assert code == 0, out + err
+    said = " ".join(out.split())
+    assert "columns read as name -> id, pixel_x -> u, pixel_y -> v, lon_deg -> x, lat_deg -> y, alt -> z" in said
+    assert "say how good with --survey-sigma" in said
+    cam = read_camera_json(tmp_path / "camera.json")
+    assert np.linalg.norm(cam.position - truth.position) < 0.05
+    code, out, err = invoke("calibrate", path, "--image-size", "1920x1080", "--crs", "EPSG:32610", "-o",
+                            tmp_path / "camera2.json", "--quiet", "--survey-sigma", "0.5")
+    assert code == 0 and "--survey-sigma" not in " ".join(out.split())

@@ -476,6 +476,7 @@ def read_gcps(
     world = np.column_stack([x[idx], y[idx], values[idx, 2]])
     return GCPTable(
         columns_note=note if xy_names[0] != "geo_x" else "",
+        from_lonlat=gcp_crs_obj is not None and is_geographic(gcp_crs_obj),
         ids=tuple(rows.ids[i] for i in idx),
         world=world,
         pixels=values[idx, 3:5],

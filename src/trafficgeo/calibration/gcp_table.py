@@ -110,6 +110,8 @@ class GCPTable:
         lines: 1-based line number of each row in ``source`` (0 when the row has no line, e.g. built in code).
         columns_note: how a file's columns were understood when they were not ``id,x,y,z,u,v`` by name (e.g.
             "pixel_x -> u, lat_deg -> y (EPSG:4326)"), "" otherwise: say it to the user.
+        from_lonlat: the file gave longitude/latitude (points picked on a web map, usually: metres, not the
+            centimetres of a survey).
 
     Arrays are copied to read-only float64 arrays. Equality is identity (``eq=False``) because the fields are
     arrays; compare fields explicitly. Building a table with inconsistent shapes, non-finite values, unknown
@@ -126,6 +128,7 @@ class GCPTable:
     source: str
     lines: tuple[int, ...]
     columns_note: str = ""
+    from_lonlat: bool = False
 
     def __post_init__(self) -> None:
         ids = tuple(str(i) for i in self.ids)

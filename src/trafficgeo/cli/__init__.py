@@ -70,9 +70,14 @@ def _distortion_option(text: str) -> str | tuple[str, ...]:
     return tuple(p.strip() for p in t.split(",") if p.strip())
 
 
+SURVEY_SIGMA_M = 0.03  # the calibrate command's default --survey-sigma (m): surveyed points
+
+
 @app.command()
 def calibrate(
-    gcps: Annotated[Path, typer.Argument(help="GCP CSV (id,x,y,z,u,v[,role][,sigma_px]) or ODM gcp_list.txt")],
+    gcps: Annotated[Path, typer.Argument(help="GCP CSV (id,x,y,z,u,v[,role][,sigma_px]; other names such as "
+                                              "pixel_x/pixel_y, col/row, lat/lon, easting/northing/elevation are "
+                                              "read too) or ODM gcp_list.txt")],
     image_size: Annotated[str, typer.Option("--image-size", help="video frame size WIDTHxHEIGHT, e.g. 1920x1080")],
     output: Annotated[Path, typer.Option("--output", "-o", help="camera JSON to write")],
     report: Annotated[Path | None, typer.Option(help="validation report JSON to write")] = None,
@@ -86,7 +91,8 @@ def calibrate(
     principal_point: Annotated[str, typer.Option(help="auto | fixed | free")] = "auto",
     distortion: Annotated[str, typer.Option(help="auto | none | terms such as k1,k2")] = "auto",
     loss: Annotated[str, typer.Option(help="robust loss: soft_l1 | huber | cauchy | linear")] = "soft_l1",
-    survey_sigma: Annotated[float, typer.Option(help="standard deviation of GCP world coordinates (m)")] = 0.03,
+    survey_sigma: Annotated[float, typer.Option(help="standard deviation of GCP world coordinates (m); 0.3-1 for "
+                                                     "points picked on a web map")] = SURVEY_SIGMA_M,
     gis: Annotated[Path | None, typer.Option(help="also write camera, GCPs with residuals and the footprint on "
                                              "the GCP plane (.gpkg / .geojson)")] = None,
     report_html: Annotated[Path | None, typer.Option(help="also write an HTML report of the calibration (built from "
@@ -113,6 +119,10 @@ def calibrate(
     table = read_gcps(gcps, gcp_crs=gcp_crs, crs=crs, odm_image=odm_image)
     if table.columns_note:
         console.print(f"{gcps}: columns read as {table.columns_note}")
+    if table.from_lonlat and survey_sigma == SURVEY_SIGMA_M:
+        console.print(f"{gcps}: longitude/latitude points are usually picked on a web map, good to a few decimetres "
+                      f"or metres, not the {SURVEY_SIGMA_M:g} m of a survey; say how good with --survey-sigma (e.g. "
+                      "0.5), or the fit trusts them too much and the error bars are too small")
     if gis is not None and table.crs is None:
         raise InputError(f"--gis {gis}: the GCPs have no CRS, so nothing can be placed on a map; give --crs")
     result = run_calibration(table, size, options, camera_path=output, report_path=report)
