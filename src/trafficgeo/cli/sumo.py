@@ -61,11 +61,12 @@ def sumo_demand(
 ) -> None:
     """Observed counts -> SUMO demand and a runnable scenario (scenario.sumocfg, opens in sumo-gui).
 
-    A run analyzed with --gates (a junction's turning movements) gets a demand of its movements: each gate is
-    mapped to its arm's in- and out-edge, and each counted movement (origin -> destination, per interval and class)
-    becomes vehicles on the route in-edge -> out-edge that cross the origin gate in their interval. Movements take
-    precedence at the junction: the counting lines of such a run are not used for the demand (sumo-validate still
-    compares at them). Otherwise routeSampler fits routes to the counts at the counting lines."""
+    A run of 'analyze' or 'process' with --gates (a junction's turning movements) gets a demand of its movements:
+    each gate is mapped to its arm's in- and out-edge, and each counted movement (origin -> destination, per
+    interval and class) becomes vehicles on the route in-edge -> out-edge that cross the origin gate in their
+    interval. Movements take precedence at the junction: the counting lines of such a run are not used for the
+    demand (sumo-validate still compares at them). Otherwise routeSampler fits routes to the counts at the
+    counting lines."""
     from trafficgeo.simulation.mapping import MappingError
     from trafficgeo.simulation.scenario import build_sumo_scenario
 

@@ -20,8 +20,9 @@ DETECTOR_PARAMETERS = ("detector", "detector_format")
 DETECTOR_NAMES: dict[str, str] = {"nanodet": "nanodet", "learned": "nanodet", "background": "mog2", "bg": "mog2",
                                   "mog2": "mog2", "knn": "knn"}
 DETECTOR_HELP = ("'nanodet' (the built-in learned detector, NanoDet-g, shipped with trafficgeo; tiled over the far "
-                 "road given --lanes or --roi; also 'learned'), 'background' (MOG2 background subtraction for a fixed "
-                 "camera; also 'bg' or 'mog2'), 'knn' (KNN background subtraction), or the path of an .onnx model")
+                 "road around the counting lines, lanes or ROI given; also 'learned'), 'background' (MOG2 "
+                 "background subtraction for a fixed camera; also 'bg' or 'mog2'), 'knn' (KNN background "
+                 "subtraction), or the path of an .onnx model")
 
 
 def detector_kind(spec: str) -> str:

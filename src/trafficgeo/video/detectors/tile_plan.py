@@ -249,11 +249,15 @@ class TilePlan:
             (lo, hi), (d0, d1) = r.input_px, r.distance_m
             size = f"{lo:.0f} px" if round(lo) == round(hi) else f"{lo:.0f}-{hi:.0f} px"
             where = f"{d0:.0f} m" if round(d0) == round(d1) else f"{d0:.0f}-{d1:.0f} m"
+            if len(self.tiles):  # tiles are planned over the line already: they zoom as far as they may
+                fix = (f"the tiles there already zoom {self.max_upscale:g}x, as far as they may; count nearer the "
+                       "camera, or film with a longer lens or a higher resolution")
+            else:
+                fix = ("plan tiles there (they are planned over the counting lines, lanes or an ROI when tiling is "
+                       "on), count nearer the camera, or film with a longer lens or a higher resolution")
             out.append(f"counting line {r.name}: {car} crossing it ({where} from the camera) is only {size} across in "
                        f"the detector's input on {r.short:.0%} of the line, below the {self.min_size_px:g} px the "
-                       "detector needs, so vehicles there may go undetected and uncounted; plan tiles there (lanes or "
-                       "an ROI that include the line), count nearer the camera, or film with a longer lens or a higher "
-                       "resolution")
+                       f"detector needs, so vehicles there may go undetected and uncounted; {fix}")
         return out
 
     def _tiled_distance_m(self) -> tuple[float, float] | None:
