@@ -180,3 +180,36 @@ def test_calibration_page_gcp_table_and_camera(tmp_path: Path, roadside_camera: 
     inl = (got["status"] == "inlier").to_numpy()
     np.testing.assert_allclose(got["du"].astype(float)[inl], true_du[inl], atol=1.5)  # 0.5 px noise + fit error
     assert float(got.loc[got["id"] == "P3", "du"].item()) == pytest.approx(-30.0, abs=3.0)
+
+
+def test_per_line_table_names_directions_lists_zeros_and_gives_flows_only_over_a_long_enough_window() -> None:
+    """Issue 42: the report printed 1588 veh/h from a 6.8 s clip, left out lines nobody crossed and said only
+    +1/-1. A line drawn west to east: +1 (left to right looking along it) is south-bound."""
+    from types import SimpleNamespace
+
+    from shapely.geometry import LineString
+
+    from trafficgeo.report.traffic_sections import _crossing_table, crossing_bound
+
+    east = LineString([(0.0, 0.0), (10.0, 0.0)])
+    assert (crossing_bound(east, 1), crossing_bound(east, -1)) == ("S-bound", "N-bound")
+    diagonal = LineString([(5e6, 5e6), (5e6 + 3.0, 5e6 + 3.0)])  # SW -> NE, far from the origin
+    assert (crossing_bound(diagonal, 1), crossing_bound(diagonal, -1)) == ("SE-bound", "NW-bound")
+    crossings = pd.DataFrame({"line": ["L", "L", "L"], "lane": ["", "", ""], "direction": [1, 1, 1],
+                              "time": [1.0, 3.0, 5.0], "speed_kmh": [40.0, 42.0, 44.0], "class": ["car"] * 3,
+                              "vehicle": ["1", "2", "3"], "track_id": ["1", "2", "3"]})
+    lines = {"L": east, "quiet": LineString([(0.0, 50.0), (0.0, 60.0)])}
+
+    def rows(period_s: float) -> tuple[list[list[str]], list[str]]:
+        summary = SimpleNamespace(period_s=(0.0, period_s), options={"interval_s": 60.0})
+        part = _crossing_table(crossings, summary, lines)  # type: ignore[arg-type]
+        tab = part[0]
+        return [[c.text for c in r] for r in tab.rows], [
+            getattr(b, "text", "") for b in part[1:]]
+
+    short, notes = rows(6.8)
+    assert [r[:5] for r in short] == [["L", "-", "+1 (S-bound)", "3", "-"], ["quiet", "-", "-1 (W-bound)", "0", "-"],
+                                      ["quiet", "-", "+1 (E-bound)", "0", "-"]]
+    assert any("No flows (veh/h): 6.8 s were observed" in t for t in notes)
+    long, notes = rows(60.0)
+    assert long[0][4] == "180" and long[1][4] == "0" and not notes

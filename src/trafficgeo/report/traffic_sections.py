@@ -19,7 +19,7 @@ from trafficgeo.report.blocks import Block, Heading, Part, Section, Table, Text,
 from trafficgeo.report.context import ReportContext
 from trafficgeo.report.inputs import TrafficRun
 from trafficgeo.report.movement_section import movement_parts
-from trafficgeo.traffic.counts import period_counts
+from trafficgeo.traffic.counts import MIN_FLOW_SHARE, flow_rule, period_counts
 from trafficgeo.traffic.run_records import ProcessRecord, RunSummary
 
 TABLE_ROWS = 200
@@ -119,8 +119,9 @@ def traffic_section(b: ReportContext, run: TrafficRun, k: int) -> Section:
     else:
         b.skip(f"counts per lane over time ({name})", "no counts (no counting lines, or nobody crossed them): pass "
                "--lines to analyze/process")
-    if crossings is not None and len(crossings):
-        parts.append((Heading("Counts and speeds per line and lane"), _crossing_table(crossings, s)))
+    if crossings is not None and (len(crossings) or lines):
+        parts.append((Heading("Counts and speeds per line and lane"),
+                      *_crossing_table(crossings, s, dict(lines), counts)))
     if counts is not None and len(counts):
         parts.append(_counts_table(counts))
     parts += movement_parts(b, run, name)
@@ -255,20 +256,71 @@ def _vehicle_tables(v: pd.DataFrame) -> list[Table]:
     return out
 
 
-def _crossing_table(c: pd.DataFrame, s: RunSummary) -> Table:
+COMPASS = ("N", "NE", "E", "SE", "S", "SW", "W", "NW")
+
+
+def crossing_bound(geometry: Any, direction: int) -> str:
+    """The compass bound of a crossing of a counting line (e.g. "NE-bound"): direction +1 crosses from left to right
+    looking from the line's first point to its last, -1 the other way; "" when the line has no length."""
+    coords = np.asarray(geometry.coords, dtype=np.float64)[:, :2]
+    dx, dy = coords[-1] - coords[0]
+    if not (dx or dy):
+        return ""
+    ex, ny = (dy, -dx) if direction > 0 else (-dy, dx)  # the line's right (left) normal: where the vehicle goes
+    bearing = np.degrees(np.arctan2(ex, ny)) % 360.0
+    return f"{COMPASS[int(np.round(bearing / 45.0)) % 8]}-bound"
+
+
+def _crossing_table(c: pd.DataFrame, s: RunSummary, lines: dict[str, Any] | None = None,
+                    counts: pd.DataFrame | None = None) -> Part:
     """Per line, lane and direction over the whole observed period: count, flow, time- and space-mean speed and
-    mean headway (:func:`trafficgeo.traffic.counts.period_counts`), and the 85th percentile of the spot speeds."""
+    mean headway (:func:`trafficgeo.traffic.counts.period_counts`), and the 85th percentile of the spot speeds.
+    Directions are named by their compass bound where the line is known; a line, lane or direction nobody crossed
+    is listed with 0 (from counts.csv and the run's lines); flows (veh/h) only when the period is long enough to
+    extrapolate (:func:`trafficgeo.traffic.counts.flow_rule`, as the terminal and counts.csv)."""
+    lines = lines or {}
     start, end = s.period_s
-    stats = period_counts(c if "class" in c.columns else c.assign(**{"class": ""}), start, end)
+    dur = max(end - start, 1e-9)
+    interval_s = float(s.options.get("interval_s", 60.0))
+    flows = bool(end - start > 0 and flow_rule(end - start, interval_s))
+    stats = period_counts(c if "class" in c.columns else c.assign(**{"class": ""}), start, end) if len(c) else None
     p85 = {key: _q(sp[np.isfinite(sp) & (sp > 0)], 85) for key, sp in (
         (k, g["speed_kmh"].to_numpy(float)) for k, g in c.groupby(["line", "lane", "direction"], sort=True))}
-    rows = [[r["line"], r["lane"] or "-", f"{int(r['direction']):+d}", int(r["count"]), (r["flow_veh_h"], 0),
-             (r["time_mean_speed_kmh"], 1), (r["space_mean_speed_kmh"], 1),
-             (p85[(r["line"], r["lane"], r["direction"])], 1), (r["mean_headway_s"], 1)]
-            for r in stats.to_dict("records")]
-    return table(["line", "lane", "direction", "vehicles", "flow veh/h", "time-mean speed km/h",
-                  "space-mean speed km/h", "85th pct speed km/h", "mean headway s"], rows,
-                 caption=f"all crossings over the observed {max(end - start, 1e-9):.1f} s (spot speeds at the line)")
+    found = {} if stats is None else {(str(r["line"]), str(r["lane"] or ""), int(r["direction"])): r
+                                      for r in stats.to_dict("records")}
+    keys = set(found)
+    if counts is not None and len(counts) and {"line", "lane", "direction"} <= set(counts.columns):
+        keys |= {(str(a), "" if pd.isna(b) else str(b), int(d)) for a, b, d in
+                 counts[["line", "lane", "direction"]].itertuples(index=False)}
+    for name in lines:
+        if not any(k[0] == name for k in keys):
+            keys |= {(name, "", 1), (name, "", -1)}
+
+    def named(line: str, direction: int) -> str:
+        bound = crossing_bound(lines[line], direction) if line in lines else ""
+        return f"{direction:+d} ({bound})" if bound else f"{direction:+d}"
+
+    rows = []
+    for key in sorted(keys):
+        r = found.get(key)
+        line, lane, direction = key
+        if r is None:
+            rows.append([line, lane or "-", named(line, direction), 0, (0.0, 0) if flows else "-", "-", "-", "-",
+                         "-"])
+            continue
+        rows.append([line, lane or "-", named(line, direction), int(r["count"]),
+                     (r["flow_veh_h"], 0) if flows else "-", (r["time_mean_speed_kmh"], 1),
+                     (r["space_mean_speed_kmh"], 1), (p85.get((r["line"], r["lane"], r["direction"]), np.nan), 1),
+                     (r["mean_headway_s"], 1)])
+    caption = (f"all crossings over the observed {dur:.1f} s (spot speeds at the line); direction +1 crosses from "
+               "left to right looking along the line, named by where the vehicles head")
+    out: list[Block] = [table(["line", "lane", "direction", "vehicles", "flow veh/h", "time-mean speed km/h",
+                               "space-mean speed km/h", "85th pct speed km/h", "mean headway s"], rows,
+                              caption=caption)]
+    if not flows:
+        out.append(Text(f"No flows (veh/h): {dur:.1f} s were observed, less than {MIN_FLOW_SHARE:.0%} of the "
+                        f"{interval_s:g} s counting interval, too short to extrapolate to an hour.", "note"))
+    return tuple(out)
 
 
 def _counts_table(counts: pd.DataFrame) -> Part:
