@@ -105,6 +105,9 @@ def test_the_affine_fit_reports_what_does_not_fit() -> None:
     ({"control": "bad.csv"}, "columns"),
     ({"control": "corner.csv"}, "corner 'middle' is not one of"),
     ({"control": "photo.png"}, "not a text CSV"),
+    ({"control": "huge.csv"}, "a map coordinate reaches 1e+300, beyond any projected CRS"),
+    ({"control": "huge_px.csv"}, "a pixel coordinate reaches 1e+12, beyond any image"),
+    ({"control": "same_map.csv"}, "no usable map position"),
     ({}, "no world file"),
 ])
 def test_bad_inputs_raise_one_line(tmp_path: Path, kwargs: dict, needle: str) -> None:
@@ -113,6 +116,9 @@ def test_bad_inputs_raise_one_line(tmp_path: Path, kwargs: dict, needle: str) ->
     (tmp_path / "two.csv").write_text("u,v,x,y\n0,0,1,1\n10,10,2,2\n")
     (tmp_path / "bad.csv").write_text("a,b\n1,2\n")
     (tmp_path / "corner.csv").write_text("corner,x,y\ntop-left,1,1\nmiddle,3,4\nbottom-right,5,5\n")
+    (tmp_path / "huge.csv").write_text("u,v,x,y\n0,0,1e300,4877000\n100,0,1e300,4877000\n0,90,500000,-1e300\n")
+    (tmp_path / "huge_px.csv").write_text("u,v,x,y\n0,0,1,1\n1e12,0,2,1\n0,90,1,2\n")
+    (tmp_path / "same_map.csv").write_text("u,v,x,y\n0,0,500000,4877000\n100,0,500000,4877000\n0,90,500000,4877000\n")
     args = {"crs": CRS, **kwargs}
     for key in ("world_file", "control"):
         if key in args:

@@ -392,6 +392,9 @@ def test_crs_and_net_errors(tmp_path: Path) -> None:
         read_net_location(_net(tmp_path / "b.net.xml", proj="+proj=nonsense"))
     with pytest.raises(InputError, match="no <net><location"):
         read_net_location(SAMPLE)
+    for offset in ("nan,0.00", "0,inf"):  # issue 42: a NaN offset ended in a GEOS exception in sumo-demand
+        with pytest.raises(InputError, match="is not a finite 'x,y'"):
+            read_net_location(_net(tmp_path / "nan.net.xml", offset=offset))
     with pytest.raises(InputError, match="net_crs is given without net"):
         read_fcd(SAMPLE, net_crs="EPSG:32632")
     none = _net(tmp_path / "c.net.xml", proj="!")

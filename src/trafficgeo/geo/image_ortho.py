@@ -53,6 +53,10 @@ class ControlFit:
     max_error: float
 
 
+MAX_MAP_COORDINATE = 1e8  # CRS units: no projected CRS reaches this far (the Earth is 4e7 m round)
+MAX_PIXEL = 1e6  # px: no image is this large
+
+
 def fit_affine(pixels: ArrayLike, world: ArrayLike) -> ControlFit:
     """Least-squares affine from ``pixels`` (N, 2: u, v with pixel centres on integers) to ``world`` (N, 2, CRS units).
 
@@ -68,6 +72,11 @@ def fit_affine(pixels: ArrayLike, world: ArrayLike) -> ControlFit:
     if not (np.all(np.isfinite(uv)) and np.all(np.isfinite(xy))):
         raise InputError("control: a control point has a missing or non-finite coordinate; fix the table",
                          parameters=("control",))
+    if np.abs(xy).max() > MAX_MAP_COORDINATE or np.abs(uv).max() > MAX_PIXEL:
+        which = "map" if np.abs(xy).max() > MAX_MAP_COORDINATE else "pixel"
+        raise InputError(f"control: a {which} coordinate reaches {np.abs(xy if which == 'map' else uv).max():.3g}, "
+                         f"beyond any {'projected CRS' if which == 'map' else 'image'}; fix the table",
+                         parameters=("control",))
     origin = xy.mean(axis=0)  # map coordinates of 5e6 keep their precision
     corner = uv + 0.5  # pixel centres -> rasterio's corner convention
     design = np.column_stack([corner, np.ones(n)])
@@ -79,6 +88,9 @@ def fit_affine(pixels: ArrayLike, world: ArrayLike) -> ControlFit:
     (a, d), (b, e), (c, f) = coef
     transform = Affine(a, b, c + origin[0], d, e, f + origin[1])
     residual = np.linalg.norm(design @ coef - (xy - origin), axis=1)
+    if not (np.all(np.isfinite(coef)) and abs(a * e - b * d) > 0):
+        raise InputError("control: the control points give no usable map position for the pixels (repeated map "
+                         "coordinates?); fix the table", parameters=("control",))
     return ControlFit(transform, n, float(np.sqrt(np.mean(residual ** 2))), float(residual.max()))
 
 

@@ -8,6 +8,7 @@ headings (degrees clockwise from grid north). Used by :mod:`trafficgeo.io.fcd_re
 
 from __future__ import annotations
 
+import math
 import os
 import warnings
 import xml.parsers.expat
@@ -80,6 +81,9 @@ def _net_offset(p: Path, text: str) -> tuple[float, float]:
         ox, oy = (float(v) for v in text.split(","))
     except ValueError:
         raise InputError(f"{p}: <location netOffset={text!r}> is not 'x,y'; give a valid SUMO network") from None
+    if not (math.isfinite(ox) and math.isfinite(oy)):
+        raise InputError(f"{p}: <location netOffset={text!r}> is not a finite 'x,y'; give a valid SUMO network "
+                         "(rebuild it with netconvert)")
     return ox, oy
 
 
