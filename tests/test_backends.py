@@ -204,7 +204,8 @@ def test_the_cost_line_has_the_right_arithmetic() -> None:
     assert math.isclose(cost.seconds, 600 * (5 * 41.0 + 4.0 + 3.0) / 1e3, rel_tol=1e-12)  # 127.2 s
     assert math.isclose(cost.realtime_factor, 60.0 / 127.2, rel_tol=1e-9)
     assert cost.summary() == ("detector: 5 passes per detection frame, every 3rd frame, 41 ms per pass (openvino) "
-                              "-> about 2 min 7 s for 1 min of video (0.47x real time)")
+                              "-> about 2 min 7 s for 1 min of video (0.47x real time; 1 min 23 s to 3 min 24 s as "
+                              "the machine's load goes, the progress bar follows the measured pace)")
     # no plan: one pass; every frame; a frame count that does not divide
     one = estimate_cost(choice, None, every=1, video_s=10.0, fps=25.0, decode_ms=0.0, track_ms=0.0)
     assert (one.passes, one.detection_frames) == (1, 250) and math.isclose(one.seconds, 250 * 0.041)
