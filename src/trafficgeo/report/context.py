@@ -133,7 +133,7 @@ def _load(b: ReportContext) -> None:
 
     inp = b.inputs
     if inp.camera is not None:
-        b.calibrated = CalibratedCamera.read(inp.camera)
+        b.calibrated = inp.calibrated if inp.calibrated is not None else CalibratedCamera.read(inp.camera)
         b.camera = b.calibrated.camera
         b.used.append(("camera", str(inp.camera)))
     rep = inp.calibration_report
@@ -176,17 +176,16 @@ def _reference_xy(b: ReportContext) -> tuple[float, float] | None:
         return float(p[0]), float(p[1])
     if b.gcps is not None and len(b.gcps):
         return float(b.gcps["x"].median()), float(b.gcps["y"].median())
-    for run in b.inputs.traffic:
-        p = run.folder / "crossings.csv"
-        if p.is_file():
-            c = pd.read_csv(p, usecols=lambda col: col in ("x", "y"))
-            if len(c) and {"x", "y"} <= set(c.columns):
-                return float(c["x"].median()), float(c["y"].median())
-        p = run.folder / "trajectories.csv"
-        if p.is_file():
-            t = pd.read_csv(p, usecols=["x", "y"], nrows=10_000)
-            if len(t):
-                return float(t["x"].median()), float(t["y"].median())
+    for run in b.inputs.traffic:  # read through the run's RunFolder: its schema and manifest checked
+        for name in ("crossings.csv", "trajectories.csv"):
+            if not run.run.has(name):
+                continue
+            t = run.run.table(name, required=())
+            if len(t) and {"x", "y"} <= set(t.columns):
+                x, y = t["x"].to_numpy(float), t["y"].to_numpy(float)
+                ok = np.isfinite(x) & np.isfinite(y)
+                if ok.any():
+                    return float(np.median(x[ok])), float(np.median(y[ok]))
     return None
 
 

@@ -67,6 +67,7 @@ class ReportInputs:
     traffic: tuple[TrafficRun, ...] = ()
     refine_report: Path | None = None  # the orthophoto refinement report (trafficgeo refine --report)
     refine_named: str | None = None  # the file the camera JSON's refinement block names, when not found
+    calibrated: CalibratedCamera | None = None  # the camera JSON ``camera``, read once here
 
     @property
     def empty(self) -> bool:
@@ -169,6 +170,7 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
             cam = _resolve(run.process.camera, [run.folder, root, run.folder.resolve().parent])
             if cam is not None:
                 break
+    calibrated = CalibratedCamera.read(cam) if cam is not None else None  # the one read of the camera JSON
     extra = [cam.parent] if cam is not None and cam.parent.resolve() not in {d.resolve() for d in dirs} else []
     site_dirs = dirs + extra
     rep: Path | CalibrationReport | None
@@ -187,8 +189,8 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
                     break
     frame_path = _given_file(frame, "frame", "give a PNG or JPEG of the video frame the GCPs were clicked on")
     frame_given = frame_path is not None
-    if frame_path is None and cam is not None:
-        extras = CalibratedCamera.read(cam).extras
+    if frame_path is None and cam is not None and calibrated is not None:
+        extras = calibrated.extras
         for key in FRAME_KEYS:
             frame_path = _resolve(extras.get(key), [cam.parent])
             if frame_path is not None:
@@ -196,8 +198,8 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
     frame_path = frame_path or _find(site_dirs, FRAME_NAMES)
     refine_path = _given_file(refine_report, "refine_report", "give the report JSON of 'trafficgeo refine --report'")
     refine_named = None
-    if refine_path is None and cam is not None:
-        refine_path, refine_named = _refine_report_of(cam)
+    if refine_path is None and cam is not None and calibrated is not None:
+        refine_path, refine_named = _refine_report_of(cam, calibrated)
     video_path = _given_file(video, "video", "give the video file")
     video_given = video_path is not None
     time_s = 0.0
@@ -216,13 +218,14 @@ def find_inputs(run_dir: str | Path, *, camera: str | Path | None = None,
     return ReportInputs(run_dir=root, camera=cam, calibration_report=rep, frame=frame_path, frame_given=frame_given,
                         video=video_path, video_given=video_given, video_time_s=time_s, ortho=ortho_path,
                         dem=dem_path, accuracy=_find(site_dirs, ACCURACY_NAMES), site=_find(site_dirs, SITE_NAMES),
-                        traffic=traffic, refine_report=refine_path, refine_named=refine_named)
+                        traffic=traffic, refine_report=refine_path, refine_named=refine_named, calibrated=calibrated)
 
 
-def _refine_report_of(camera: Path) -> tuple[Path | None, str | None]:
-    """The refinement report a camera JSON's ``refinement.report`` key names beside it: (the file, None) when it
-    exists, (None, the name) when it does not, (None, None) without such a key."""
-    verdict = CalibratedCamera.read(camera).refinement
+def _refine_report_of(camera: Path, calibrated: CalibratedCamera) -> tuple[Path | None, str | None]:
+    """The refinement report the camera JSON at ``camera`` (read as ``calibrated``) names in its
+    ``refinement.report`` key, beside it: (the file, None) when it exists, (None, the name) when it does not,
+    (None, None) without such a key."""
+    verdict = calibrated.refinement
     name = verdict.report if verdict is not None else None
     if not name:
         return None, None
