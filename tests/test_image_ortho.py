@@ -79,9 +79,46 @@ def test_control_points_fit_the_affine(tmp_path: Path, geotiff: Path) -> None:
     x, y = TRUTH @ (30.5, 20.5)  # centre of pixel (30, 20)
     lines.append(f",30,20,{x:.6f},{y:.6f}")
     (tmp_path / "control.csv").write_text("\n".join(lines) + "\n")
-    raster, fit = read_image_ortho(img, CRS, control=tmp_path / "control.csv")
+    raster, fit = read_image_ortho(img, CRS, control=tmp_path / "control.csv", model="affine")
     assert fit.n_points == 5 and fit.rmse < 1e-5  # CRS units: the coordinates are written to 1e-6
     _same_as(raster, geotiff, 1e-5)
+
+
+def test_a_perspective_image_is_orthorectified_by_a_projective_fit(tmp_path: Path) -> None:
+    """Issue 42: an oblique photo of flat ground (a homography of a north-up texture) from 6 control points: the
+    projective fit is exact where an affine is metres off, and the orthophoto's cells hold the image's values at
+    their map positions."""
+    import cv2
+
+    from trafficgeo.geo.image_projective import fit_projective
+
+    rng = np.random.default_rng(5)
+    truth = cv2.GaussianBlur(rng.uniform(0, 255, (400, 400)).astype(np.float32), (0, 0), 3.0)
+    truth = cv2.normalize(truth, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)  # 0.1 m cells, 40 m x 40 m
+    left, top, res = 245000.0, 5182700.0, 0.1
+    # the photo: ground cell (col, row) seen obliquely (the far side shrinks), 480 x 360 px
+    src = np.float32([[0, 0], [400, 0], [400, 400], [0, 400]])
+    dst = np.float32([[150, 40], [330, 40], [470, 350], [10, 350]])
+    G = cv2.getPerspectiveTransform(src, dst)  # ground cell corner coords -> photo pixel corner coords
+    photo = cv2.warpPerspective(truth, G, (480, 360), flags=cv2.INTER_LINEAR)
+    img = _write_png(tmp_path / "oblique.png", np.stack([photo] * 3))
+    cells = np.array([[40, 60], [350, 50], [360, 340], [60, 330], [200, 200], [120, 250]], dtype=np.float64)
+    uv = cv2.perspectiveTransform(cells[None].astype(np.float64), G)[0] - 0.5  # pixel centres on integers
+    xy = np.column_stack([left + cells[:, 0] * res, top - cells[:, 1] * res])
+    (tmp_path / "control.csv").write_text("u,v,x,y\n" + "".join(f"{u:.9f},{v:.9f},{x:.9f},{y:.9f}\n"
+                                                                 for (u, v), (x, y) in zip(uv, xy, strict=True)))
+    assert fit_affine(uv, xy).rmse > 0.5  # metres off: an affine cannot describe the oblique view
+    raster, fit = read_image_ortho(img, CRS, control=tmp_path / "control.csv")
+    assert fit.n_points == 6 and fit.rmse < 1e-4  # CRS units (0.1 mm)
+    assert fit_projective(uv, xy).max_error < 1e-4
+    # the orthophoto at the map positions of interior ground cells holds the truth texture there
+    probe = rng.uniform(60, 340, (300, 2))
+    px, py = left + probe[:, 0] * res, top - probe[:, 1] * res
+    col, row = raster.map_to_pixel(px, py)
+    got = raster.data[0][row.astype(int), col.astype(int)].astype(float)
+    want = truth[probe[:, 1].astype(int), probe[:, 0].astype(int)].astype(float)
+    assert np.median(np.abs(got - want)) < 12.0 and np.corrcoef(got, want)[0, 1] > 0.9
+    assert raster.is_north_up and abs(raster.resolution[0] - raster.resolution[1]) < 1e-12
 
 
 def test_the_affine_fit_reports_what_does_not_fit() -> None:
@@ -108,6 +145,9 @@ def test_the_affine_fit_reports_what_does_not_fit() -> None:
     ({"control": "huge.csv"}, "a map coordinate reaches 1e+300, beyond any projected CRS"),
     ({"control": "huge_px.csv"}, "a pixel coordinate reaches 1e+12, beyond any image"),
     ({"control": "same_map.csv"}, "no usable map position"),
+    ({"control": "same_map4.csv"}, "do not fix a projective fit"),
+    ({"control": "two.csv", "model": "projective"}, "a projective fit needs at least 4"),
+    ({"model": "bent"}, "model 'bent' is not one of auto, affine, projective"),
     ({}, "no world file"),
 ])
 def test_bad_inputs_raise_one_line(tmp_path: Path, kwargs: dict, needle: str) -> None:
@@ -118,6 +158,8 @@ def test_bad_inputs_raise_one_line(tmp_path: Path, kwargs: dict, needle: str) ->
     (tmp_path / "corner.csv").write_text("corner,x,y\ntop-left,1,1\nmiddle,3,4\nbottom-right,5,5\n")
     (tmp_path / "huge.csv").write_text("u,v,x,y\n0,0,1e300,4877000\n100,0,1e300,4877000\n0,90,500000,-1e300\n")
     (tmp_path / "huge_px.csv").write_text("u,v,x,y\n0,0,1,1\n1e12,0,2,1\n0,90,1,2\n")
+    (tmp_path / "same_map4.csv").write_text("u,v,x,y\n0,0,500000,4877000\n100,0,500000,4877000\n"
+                                            "0,90,500000,4877000\n100,90,500000,4877000\n")
     (tmp_path / "same_map.csv").write_text("u,v,x,y\n0,0,500000,4877000\n100,0,500000,4877000\n0,90,500000,4877000\n")
     args = {"crs": CRS, **kwargs}
     for key in ("world_file", "control"):

@@ -294,7 +294,7 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "world_file": "--world-file", "control": "--corners", "gates": "--gates",
          "movement_interval_s": "--movement-interval", "near": "--near", "near_crs": "--near-crs",
          "max_offset_m": "--max-offset", "checks": "--checks",
-         "gcps_out": "--gcps-out"}
+         "gcps_out": "--gcps-out", "model": "--model"}
 
 
 def main(argv: list[str] | None = None) -> Any:

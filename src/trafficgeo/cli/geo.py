@@ -256,17 +256,23 @@ def ortho_from_image(
     corners: Annotated[Path | None, typer.Option(help="control-point CSV instead: u,v,x,y (pixel centres on integers) "
                                                  "or corner,x,y (top-left, top-right, bottom-right, bottom-left); 3 "
                                                  "or more, fitted by least squares")] = None,
+    model: Annotated[str, typer.Option(help="how --corners are fitted: 'auto' (projective from 4 points, the image "
+                                            "resampled north-up; affine from 3), 'affine' or 'projective'")] = "auto",
 ) -> None:
-    """Turn a georeferenced image (world file or 3+ control points, and a CRS) into an orthophoto GeoTIFF."""
+    """Turn a georeferenced image (world file or 3+ control points, and a CRS) into an orthophoto GeoTIFF. From 4
+    control points a projective fit makes a perspective image (an oblique drone photo) an orthophoto of flat
+    ground, resampled onto a north-up grid."""
     from trafficgeo.geo.image_ortho import image_corners, image_to_geotiff
 
     if output.suffix.lower() not in (".tif", ".tiff"):
         raise InputError(f"--output {output}: write the orthophoto as a GeoTIFF (.tif)")
-    raster, fit = image_to_geotiff(image, output, crs, world_file=world_file, control=corners)
+    raster, fit = image_to_geotiff(image, output, crs, world_file=world_file, control=corners, model=model)
     res = raster.resolution
     console.print(f"{raster.cols}x{raster.rows} px, {raster.count} band(s), pixel {res[0]:.4g} x {res[1]:.4g} CRS "
                   f"units, top-left corner at {image_corners(raster)[0][0]:.3f}, {image_corners(raster)[0][1]:.3f}")
     if fit is not None:
-        console.print(f"affine fitted to {fit.n_points} control points: RMS {fit.rmse:.3f}, max {fit.max_error:.3f} "
-                      "CRS units" + (" (3 points: an exact fit, nothing checks it)" if fit.n_points == 3 else ""))
+        kind, exact = ("projective", 4) if type(fit).__name__ == "ProjectiveFit" else ("affine", 3)
+        console.print(f"{kind} fitted to {fit.n_points} control points: RMS {fit.rmse:.3f}, max {fit.max_error:.3f} "
+                      "CRS units" + (f" ({exact} points: an exact fit, nothing checks it)" if fit.n_points == exact
+                                     else ""))
     console.print(f"wrote {output}")

@@ -5,7 +5,9 @@ World files (``.pgw``, ``.jgw``, ``.wld``, ...) are six lines ``A, D, B, E, C, F
 ``y = D col + E row + F``, where ``(col, row)`` are pixel *centres* on integers, so ``(C, F)`` is the centre of the
 top-left pixel, not its corner (a half-pixel shift if read the other way). They carry no CRS: give it.
 
-Control points (a CSV, :func:`read_control_points`) tie image positions to map coordinates: columns ``u, v`` (pixels,
+Control points (a CSV, :func:`read_control_points`) tie image positions to map coordinates (from four points on, a
+projective fit resamples a perspective image onto a north-up grid: :mod:`trafficgeo.geo.image_projective`; the
+affine below is for three): columns ``u, v`` (pixels,
 ``(0, 0)`` the centre of the top-left pixel, as everywhere in trafficgeo) or ``corner`` (``top-left``, ``top-right``,
 ``bottom-right``, ``bottom-left``: the outer corners of the image), and ``x, y`` in the CRS. The pixel -> map affine
 (six parameters) is their least-squares fit; with more than three points its RMS residual tells how well an affine
@@ -31,6 +33,7 @@ from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
 from trafficgeo.crs import is_geographic, parse_crs
 from trafficgeo.errors import InputError
+from trafficgeo.geo.image_projective import ProjectiveFit, fit_projective, orthorectify
 from trafficgeo.geo.raster import GeoRaster, pixel_to_map, read_world_file, world_file_candidates, write_geotiff
 
 CORNER_NAMES = ("top-left", "top-right", "bottom-right", "bottom-left")
@@ -146,12 +149,18 @@ def read_control_points(path: str | os.PathLike[str], image_size: tuple[int, int
 MAX_IMAGE_BYTES = 1_000_000_000  # decoded size of an image read whole (a PNG of a few hundred kB can hold GBs)
 
 
+MODELS = ("auto", "affine", "projective")
+
+
 def read_image_ortho(image: str | os.PathLike[str], crs: object, *, world_file: str | os.PathLike[str] | None = None,
-                     control: str | os.PathLike[str] | None = None) -> tuple[GeoRaster, ControlFit | None]:
+                     control: str | os.PathLike[str] | None = None, model: str = "auto"
+                     ) -> tuple[GeoRaster, ControlFit | ProjectiveFit | None]:
     """The orthophoto of ``image`` in the projected ``crs``: georeferenced by ``world_file``, or by the control-point
     CSV ``control``, or else by a world file beside it (``.pgw`` for ``.png``, ``.jgw`` for ``.jpg``, ``.wld``).
 
-    Returns the raster and, for control points, the fit (with its residuals).
+    Returns the raster and, for control points, the fit (with its residuals). ``model`` says how control points are
+    fitted: "affine" (the image is georeferenced as it is), "projective" (a homography, the image resampled onto a
+    north-up grid: :mod:`trafficgeo.geo.image_projective`), or "auto": projective from 4 points on, affine from 3.
 
     Raises:
         InputError: no such image or not an image GDAL reads, no CRS or a geographic one, both ``world_file`` and
@@ -162,6 +171,8 @@ def read_image_ortho(image: str | os.PathLike[str], crs: object, *, world_file: 
     if target is None or is_geographic(target):
         raise InputError(f"`crs`: {p} needs a projected CRS for its map coordinates, e.g. EPSG:32633 (world files "
                          "and control points carry none)", parameters=("crs",))
+    if model not in MODELS:
+        raise InputError(f"model {model!r} is not one of {', '.join(MODELS)}", parameters=("model",))
     if world_file is not None and control is not None:
         raise InputError("give the world file or the control points, not both", parameters=("world_file", "control"))
     if not p.is_file():
@@ -180,9 +191,15 @@ def read_image_ortho(image: str | os.PathLike[str], crs: object, *, world_file: 
     except RasterioError as exc:
         raise InputError(f"image {p} is not an image GDAL can read ({' '.join(str(exc).split())[:100]}); give a "
                          "PNG, JPEG or TIFF") from None
-    fit = None
+    fit: ControlFit | ProjectiveFit | None = None
     if control is not None:
         uv, xy = read_control_points(control, (data.shape[2], data.shape[1]))
+        if model == "projective" or (model == "auto" and len(uv) >= 4):
+            if np.abs(xy).max() > MAX_MAP_COORDINATE or np.abs(uv).max() > MAX_PIXEL:
+                fit_affine(uv, xy)  # its one-line refusal of absurd coordinates
+            pfit = fit_projective(uv, xy)
+            grid, transform = orthorectify(data, pfit, uv, xy)
+            return GeoRaster(grid, transform, target, 0 if nodata is None else nodata, (), str(p)), pfit
         fit = fit_affine(uv, xy)
         transform = fit.transform
     elif world_file is not None:
@@ -201,9 +218,10 @@ def read_image_ortho(image: str | os.PathLike[str], crs: object, *, world_file: 
 
 def image_to_geotiff(image: str | os.PathLike[str], output: str | os.PathLike[str], crs: object, *,
                      world_file: str | os.PathLike[str] | None = None,
-                     control: str | os.PathLike[str] | None = None) -> tuple[GeoRaster, ControlFit | None]:
+                     control: str | os.PathLike[str] | None = None, model: str = "auto"
+                     ) -> tuple[GeoRaster, ControlFit | ProjectiveFit | None]:
     """Write the orthophoto of :func:`read_image_ortho` as a GeoTIFF at ``output`` (atomically); returns the same."""
-    raster, fit = read_image_ortho(image, crs, world_file=world_file, control=control)
+    raster, fit = read_image_ortho(image, crs, world_file=world_file, control=control, model=model)
     write_geotiff(output, raster.data, raster.transform, raster.crs, nodata=raster.nodata)
     return raster, fit
 
