@@ -267,3 +267,29 @@ def test_a_peers_gcp_file_is_read_and_kept_as_it_is(work, scene):
     saved = read_gcps(work / "theirs_trafficgeo.csv", crs=CRS)
     np.testing.assert_allclose(saved.world, scene.truth_world[:8])
     assert saved.columns_note == ""
+
+
+def test_lon_lat_gcps_open_with_gcp_crs_and_are_saved_beside(work, scene):
+    """Issue 42: gcp-ui refused lon/lat GCPs and pointed to a --gcp-crs it did not have. With gcp_crs EPSG:4326 the
+    file opens (projected to the orthophoto's CRS), the note asks for the survey accuracy of map-picked points, and
+    Save leaves the user's lon/lat file as it is."""
+    from pyproj import Transformer
+
+    lon, lat = Transformer.from_crs(CRS, "EPSG:4326", always_xy=True).transform(scene.truth_world[:8, 0],
+                                                                              scene.truth_world[:8, 1])
+    rows = ["id,x,y,z,u,v"] + [f"P{i},{lon[i]:.10f},{lat[i]:.10f},{float(scene.truth_world[i, 2]):.4f},"
+                               f"{float(scene.truth_pixels[i, 0]):.4f},{float(scene.truth_pixels[i, 1]):.4f}"
+                               for i in range(8)]
+    theirs = work / "lonlat.csv"
+    theirs.write_text("\n".join(rows) + "\n", encoding="utf-8")
+    before = theirs.read_bytes()
+    with pytest.raises(Exception, match="gcp_crs EPSG:4326"):
+        open_session(frame=work / "frame.png", ortho=work / "ortho.tif", dem=work / "dem.tif", gcps=theirs)
+    session, note = open_session(frame=work / "frame.png", ortho=work / "ortho.tif", dem=work / "dem.tif",
+                                 gcps=theirs, gcp_crs="EPSG:4326")
+    assert "lonlat_trafficgeo.csv" in note and "survey_sigma" in note
+    with TestClient(create_app(session)) as c:
+        assert c.post("/api/gcps/save", json={}).json() == {"path": "lonlat_trafficgeo.csv", "n": 8}
+    assert theirs.read_bytes() == before
+    saved = read_gcps(work / "lonlat_trafficgeo.csv", crs=CRS)
+    np.testing.assert_allclose(saved.world[:, :2], scene.truth_world[:8, :2], atol=1e-4)

@@ -35,6 +35,12 @@ def gcp_ui(
                                               "changes are autosaved to <name>.autosave.csv beside it")] = None,
     workdir: Annotated[Path | None, typer.Option("--workdir", help="folder for the file names typed in the page "
                                                  "(default: the folder of --gcps, else the current folder)")] = None,
+    gcp_crs: Annotated[str | None, typer.Option(help="CRS of the --gcps file's x, y when not the orthophoto's, "
+                                                     "e.g. EPSG:4326 (x = longitude, y = latitude); edits are saved "
+                                                     "beside it, in the orthophoto's CRS")] = None,
+    survey_sigma: Annotated[float, typer.Option(help="standard deviation of the GCPs' world coordinates (m): 0.03 "
+                                                     "for surveyed points and a good orthophoto, 0.3-1 for points "
+                                                     "picked on a web map")] = 0.03,
     focal_px: Annotated[float | None, typer.Option(help="hold the focal length at this value (px)")] = None,
     host: Annotated[str, typer.Option(help="address to serve on (127.0.0.1 = this computer only)")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="TCP port (0 = any free port)")] = 8765,
@@ -48,13 +54,13 @@ def gcp_ui(
     from trafficgeo.ui.server import bind_socket, create_app, make_server, url_of
     from trafficgeo.ui.startup import open_session
 
-    options = CalibrationOptions(focal_px=focal_px)
+    options = CalibrationOptions(focal_px=focal_px, survey_sigma_m=survey_sigma)
     if not host.strip():
         raise InputError("--host is empty; give an address such as 127.0.0.1")
     sock = bind_socket(host, port)  # before loading: a port in use is reported at once
     try:
         session, note = open_session(frame=frame, video=video, at_s=at, ortho=ortho, dem=dem, cloud=cloud, gcps=gcps,
-                                     workdir=workdir, options=options)
+                                     workdir=workdir, options=options, gcp_crs=gcp_crs)
         url = url_of(sock)
         allowed = [*LOOPBACK_NAMES, host] if _is_loopback(host) else None
         server = make_server(create_app(session, allowed_hosts=allowed))
@@ -66,7 +72,7 @@ def gcp_ui(
             console.print(f"Z from {session.ground.describe()}", markup=False, highlight=False)
         else:
             console.print("no --dem or --cloud: type the Z of each GCP in the page", markup=False, highlight=False)
-        console.print(note, markup=False, highlight=False)
+        console.print(note.replace("survey_sigma", "--survey-sigma"), markup=False, highlight=False)
         console.print(f"autosave: {session.autosave_path}", markup=False, highlight=False)
         if not _is_loopback(host):
             console.print(f"warning: serving on {host}, reachable from other computers; anyone who can reach it "

@@ -14,7 +14,8 @@ from trafficgeo.errors import InputError
 from trafficgeo.ui.session import Session, SessionError
 
 
-def initial_table(gcps_path: Path | None, autosave_path: Path, crs: Any) -> tuple[GCPTable | None, Path | None]:
+def initial_table(gcps_path: Path | None, autosave_path: Path, crs: Any, gcp_crs: Any = None
+                  ) -> tuple[GCPTable | None, Path | None]:
     """The GCPs a session starts from, and the file they came from.
 
     The autosave when it is newer than the --gcps file (it holds changes made after the last save) or when there is
@@ -34,7 +35,8 @@ def initial_table(gcps_path: Path | None, autosave_path: Path, crs: Any) -> tupl
     if path == autosave_path and len(rows) <= 1:
         return None, path
     try:
-        return read_gcps(path, crs=crs), path
+        # the autosave is trafficgeo's own layout in the working CRS; the user's file is in gcp_crs when given
+        return read_gcps(path, crs=crs, gcp_crs=gcp_crs if path != autosave_path else None), path
     except InputError as exc:
         if path != autosave_path:
             raise
@@ -54,9 +56,10 @@ def damaged_autosave(autosave_path: Path, exc: Exception, gcps_path: Path | None
 def open_session(*, frame: str | Path | None = None, video: str | Path | None = None, at_s: float | None = None,
                  ortho: str | Path, dem: str | Path | None = None, cloud: str | Path | None = None,
                  gcps: str | Path | None = None, workdir: str | Path | None = None,
-                 options: CalibrationOptions | None = None) -> tuple[Session, str]:
+                 options: CalibrationOptions | None = None, gcp_crs: str | None = None) -> tuple[Session, str]:
     """Load the inputs of ``trafficgeo gcp-ui`` and start a session; returns it and a line saying where its GCPs
-    came from.
+    came from. ``gcp_crs`` is the CRS of the ``gcps`` file's x, y when it is not the orthophoto's (EPSG:4326 for
+    longitude/latitude: the points are projected to the orthophoto's CRS, and saving writes beside the file).
 
     ``frame`` (an image) or ``video`` (with ``at_s`` seconds, default 0) gives the frame; ``ortho`` the GeoTIFF
     orthophoto; ``dem`` or ``cloud`` the ground for Z; ``gcps`` the GCP CSV to continue (if it exists) and save to.
@@ -92,7 +95,7 @@ def open_session(*, frame: str | Path | None = None, video: str | Path | None = 
     ground = load_ground(dem=dem, cloud=cloud, ortho_crs=orthophoto.crs)
     wd = Path(workdir) if workdir is not None else (gcps_path.parent if gcps_path is not None else Path.cwd())
     session = Session(img, orthophoto, ground, workdir=wd, gcps_path=gcps_path, options=options)
-    table, source = initial_table(gcps_path, session.autosave_path, session.crs)
+    table, source = initial_table(gcps_path, session.autosave_path, session.crs, gcp_crs)
     if table is not None:
         try:
             session.set_table(table, autosave=False)
@@ -103,11 +106,15 @@ def open_session(*, frame: str | Path | None = None, video: str | Path | None = 
         note = f"continuing with {table.n} GCP(s) from {source}"
         if source == session.autosave_path and gcps_path is not None and gcps_path.is_file():
             note += f" (newer than {gcps_path}: unsaved changes of the last session)"
-        if table.columns_note and source == gcps_path:
-            # the user's file keeps its own layout: Save writes trafficgeo's beside it
+        if (table.columns_note or table.from_lonlat) and source == gcps_path:
+            # the user's file keeps its own layout and CRS: Save writes trafficgeo's beside it
             session.gcps_path = gcps_path.with_name(gcps_path.stem + "_trafficgeo.csv")
-            note += (f" (columns read as {table.columns_note}; Save writes id,x,y,z,u,v in the orthophoto's CRS to "
-                     f"{session.gcps_path.name}, your file stays as it is)")
+            how = f"columns read as {table.columns_note}; " if table.columns_note else ""
+            note += (f" ({how}Save writes id,x,y,z,u,v in the orthophoto's CRS to {session.gcps_path.name}, your "
+                     "file stays as it is)")
+            if table.from_lonlat and session.options.survey_sigma_m < 0.1:
+                note += ("; longitude/latitude points are usually picked on a web map, good to decimetres or metres: "
+                         "say how good with survey_sigma (e.g. 0.5 m)")
     elif source is not None:
         note = f"the autosave {source} holds no GCPs; starting empty"
     else:
