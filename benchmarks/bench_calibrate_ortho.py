@@ -51,13 +51,9 @@ from trafficgeo.synth.registration_scene import (
 
 ROOT = Path(__file__).resolve().parents[1]
 HEIGHTS_M = (9.0, 12.0, 16.0, 20.0, 25.0, 6.0)
-LIGHTINGS: dict[str, dict[str, object]] = {  # as benchmarks/bench_refine.py
-    "default": {},
-    "dim": dict(frame_gain=0.6, ortho_gain=(0.95, 1.0, 1.1), ortho_offset=-5.0, ortho_gamma=1.15, ortho_blur_px=1.0),
-    "hazy": dict(frame_gain=1.1, ortho_gain=(0.8, 0.85, 0.9), ortho_offset=40.0, ortho_gamma=0.8, ortho_blur_px=1.2),
-    "strong": dict(frame_gain=0.45, ortho_gain=(1.45, 1.2, 0.75), ortho_offset=30.0, ortho_gamma=0.65,
-                   ortho_blur_px=1.6),
-}
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_refine import LIGHTINGS  # noqa: E402  (the same four lightings as the refinement benchmark)
+
 TARGET_M = 0.05
 BAND_M = (20.0, 120.0)
 
