@@ -226,3 +226,20 @@ def test_a_real_orthophoto_in_feet() -> None:
     e = ground_errors_m(cam, truth, pts) * ft
     assert len(pts) > 1000 and np.median(e) < 0.05, np.median(e)
     assert abs(cam.focal_px - 800.0) < 8.0
+
+
+def test_a_window_of_the_orthophoto_is_read(files: Path) -> None:
+    """Only the part of a district's orthophoto the search can use is read: the same cells and georeferencing as a
+    crop of the whole; bounds that miss it are refused in one line."""
+    from trafficgeo.errors import InputError
+    from trafficgeo.geo.raster import read_raster
+
+    whole = read_raster(files / "ortho.tif")
+    left, bottom = whole.bounds[:2]
+    box = (left + 13.37, bottom + 21.2, left + 60.0, bottom + 70.05)
+    part = read_raster(files / "ortho.tif", bounds=box)
+    crop = whole.crop(box)
+    assert part.data.shape == crop.data.shape and np.array_equal(part.data, crop.data)
+    np.testing.assert_allclose(np.array(part.transform)[:6], np.array(crop.transform)[:6], atol=1e-9)
+    with pytest.raises(InputError, match="does not cover the area asked for"):
+        read_raster(files / "ortho.tif", bounds=(0.0, 0.0, 10.0, 10.0))

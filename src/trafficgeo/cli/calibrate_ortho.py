@@ -73,16 +73,28 @@ def calibrate_ortho(
     Heading, tilt, height, focal length and distortion are found; the camera JSON is the one 'calibrate' writes,
     its GCPs the automatic correspondences. When no camera passes every test, the reason is printed, nothing is
     written and the exit code is 1."""
-    from trafficgeo.geo.raster import read_raster
+    from trafficgeo.crs import metres_per_unit
+    from trafficgeo.geo.raster import open_raster, read_raster, to_pyproj_crs
     from trafficgeo.registration.from_ortho import OrthoPoseOptions
     from trafficgeo.registration.run import calibrate_ortho_files, read_frame_image
 
     options = OrthoPoseOptions(max_offset_m=max_offset, focal_px=focal_px)
-    raster = read_raster(ortho)
-    if raster.crs is None:
+    ds, _ = open_raster(ortho, "ortho")
+    with ds:
+        crs = to_pyproj_crs(ds.crs)
+        left, bottom, right, top = ds.bounds
+    if crs is None:
         raise InputError(f"{ortho}: the orthophoto has no CRS; give a GeoTIFF georeferenced in a projected CRS",
                          parameters=("ortho",))
-    position = parse_position(near, near_crs, raster.crs)
+    position = parse_position(near, near_crs, crs)
+    reach = (options.radius_m + options.max_offset_m + 50.0) / metres_per_unit(crs)  # all the search can use
+    if not (left - reach < position[0] < right + reach and bottom - reach < position[1] < top + reach):
+        raise InputError(f"the camera position ({position[0]:.2f}, {position[1]:.2f}) is more than "
+                         f"{options.radius_m:g} m from the orthophoto ({left:.1f}..{right:.1f}, {bottom:.1f}.."
+                         f"{top:.1f}); give it in the orthophoto's CRS (or lon,lat with near_crs EPSG:4326)",
+                         parameters=("near", "near_crs"))
+    raster = read_raster(ortho, bounds=(position[0] - reach, position[1] - reach, position[0] + reach,
+                                        position[1] + reach))
     if video.suffix.lower() in IMAGE_SUFFIXES:
         still = read_frame_image(video)
     else:

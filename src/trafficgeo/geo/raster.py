@@ -34,7 +34,8 @@ import pyproj
 import rasterio
 from affine import Affine
 from numpy.typing import ArrayLike, DTypeLike
-from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOError
+from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOError, WindowError
+from rasterio.windows import Window
 
 from trafficgeo.crs import crs_label, is_geographic, parse_crs, utm_crs_for
 from trafficgeo.errors import InputError
@@ -345,9 +346,11 @@ def _georeferencing(path: Path, transform: Affine, has_gcps: bool, label: str) -
 
 
 def _read(path: str | os.PathLike[str], crs: object, what: str, bands: Sequence[int] | None, *,
-          heights: bool = False) -> GeoRaster:
+          heights: bool = False, bounds: tuple[float, float, float, float] | None = None) -> GeoRaster:
     """Open ``path`` with rasterio and read ``bands`` (1-based; all when None) with georeferencing. With
-    ``heights``, an 8-bit image of 3 or more bands is refused: a colour image (an orthophoto) where heights go."""
+    ``heights``, an 8-bit image of 3 or more bands is refused: a colour image (an orthophoto) where heights go.
+    With ``bounds`` (left, bottom, right, top, in the file's CRS units) only the whole pixels that touch them are
+    read (a district's orthophoto need not fit in memory); an InputError when they miss the raster."""
     p = Path(path)
     _check_file(p, what)
     try:
@@ -363,7 +366,20 @@ def _read(path: str | os.PathLike[str], crs: object, what: str, bands: Sequence[
                     raise InputError(f"{what} {p} has {ds.count} 8-bit bands: a colour image (an orthophoto?), not "
                                      "heights; give the DEM GeoTIFF (one band of elevations), or the point cloud")
                 indexes = list(bands) if bands is not None else list(range(1, ds.count + 1))
-                data = ds.read(indexes)
+                window = None
+                if bounds is not None and ds.transform != Affine.identity() and ds.transform.b == ds.transform.d == 0:
+                    full = Window(0, 0, ds.width, ds.height)
+                    cols, rows = map_to_pixel(ds.transform, [bounds[0], bounds[2]], [bounds[3], bounds[1]])
+                    c0, r0 = math.floor(min(cols)), math.floor(min(rows))  # whole pixels touching the bounds
+                    want = Window(c0, r0, math.ceil(max(cols)) - c0, math.ceil(max(rows)) - r0)
+                    try:
+                        window = want.intersection(full)
+                    except WindowError:
+                        raise InputError(f"{what} {p} does not cover the area asked for ({bounds[0]:.1f}.."
+                                         f"{bounds[2]:.1f}, {bounds[1]:.1f}..{bounds[3]:.1f}); give the raster of "
+                                         "this site, in its CRS") from None
+                    transform = ds.transform @ Affine.translation(window.col_off, window.row_off)
+                data = ds.read(indexes, window=window)
     except RasterioIOError as exc:
         raise _open_error(p, exc) from None
     except RasterioError as exc:
@@ -374,18 +390,21 @@ def _read(path: str | os.PathLike[str], crs: object, what: str, bands: Sequence[
     return GeoRaster(data, transform, out_crs, nodata, picked, str(p))
 
 
-def read_raster(path: str | os.PathLike[str], crs: str | pyproj.CRS | None = None) -> GeoRaster:
+def read_raster(path: str | os.PathLike[str], crs: str | pyproj.CRS | None = None, *,
+                bounds: tuple[float, float, float, float] | None = None) -> GeoRaster:
     """Read every band of a GeoTIFF, or of any GDAL-readable image with a world file, keeping its dtype.
 
     Args:
         path: the raster file.
         crs: overrides (or supplies) the CRS, as anything :func:`trafficgeo.crs.parse_crs` accepts. When omitted,
             the file's CRS is used (None if it has none, e.g. a JPEG with only a world file).
+        bounds: (left, bottom, right, top) in the file's CRS units: read only the whole pixels touching them.
 
     Raises:
-        InputError: missing file, not a raster, or no georeferencing (no geotransform and no world file).
+        InputError: missing file, not a raster, no georeferencing (no geotransform and no world file), or
+            ``bounds`` that miss it.
     """
-    return _read(path, crs, "raster", None)
+    return _read(path, crs, "raster", None, bounds=bounds)
 
 
 def read_dem(path: str | os.PathLike[str], crs: str | pyproj.CRS | None = None) -> GeoRaster:
