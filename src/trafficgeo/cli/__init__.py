@@ -117,12 +117,6 @@ def calibrate(
         intrinsics=intr, fix_intrinsics=intr is not None and not refine_intrinsics, loss=loss,
         survey_sigma_m=survey_sigma)
     table = read_gcps(gcps, gcp_crs=gcp_crs, crs=crs, odm_image=odm_image)
-    if table.columns_note:
-        console.print(f"{gcps}: columns read as {table.columns_note}")
-    if table.from_lonlat and survey_sigma == SURVEY_SIGMA_M:
-        console.print(f"{gcps}: longitude/latitude points are usually picked on a web map, good to a few decimetres "
-                      f"or metres, not the {SURVEY_SIGMA_M:g} m of a survey; say how good with --survey-sigma (e.g. "
-                      "0.5), or the fit trusts them too much and the error bars are too small")
     if gis is not None and table.crs is None:
         raise InputError(f"--gis {gis}: the GCPs have no CRS, so nothing can be placed on a map; give --crs")
     result = run_calibration(table, size, options, camera_path=output, report_path=report)
@@ -134,6 +128,12 @@ def calibrate(
         from trafficgeo.report.terminal import print_calibration_report
 
         print_calibration_report(result.report, console)
+    if table.columns_note:
+        console.print(f"{gcps}: columns read as {table.columns_note}")
+    if table.from_lonlat and survey_sigma == SURVEY_SIGMA_M:
+        console.print(f"{gcps}: longitude/latitude points are usually picked on a web map, good to a few decimetres "
+                      f"or metres, not the {SURVEY_SIGMA_M:g} m of a survey; say how good with --survey-sigma (e.g. "
+                      "0.5), or the fit trusts them too much and the error bars are too small")
     console.print(f"wrote {output}" + (f" and {report}" if report else ""))
     if report_html is not None:
         from trafficgeo.cli.report import write_page
