@@ -310,3 +310,18 @@ def test_the_verdict_refuses_a_camera_worse_at_the_clicks_and_says_when_they_can
     assert not ok and "fewer than 5 points to tell" in why
     ok, why = _verdict(before, better, 12, 30, "")
     assert not ok and "only 12 orthophoto matches" in why
+
+
+def test_a_registration_that_does_not_settle_says_how_it_moved() -> None:
+    """Issue 40: 'not converged' now says how far each pass moved the camera, and whether it was creeping towards a
+    camera or swinging between two."""
+    from trafficgeo.registration.refine import Pass, _not_converged
+
+    def passes(moved: list[float]) -> list[Pass]:
+        return [Pass(search_px=4.0, tried=700, matched=600, kept=590, rmse_px=0.5, moved_px=m) for m in moved]
+
+    creeping = _not_converged(passes([15.9, 0.8, 0.5, 0.4, 0.34]), 0.25)
+    assert creeping.startswith("not converged after 5 passes: they moved the camera by 15.90, 0.80, 0.50, 0.40, "
+                               "0.34 px (converged below 0.25)") and "more passes may settle it" in creeping
+    swinging = _not_converged(passes([12.0, 0.9, 0.3, 0.9, 0.3]), 0.25)
+    assert "swung between passes" in swinging and "more passes" not in swinging

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -216,6 +217,20 @@ def _check_frame(frame: np.ndarray, camera: Camera) -> np.ndarray:
     return a
 
 
+def _not_converged(passes: list[Pass], converged_px: float) -> str:
+    """Why the passes did not settle: how far each moved the camera, and whether it was still creeping towards a
+    camera (each pass moving it less: more passes may settle it) or swinging (the matches pull two ways)."""
+    moved = [p.moved_px for p in passes]
+    steps = ", ".join(f"{m:.2f}" for m in moved)
+    tail = moved[-3:]
+    creeping = all(b < a for a, b in pairwise(tail))
+    why = ("each pass moved it less: it was still creeping towards a camera, more passes may settle it"
+           if creeping else "it swung between passes: the matches pull two ways (repeated texture, or a shadow, a "
+           "vehicle or a building that differs between the orthophoto and the video)")
+    return (f"not converged after {len(passes)} passes: they moved the camera by {steps} px (converged below "
+            f"{converged_px:g}); {why}")
+
+
 @dataclass(frozen=True)
 class Registration:
     """The outcome of :func:`register`: the last re-fit that passed (None when none did), the automatic
@@ -278,8 +293,7 @@ def register(camera: Camera, gcps: GCPTable, use: np.ndarray, frame_gray: np.nda
         if moved < options.converged_px and radius <= options.final_search_px:
             break
         if len(passes) == options.max_iterations:
-            reason = (f"not converged after {len(passes)} passes: the last moved the camera by {moved:.2f} px "
-                      f"(converged below {options.converged_px:g})")
+            reason = _not_converged(passes, options.converged_px)
         radius = max(options.final_search_px, radius / 4.0)
     if cal is not None and not cal_rmse_px <= options.max_rmse_px:  # the loop ended before a fine pass
         reason = (f"the orthophoto matches of the last re-fit do not agree on one camera (RMSE {cal_rmse_px:.1f} "
