@@ -33,7 +33,7 @@ from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
 from trafficgeo.crs import is_geographic, parse_crs
 from trafficgeo.errors import InputError
-from trafficgeo.geo.image_projective import ProjectiveFit, fit_projective, orthorectify
+from trafficgeo.geo.image_projective import ProjectiveFit, check_control_points, fit_projective, orthorectify
 from trafficgeo.geo.raster import GeoRaster, pixel_to_map, read_world_file, world_file_candidates, write_geotiff
 
 CORNER_NAMES = ("top-left", "top-right", "bottom-right", "bottom-left")
@@ -56,10 +56,6 @@ class ControlFit:
     max_error: float
 
 
-MAX_MAP_COORDINATE = 1e8  # CRS units: no projected CRS reaches this far (the Earth is 4e7 m round)
-MAX_PIXEL = 1e6  # px: no image is this large
-
-
 def fit_affine(pixels: ArrayLike, world: ArrayLike) -> ControlFit:
     """Least-squares affine from ``pixels`` (N, 2: u, v with pixel centres on integers) to ``world`` (N, 2, CRS units).
 
@@ -68,18 +64,8 @@ def fit_affine(pixels: ArrayLike, world: ArrayLike) -> ControlFit:
     """
     uv = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     xy = np.asarray(world, dtype=np.float64).reshape(-1, 2)
+    check_control_points(uv, xy, 3, "an affine")
     n = uv.shape[0]
-    if n < 3 or xy.shape[0] != n:
-        raise InputError(f"control: {n} control points; give at least 3 (not on one line) with pixel and map "
-                         "coordinates", parameters=("control",))
-    if not (np.all(np.isfinite(uv)) and np.all(np.isfinite(xy))):
-        raise InputError("control: a control point has a missing or non-finite coordinate; fix the table",
-                         parameters=("control",))
-    if np.abs(xy).max() > MAX_MAP_COORDINATE or np.abs(uv).max() > MAX_PIXEL:
-        which = "map" if np.abs(xy).max() > MAX_MAP_COORDINATE else "pixel"
-        raise InputError(f"control: a {which} coordinate reaches {np.abs(xy if which == 'map' else uv).max():.3g}, "
-                         f"beyond any {'projected CRS' if which == 'map' else 'image'}; fix the table",
-                         parameters=("control",))
     origin = xy.mean(axis=0)  # map coordinates of 5e6 keep their precision
     corner = uv + 0.5  # pixel centres -> rasterio's corner convention
     design = np.column_stack([corner, np.ones(n)])
@@ -195,8 +181,6 @@ def read_image_ortho(image: str | os.PathLike[str], crs: object, *, world_file: 
     if control is not None:
         uv, xy = read_control_points(control, (data.shape[2], data.shape[1]))
         if model == "projective" or (model == "auto" and len(uv) >= 4):
-            if np.abs(xy).max() > MAX_MAP_COORDINATE or np.abs(uv).max() > MAX_PIXEL:
-                fit_affine(uv, xy)  # its one-line refusal of absurd coordinates
             pfit = fit_projective(uv, xy)
             grid, transform = orthorectify(data, pfit, uv, xy)
             return GeoRaster(grid, transform, target, 0 if nodata is None else nodata, (), str(p)), pfit

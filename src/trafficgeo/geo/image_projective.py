@@ -21,6 +21,8 @@ from numpy.typing import ArrayLike
 
 from trafficgeo.errors import InputError
 
+MAX_MAP_COORDINATE = 1e8  # CRS units: no projected CRS reaches this far (the Earth is 4e7 m round)
+MAX_PIXEL = 1e6  # px: no image is this large
 REACH = 4.0  # the ortho covers the ground within this many times the control points' spread of their centre
 MAX_CELLS = 60_000_000  # output cells at most; coarser cells beyond
 
@@ -51,6 +53,23 @@ class ProjectiveFit:
             return q[:, :2] / q[:, 2:3] + self.origin, q[:, 2]
 
 
+def check_control_points(uv: np.ndarray, xy: np.ndarray, least: int, fit: str) -> None:
+    """Refuse, in one line, control points a fit of ``fit`` cannot use: fewer than ``least``, missing or non-finite
+    values, or coordinates beyond any projected CRS or image (both fits, affine and projective, call this)."""
+    n = uv.shape[0]
+    if n < least or xy.shape[0] != n:
+        raise InputError(f"control: {n} control points; {fit} needs at least {least} (not on one line) with pixel "
+                         "and map coordinates", parameters=("control",))
+    if not (np.all(np.isfinite(uv)) and np.all(np.isfinite(xy))):
+        raise InputError("control: a control point has a missing or non-finite coordinate; fix the table",
+                         parameters=("control",))
+    if np.abs(xy).max() > MAX_MAP_COORDINATE or np.abs(uv).max() > MAX_PIXEL:
+        which = "map" if np.abs(xy).max() > MAX_MAP_COORDINATE else "pixel"
+        raise InputError(f"control: a {which} coordinate reaches {np.abs(xy if which == 'map' else uv).max():.3g}, "
+                         f"beyond any {'projected CRS' if which == 'map' else 'image'}; fix the table",
+                         parameters=("control",))
+
+
 def fit_projective(pixels: ArrayLike, world: ArrayLike) -> ProjectiveFit:
     """Least-squares homography from ``pixels`` (N, 2) to ``world`` (N, 2, CRS units), N >= 4, no three of the
     four best-spread points on one line.
@@ -60,13 +79,8 @@ def fit_projective(pixels: ArrayLike, world: ArrayLike) -> ProjectiveFit:
     """
     uv = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     xy = np.asarray(world, dtype=np.float64).reshape(-1, 2)
+    check_control_points(uv, xy, 4, "a projective fit")
     n = uv.shape[0]
-    if n < 4 or xy.shape[0] != n:
-        raise InputError(f"control: {n} control points; a projective fit needs at least 4 (no three on one line)",
-                         parameters=("control",))
-    if not (np.all(np.isfinite(uv)) and np.all(np.isfinite(xy))):
-        raise InputError("control: a control point has a missing or non-finite coordinate; fix the table",
-                         parameters=("control",))
     origin = xy.mean(axis=0)
     H, _ = cv2.findHomography(uv, xy - origin, method=0)
     if H is None or not np.all(np.isfinite(H)) or abs(np.linalg.det(H)) < 1e-300:
@@ -133,4 +147,5 @@ def orthorectify(data: np.ndarray, fit: ProjectiveFit, control_pixels: ArrayLike
     return out, transform
 
 
-__all__ = ["REACH", "ProjectiveFit", "fit_projective", "orthorectify"]
+__all__ = ["MAX_MAP_COORDINATE", "MAX_PIXEL", "REACH", "ProjectiveFit", "check_control_points", "fit_projective",
+           "orthorectify"]

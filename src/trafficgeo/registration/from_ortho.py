@@ -34,7 +34,7 @@ import os
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -453,7 +453,7 @@ def calibrate_from_ortho(frame: np.ndarray, ortho: GeoRaster, surface: Surface, 
             pyramid = OrthoPyramid(_crop(ortho, near, options.radius_m / m + options.max_offset_m / m))
         ropts = options.refine
         if options.focal_px is not None:
-            ropts = RefineOptions(**{**ropts.__dict__, "calibration": CalibrationOptions(focal_px=options.focal_px)})
+            ropts = replace(ropts, calibration=CalibrationOptions(focal_px=options.focal_px))
         reg = register(start.camera, _empty_gcps(crs), np.zeros(0, bool), fg, pyramid, surface, ropts,
                        progress=progress)
         if reg.calibration is None:

@@ -32,7 +32,7 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.errors import InputError, OutputError
 from trafficgeo.geo.mapping import Surface
-from trafficgeo.geo.raster import GeoRaster, open_raster, read_raster, to_pyproj_crs
+from trafficgeo.geo.raster import GeoRaster, open_raster, pixel_to_map, read_raster, to_pyproj_crs
 from trafficgeo.io.atomic import atomic_path, write_json_atomic
 from trafficgeo.registration.from_ortho import OrthoCalibration, OrthoPoseOptions, calibrate_from_ortho, review_gcps
 from trafficgeo.registration.judge import model_from_names
@@ -157,22 +157,21 @@ def refine_camera_files(camera_path: CalibratedCamera | str | Path, frame: np.nd
     if isinstance(ortho, GeoRaster):
         raster = ortho
     else:
-        ds, _ = open_raster(ortho, "ortho")
+        ds, transform = open_raster(ortho, "ortho")  # the geotransform, else a world file's
         with ds:
-            file_crs = to_pyproj_crs(ds.crs)
+            file_crs, size = to_pyproj_crs(ds.crs), (ds.width, ds.height)
+        xs, ys = pixel_to_map(transform, [0, size[0], size[0], 0], [0, 0, size[1], size[1]])
+        left, right, bottom, top = min(xs), max(xs), min(ys), max(ys)
         if file_crs is not None and camera.crs is not None and not file_crs.equals(camera.crs):
             raise InputError(f"{ortho}: the orthophoto's CRS is not the camera's ({camera.crs_text}); reproject it "
                              "(gdalwarp -t_srs) or calibrate in its CRS", parameters=("ortho",))
         # only what the matching can reach: max_distance_m around the camera, with room for the search
         reach = (options.max_distance_m + 50.0) / (metres_per_unit(camera.crs) if camera.crs is not None else 1.0)
         x, y = float(camera.position[0]), float(camera.position[1])
-        try:
-            raster = read_raster(ortho, bounds=(x - reach, y - reach, x + reach, y + reach))
-        except InputError as exc:
-            if "does not cover the area" not in str(exc):
-                raise
+        if not (left < x + reach and x - reach < right and bottom < y + reach and y - reach < top):
             raise InputError(f"{ortho}: the orthophoto does not cover what the camera sees; give the orthophoto of "
-                             "this camera's site, in its CRS", parameters=("ortho",)) from None
+                             "this camera's site, in its CRS", parameters=("ortho",))
+        raster = read_raster(ortho, bounds=(x - reach, y - reach, x + reach, y + reach))
     ground = surface if not isinstance(surface, str) else load_surface(surface, calibrated)
     model = model_from_names(calibrated.model.free_parameters if calibrated.model is not None else None)
     result = refine_camera(camera, table, frame, raster, ground, model=model, use=use, options=options,
