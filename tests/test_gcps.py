@@ -197,9 +197,35 @@ def test_peers_column_names_are_read_with_a_note(tmp_path: Path) -> None:
     assert read_gcps(write(tmp_path, HEADER + "A,500000,4877000,3,4,5\n", "plain.csv")).columns_note == ""
 
 
+def test_the_i24_authors_file_is_read_as_published() -> None:
+    """The I-24 camera GCPs as their author published them: 18 cameras in one file (column "Camera"), "GPS Lat,
+    GPS Long, Camera X, Camera Y", no heights. One camera is chosen by odm_image, flat ground by ground_z."""
+    with pytest.raises(InputError, match=r'18 images or cameras \(column "Camera"\) \(P1C1, P1C2.*odm_image') as exc:
+        read_gcps(I24, ground_z=0.0)
+    assert exc.value.parameters == ("odm_image",)
+    with pytest.raises(InputError, match=r"lacks the column.*'z'.*ground_z") as exc:
+        read_gcps(I24, odm_image="p2c3")
+    assert exc.value.parameters == ("ground_z",)
+    t = read_gcps(I24, odm_image="p2c3", ground_z=12.5)
+    with open(I24, newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r["Camera"] == "P2C3"]
+    assert len(t.ids) == len(rows) == 4
+    np.testing.assert_allclose(t.pixels, [[float(r["Camera X"]), float(r["Camera Y"])] for r in rows])
+    np.testing.assert_allclose(t.world[:, 2], 12.5)
+    east, north = pyproj.Transformer.from_crs("EPSG:4326", t.crs, always_xy=True).transform(
+        [float(r["GPS Long"]) for r in rows], [float(r["GPS Lat"]) for r in rows])
+    np.testing.assert_allclose(t.world[:, :2], np.column_stack([east, north]), atol=1e-6)
+    assert t.crs == parse_crs("EPSG:32616")  # Nashville
+    assert t.columns_note.startswith("Camera X -> u, Camera Y -> v, GPS Long -> x, GPS Lat -> y, Camera -> image")
+    with pytest.raises(InputError, match="no GCP rows for image \"P9C9\""):
+        read_gcps(I24, odm_image="P9C9", ground_z=0.0)
+    with pytest.raises(InputError, match="ground_z is nan"):
+        read_gcps(I24, odm_image="p2c3", ground_z=float("nan"))
+
+
 def test_not_a_header_nor_crs(tmp_path: Path) -> None:
     raises_input(
-        write(tmp_path, "Camera,GPS Lat,GPS Long,Camera X,Camera Y\nP1C1,36,-86,1,2\n"),
+        write(tmp_path, "Station,Remarks,Date\nS1,kerb,2026-01-02\n"),  # the I-24 header is understood now (above)
         "gcps.csv line 1",
         "neither a CSV header",
         "WGS84 UTM 10N",

@@ -18,6 +18,7 @@ from trafficgeo.calibration.gcp_table import (
     COLUMN_ALIASES,
     COLUMN_HINTS,
     ODM_COLUMNS,
+    PIXEL_BESIDE_LONLAT,
     ROLE_CONTROL,
     ROLES,
     GCPTable,
@@ -113,16 +114,22 @@ def _understand(raw: list[str]) -> _Header:
                 return normal.index(alias)
         return None
 
-    col = {k: i for k in ("id", "u", "v", "x", "y", "z", "role", "sigma_px") if (i := find(k)) is not None}
+    keys = ("id", "u", "v", "x", "y", "z", "role", "sigma_px", "image")
+    col = {k: i for k in keys if (i := find(k)) is not None}
     lon, lat = find("lon"), find("lat")
     lonlat = False
     if lon is not None and lat is not None:
-        if "u" not in col and "v" not in col and "x" in col and "y" in col:
-            col["u"], col["v"] = col.pop("x"), col.pop("y")  # x, y beside lon, lat are the pixel's
+        if "u" not in col and "v" not in col:
+            for nu, nv in PIXEL_BESIDE_LONLAT:  # x, y beside lon, lat are the pixel's
+                if nu in normal and nv in normal:
+                    col["u"], col["v"] = normal.index(nu), normal.index(nv)
+                    if nu == "x":
+                        col.pop("x", None), col.pop("y", None)
+                    break
         if "x" not in col and "y" not in col:
             col["x"], col["y"], lonlat = lon, lat, True
     names = {k: raw[i].strip() for k, i in col.items()}
-    renamed = [f"{names[k]} -> {k}" for k in ("id", "u", "v", "x", "y", "z", "role", "sigma_px")
+    renamed = [f"{names[k]} -> {k}" for k in keys
                if k in names and _normal(names[k]) != k]
     note = ", ".join(renamed)
     if lonlat:
@@ -142,7 +149,7 @@ def _split_header(line: str) -> tuple[str, list[str]]:
     return best[1], best[2]
 
 
-def _parse_csv(text: str, source: str, delim: str) -> _Rows:
+def _parse_csv(text: str, source: str, delim: str, ground_z: float | None = None) -> _Rows:
     reader = csv.reader(io.StringIO(text, newline=""), delimiter=delim, skipinitialspace=True)
     header: list[str] | None = None
     col: dict[str, int] = {}
@@ -174,7 +181,8 @@ def _parse_csv(text: str, source: str, delim: str) -> _Rows:
         if not gcp_id:
             raise InputError(f'{source} line {line}: column "{named["id"]}" is empty; give every GCP a unique id')
         where = f"{source} line {line} (id {quote_text(gcp_id)})"
-        vals = tuple(_number(row[col[c]], named[c], where, COLUMN_HINTS[c]) for c in ("x", "y", "z", "u", "v"))
+        vals = tuple(ground_z if c == "z" and "z" not in col else _number(row[col[c]], named[c], where, COLUMN_HINTS[c])
+                     for c in ("x", "y", "z", "u", "v"))
         role = row[col["role"]].strip().lower() if "role" in col else ""
         role = role or ROLE_CONTROL
         if role not in ROLES:
@@ -194,7 +202,7 @@ def _parse_csv(text: str, source: str, delim: str) -> _Rows:
         rows.roles.append(role)
         rows.sigma.append(sigma)
         rows.lines.append(line)
-        rows.images.append("")
+        rows.images.append(row[col["image"]].strip() if "image" in col else "")
     if not rows.ids:
         raise InputError(f"{source} has a header but no GCP rows; add one row per point: id,x,y,z,u,v")
     return rows
@@ -236,8 +244,9 @@ def _list_names(names: list[str], limit: int = 10) -> str:
     return shown + (f" and {len(names) - limit} more" if len(names) > limit else "")
 
 
-def _select_image(rows: _Rows, odm_image: str | None, source: str) -> np.ndarray:
-    """Indices of the rows of the requested image (all rows when the file has a single image)."""
+def _select_image(rows: _Rows, odm_image: str | None, source: str, column: str = "") -> np.ndarray:
+    """Indices of the rows of the requested image (all rows when the file has a single image); ``column`` names
+    the CSV column the images are in."""
     keys: dict[str, str] = {}
     for name in rows.images:
         keys.setdefault(name.lower(), name)
@@ -245,7 +254,7 @@ def _select_image(rows: _Rows, odm_image: str | None, source: str) -> np.ndarray
     if odm_image is None:
         if len(keys) > 1:
             raise InputError(
-                f"{source}: the GCPs belong to {len(keys)} images ({_list_names(names)}); "
+                f"{source}: the GCPs belong to {len(keys)} images or cameras{column} ({_list_names(names)}); "
                 f"say which image the camera sees with odm_image (e.g. odm_image {names[0]})",
                 parameters=("odm_image",),
             )
@@ -259,7 +268,8 @@ def _select_image(rows: _Rows, odm_image: str | None, source: str) -> np.ndarray
     ]
     if not sel:
         raise InputError(
-            f"{source}: no GCP rows for image {quote_text(odm_image)}; the file has images {_list_names(names)}; "
+            f"{source}: no GCP rows for image {quote_text(odm_image)}; the file has images{column} "
+            f"{_list_names(names)}; "
             "pass one of them as odm_image",
             parameters=("odm_image",),
         )
@@ -388,6 +398,7 @@ def read_gcps(
     gcp_crs: str | pyproj.CRS | None = None,
     crs: str | pyproj.CRS | None = None,
     odm_image: str | None = None,
+    ground_z: float | None = None,
 ) -> GCPTable:
     """Read a GCP file (CSV or OpenDroneMap ``gcp_list.txt``, see the module docstring) as a GCPTable.
 
@@ -399,8 +410,10 @@ def read_gcps(
             to the WGS 84 UTM zone of their mean position. Projected points are transformed to ``crs`` when
             it differs from ``gcp_crs``. Given alone, ``crs`` is also the CRS of the file. Neither given:
             local coordinates, ``table.crs is None``.
-        odm_image: for OpenDroneMap files, keep the rows of this image (case-insensitive). Required when the
-            file lists several images. Ignored for CSV.
+        odm_image: keep the rows of this image (case-insensitive), in an OpenDroneMap file or a CSV with an image
+            or camera column (``camera``, ``image``, ...). Required when the file lists several.
+        ground_z: the height of every point of a CSV without a height column (points on flat ground; the
+            camera's height is then measured from this plane). Ignored when the file has heights.
 
     Z is passed through unchanged. Raises :class:`~trafficgeo.errors.InputError` (one line, naming the file,
     line and id) for a missing or empty file, missing columns, non-numeric or non-finite values, duplicate
@@ -423,8 +436,12 @@ def read_gcps(
     crs_obj = _parse_option_crs(crs, "crs")
     declared_by = "given with gcp_crs"
     note = understood.note
-    if {"x", "y", "z", "u", "v"} <= set(understood.col):
-        rows = _parse_csv(text, source, delim)
+    if ground_z is not None and not math.isfinite(ground_z):
+        raise InputError(f"ground_z is {ground_z}; give the ground's height as a finite number, e.g. 0",
+                         parameters=("ground_z",))
+    have = set(understood.col) | ({"z"} if ground_z is not None else set())
+    if {"x", "y", "z", "u", "v"} <= have:
+        rows = _parse_csv(text, source, delim, ground_z)
         xy_names = (understood.names["x"], understood.names["y"])
         if "id" not in understood.col:
             note = ", ".join(filter(None, [note, "no id column: points named by their line"]))
@@ -433,13 +450,14 @@ def read_gcps(
             declared_by = "taken as EPSG:4326 from the column names"
     elif len(understood.col) >= 2:
         missing = [c for c in ("x", "y", "z", "u", "v") if c not in understood.col]
-        height = (" (a height: z, elevation or alt; the GCP web app takes it from a DEM)"
-                  if missing == ["z"] else "")
+        height = (" (a height: z, elevation or alt; the GCP web app takes it from a DEM; for points on flat "
+                  "ground give ground_z, e.g. 0)" if missing == ["z"] else "")
         raise InputError(
             f"{source} line {first + 1}: the header lacks the column(s) "
             f"{', '.join(repr(c) for c in missing)}{height}; "
             "a GCP CSV needs id,x,y,z,u,v (any order, any case; also pixel_x/pixel_y, col/row, lat/lon, "
-            f"easting/northing, elevation, ...; found {quote_text(header, 60)})"
+            f"easting/northing, elevation, ...; found {quote_text(header, 60)})",
+            parameters=("ground_z",) if missing == ["z"] else (),
         )
     else:
         try:
@@ -471,7 +489,9 @@ def read_gcps(
         names=xy_names,
         declared_by=declared_by,
     )
-    idx = _select_image(rows, odm_image, source) if xy_names[0] == "geo_x" else np.arange(len(rows.ids))
+    per_image = xy_names[0] == "geo_x" or "image" in understood.col
+    column = "" if xy_names[0] == "geo_x" else f' (column {quote_text(understood.names.get("image", ""))})'
+    idx = _select_image(rows, odm_image, source, column) if per_image else np.arange(len(rows.ids))
     _check_unique_ids(rows, idx, source)
     world = np.column_stack([x[idx], y[idx], values[idx, 2]])
     return GCPTable(

@@ -67,11 +67,17 @@ COLUMN_ALIASES: dict[str, tuple[str, ...]] = {
     "y": ("y", "northing", "north", "n", "mapy", "map_y", "world_y", "geo_y", "y_m"),
     "z": ("z", "elevation", "elev", "height", "h", "altitude", "alt", "geo_z", "z_m", "elevation_m", "alt_m",
           "height_m", "ellipsoidal_height", "orthometric_height"),
-    "lon": ("lon", "lon_deg", "longitude", "long", "lng", "longitude_deg"),
-    "lat": ("lat", "lat_deg", "latitude", "latitude_deg"),
+    "lon": ("lon", "lon_deg", "longitude", "long", "lng", "longitude_deg", "gps_lon", "gps_long", "gps_lng",
+            "gps_longitude"),
+    "lat": ("lat", "lat_deg", "latitude", "latitude_deg", "gps_lat", "gps_latitude"),
     "role": ("role", "type", "use"),
     "sigma_px": ("sigma_px", "sigma", "pixel_sigma", "sigma_pixel"),
+    # the image (or camera) a row belongs to, in a file that lists the points of several
+    "image": ("image", "image_name", "camera", "camera_id", "camera_name", "cam", "photo", "filename", "img"),
 }
+
+# Beside longitude/latitude columns these name the pixel (the I-24 camera GCPs: "Camera X, Camera Y").
+PIXEL_BESIDE_LONLAT: tuple[tuple[str, str], ...] = (("x", "y"), ("camera_x", "camera_y"), ("image_x", "image_y"))
 
 COLUMN_HINTS = {
     "x": "give world coordinates as numbers",

@@ -83,7 +83,10 @@ def calibrate(
     report: Annotated[Path | None, typer.Option(help="validation report JSON to write")] = None,
     crs: Annotated[str | None, typer.Option(help="working projected CRS, e.g. EPSG:2949")] = None,
     gcp_crs: Annotated[str | None, typer.Option(help="CRS of the GCP file's x,y (EPSG:4326: x=lon, y=lat)")] = None,
-    odm_image: Annotated[str | None, typer.Option(help="image name to use from an ODM gcp_list.txt")] = None,
+    odm_image: Annotated[str | None, typer.Option(help="image or camera to use from a file that lists several "
+                                                       "(an ODM gcp_list.txt, or a CSV's camera/image column)")] = None,
+    ground_z: Annotated[float | None, typer.Option(help="height of every GCP of a file without heights (points on "
+                                                      "flat ground), in the CRS's units")] = None,
     intrinsics: Annotated[Path | None, typer.Option(help="OpenCV YAML or camera JSON with K and dist")] = None,
     refine_intrinsics: Annotated[bool, typer.Option(help="refine --intrinsics instead of holding them fixed")] = False,
     focal_px: Annotated[float | None, typer.Option(help="hold the focal length at this value (px)")] = None,
@@ -116,7 +119,7 @@ def calibrate(
         focal=focal, principal_point=principal_point, distortion=_distortion_option(distortion), focal_px=focal_px,
         intrinsics=intr, fix_intrinsics=intr is not None and not refine_intrinsics, loss=loss,
         survey_sigma_m=survey_sigma)
-    table = read_gcps(gcps, gcp_crs=gcp_crs, crs=crs, odm_image=odm_image)
+    table = read_gcps(gcps, gcp_crs=gcp_crs, crs=crs, odm_image=odm_image, ground_z=ground_z)
     if gis is not None and table.crs is None:
         raise InputError(f"--gis {gis}: the GCPs have no CRS, so nothing can be placed on a map; give --crs")
     result = run_calibration(table, size, options, camera_path=output, report_path=report)
@@ -278,8 +281,8 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "tiling": "--tiling", "out_dir": "--out", "interval_s": "--interval", "resolution_m": "--resolution",
          "time_offset_s": "--time-offset", "output": "--output", "annotate": "--annotate", "surface": "--surface",
          "surface_crs": "--surface-crs", "radius_m": "--radius", "backend": "--backend",
-         "crs": "--crs", "gcp_crs": "--gcp-crs", "odm_image": "--odm-image", "image_size": "--image-size",
-         "pattern": "--pattern", "focal_px": "--focal-px", "intrinsics": "--intrinsics",
+         "crs": "--crs", "gcp_crs": "--gcp-crs", "odm_image": "--odm-image", "ground_z": "--ground-z",
+         "image_size": "--image-size", "pattern": "--pattern", "focal_px": "--focal-px", "intrinsics": "--intrinsics",
          "fps": "--fps", "coast_hidden_s": "--coast-hidden", "max_gap_s": "--join-gap", "pixel_sigma": "--pixel-sigma",
          "accel_sigma": "--accel-sigma", "max_metres_per_px": "--max-metres-per-px", "camera": "--camera",
          "calibration_report": "--calibration-report", "frame": "--frame", "video": "--video", "ortho": "--ortho",
