@@ -223,6 +223,28 @@ def test_the_i24_authors_file_is_read_as_published() -> None:
         read_gcps(I24, odm_image="p2c3", ground_z=float("nan"))
 
 
+def test_qgis_points_files(tmp_path: Path) -> None:
+    """QGIS Georeferencer .points (QGIS 3: a #CRS line; older: none, pixelX/pixelY): rows negated and pixel corners
+    turned into trafficgeo's pixel centres, disabled points left out, heights from ground_z."""
+    wkt = pyproj.CRS("EPSG:32610").to_wkt()
+    qgis3 = write(tmp_path, f"#CRS: {wkt}\nmapX,mapY,sourceX,sourceY,enable,dX,dY,residual\n"
+                            "500000.5,4877000.25,100.5,-200.5,1,0,0,0\n500010,4877020,0,0,0,0,0,0\n"
+                            "500020,4877030,300,-400,1,0.1,0.2,0.3\n", "g.points")
+    t = read_gcps(qgis3, ground_z=12.0)
+    assert t.crs == parse_crs("EPSG:32610") and t.ids == ("line3", "line5")
+    np.testing.assert_allclose(t.pixels, [[100.0, 200.0], [299.5, 399.5]])
+    np.testing.assert_allclose(t.world, [[500000.5, 4877000.25, 12.0], [500020.0, 4877030.0, 12.0]])
+    assert "1 disabled point(s) left out" in t.columns_note
+    old = write(tmp_path, "mapX,mapY,pixelX,pixelY,enable\n-123.07,44.05,10.5,-20.5,1\n", "old.points")
+    t = read_gcps(old, gcp_crs="EPSG:4326", crs="EPSG:32610", ground_z=0.0)
+    np.testing.assert_allclose(t.pixels, [[10.0, 20.0]])
+    raises_input(qgis3, "g.points", "no heights", "--ground-z")
+    raises_input(write(tmp_path, "#CRS: EPSG:32610\nmapX,mapY,sourceX,sourceY,enable\n500000,4877000,5,6,1\n",
+                       "geo.points"), "line 3", "negative", "georeferenced raster", ground_z=0.0)
+    raises_input(write(tmp_path, "#CRS: not a crs\nmapX,mapY,sourceX,sourceY,enable\n500000,4877000,5,-6,1\n",
+                       "bad.points"), "line 1", "not a CRS", "--gcp-crs", ground_z=0.0)
+
+
 def test_not_a_header_nor_crs(tmp_path: Path) -> None:
     raises_input(
         write(tmp_path, "Station,Remarks,Date\nS1,kerb,2026-01-02\n"),  # the I-24 header is understood now (above)

@@ -269,6 +269,33 @@ def test_a_peers_gcp_file_is_read_and_kept_as_it_is(work, scene):
     assert saved.columns_note == ""
 
 
+def test_a_qgis_points_file_opens_with_heights_from_the_ground(work, scene):
+    """A QGIS Georeferencer .points file (map CRS on its first line, image rows negated, pixel corners, no heights):
+    gcp-ui opens it with the heights taken from the DEM, as for pairs clicked in the page, and saves beside it."""
+    rows = [f"#CRS: {CRS}", "mapX,mapY,sourceX,sourceY,enable,dX,dY,residual"]
+    for i in range(8):
+        x, y = (float(c) for c in scene.truth_world[i, :2])
+        u, v = (float(c) for c in scene.truth_pixels[i])
+        rows.append(f"{x!r},{y!r},{u + 0.5!r},{-(v + 0.5)!r},1,0,0,0")
+    rows.append(f"{x!r},{y!r},5,-5,0,0,0,0")  # disabled in QGIS: left out
+    theirs = work / "frame.points"
+    theirs.write_text("\n".join(rows) + "\n", encoding="utf-8")
+    before = theirs.read_bytes()
+    session, note = open_session(frame=work / "frame.png", ortho=work / "ortho.tif", dem=work / "dem.tif",
+                                 gcps=theirs)
+    assert "QGIS Georeferencer points" in note and "1 disabled point(s) left out" in note
+    assert "frame_trafficgeo.csv" in note
+    with TestClient(create_app(session)) as c:
+        assert len(c.get("/api/state").json()["pairs"]) == 8
+        assert c.post("/api/gcps/save", json={}).json() == {"path": "frame_trafficgeo.csv", "n": 8}
+    assert theirs.read_bytes() == before
+    saved = read_gcps(work / "frame_trafficgeo.csv", crs=CRS)
+    np.testing.assert_allclose(saved.pixels, scene.truth_pixels[:8], atol=1e-9)
+    np.testing.assert_allclose(saved.world[:, :2], scene.truth_world[:8, :2], atol=1e-9)
+    ground = session.ground.sample(saved.world[:, 0], saved.world[:, 1], np.full(8, np.nan))
+    np.testing.assert_allclose(saved.world[:, 2], [g.z for g in ground], atol=1e-9)
+
+
 def test_lon_lat_gcps_open_with_gcp_crs_and_are_saved_beside(work, scene):
     """Issue 42: gcp-ui refused lon/lat GCPs and pointed to a --gcp-crs it did not have. With gcp_crs EPSG:4326 the
     file opens (projected to the orthophoto's CRS), the note asks for the survey accuracy of map-picked points, and

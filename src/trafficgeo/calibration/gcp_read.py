@@ -239,6 +239,60 @@ def _parse_odm(lines: list[str], first: int, source: str) -> _Rows:
     return rows
 
 
+def _parse_qgis_points(lines: list[str], first: int, names: list[str], source: str,
+                       ground_z: float | None) -> tuple[_Rows, str]:
+    """A QGIS Georeferencer ``.points`` file: ``mapX,mapY,sourceX,sourceY,enable[,dX,dY,residual]`` (older files:
+    ``pixelX,pixelY``). Source coordinates are GDAL's, from the top-left *corner* of the image with the row
+    negated, so u = sourceX - 0.5 and v = -sourceY - 0.5. Points with ``enable`` 0 are left out. The file has no
+    heights: they come from ``ground_z``."""
+    normal = [_normal(c) for c in names]
+    at = {k: normal.index(k) for k in ("mapx", "mapy", "sourcex", "sourcey", "pixelx", "pixely", "enable")
+          if k in normal}
+    iu, iv = (at["sourcex"], at.get("sourcey")) if "sourcex" in at else (at["pixelx"], at.get("pixely"))
+    if "mapy" not in at or iv is None:
+        raise InputError(f"{source} line {first + 1}: a QGIS .points header needs mapX,mapY,sourceX,sourceY; "
+                         f"found {quote_text(lines[first].strip(), 60)}")
+    if ground_z is None:
+        raise InputError(f"{source}: a QGIS .points file has no heights; give the ground's height with ground_z "
+                         "(e.g. 0 for flat ground), or add a z column and save it as CSV",
+                         parameters=("ground_z",))
+    rows = _Rows([], [], [], [], [], [])
+    disabled = 0
+    for k in range(first + 1, len(lines)):
+        text = lines[k].strip()
+        if not text or text.startswith("#"):
+            continue
+        row = next(csv.reader([text], skipinitialspace=True))
+        line = k + 1
+        where = f"{source} line {line}"
+        if len(row) < len(names):
+            raise InputError(f"{where}: {len(row)} values but the header has {len(names)} columns; "
+                             "check for missing delimiters")
+        if "enable" in at and row[at["enable"]].strip() in ("0", "false", "False"):
+            disabled += 1
+            continue
+        mx, my, sx, sy = (_number(row[i], names[i], where, COLUMN_HINTS[c])
+                          for i, c in ((at["mapx"], "x"), (at["mapy"], "y"), (iu, "u"), (iv, "v")))
+        if sy > 0:
+            raise InputError(
+                f'{where}: column "{names[iv]}" is {format_number(sy)}, but QGIS writes image rows as negative '
+                "numbers: these points were taken on a georeferenced raster (map units); save them again on the "
+                "plain image (without its world file)")
+        rows.ids.append(f"line{line}")
+        rows.values.append((mx, my, float(ground_z), sx - 0.5, -sy - 0.5))
+        rows.roles.append(ROLE_CONTROL)
+        rows.sigma.append(1.0)
+        rows.lines.append(line)
+        rows.images.append("")
+    if not rows.ids:
+        raise InputError(f"{source} has no enabled points; enable some in QGIS's Georeferencer or add rows")
+    note = (f"QGIS Georeferencer points: mapX, mapY -> x, y; {names[iu]} - 0.5, -{names[iv]} - 0.5 -> u, v (pixel "
+            f"corners to centres); z = {format_number(ground_z)} (ground_z); points named by their line")
+    if disabled:
+        note += f"; {disabled} disabled point(s) left out"
+    return rows, note
+
+
 def _list_names(names: list[str], limit: int = 10) -> str:
     shown = ", ".join(names[:limit])
     return shown + (f" and {len(names) - limit} more" if len(names) > limit else "")
@@ -430,6 +484,11 @@ def read_gcps(
             f"GCP file {source} is empty; give a CSV with header id,x,y,z,u,v or an OpenDroneMap gcp_list.txt"
         )
     header = lines[first].strip()
+    qgis_crs_line = None
+    if header.upper().startswith("#CRS:"):  # QGIS 3 Georeferencer .points: the map CRS, then the header
+        qgis_crs_line = first
+        first = next((k for k in range(first + 1, len(lines)) if lines[k].strip()), first)
+        header = lines[first].strip()
     delim, names = _split_header(header)
     understood = _understand(names)
     gcp_crs_obj = _parse_option_crs(gcp_crs, "gcp_crs")
@@ -440,7 +499,20 @@ def read_gcps(
         raise InputError(f"ground_z is {ground_z}; give the ground's height as a finite number, e.g. 0",
                          parameters=("ground_z",))
     have = set(understood.col) | ({"z"} if ground_z is not None else set())
-    if {"x", "y", "z", "u", "v"} <= have:
+    normal = [_normal(c) for c in names]
+    if "mapx" in normal and ("sourcex" in normal or "pixelx" in normal):
+        rows, note = _parse_qgis_points(lines, first, names, source, ground_z)
+        xy_names = ("mapX", "mapY")
+        if gcp_crs_obj is None and qgis_crs_line is not None:
+            crs_text = lines[qgis_crs_line].strip()[5:].strip()
+            try:
+                gcp_crs_obj = parse_crs(crs_text)
+            except InputError:
+                raise InputError(
+                    f"{source} line {qgis_crs_line + 1}: the map CRS {quote_text(crs_text, 40)} is not a CRS pyproj "
+                    "knows; give the points' CRS with gcp_crs", parameters=("gcp_crs",)) from None
+            declared_by = f"from line {qgis_crs_line + 1} of the file"
+    elif {"x", "y", "z", "u", "v"} <= have:
         rows = _parse_csv(text, source, delim, ground_z)
         xy_names = (understood.names["x"], understood.names["y"])
         if "id" not in understood.col:

@@ -77,7 +77,7 @@ SURVEY_SIGMA_M = 0.03  # the calibrate command's default --survey-sigma (m): sur
 def calibrate(
     gcps: Annotated[Path, typer.Argument(help="GCP CSV (id,x,y,z,u,v[,role][,sigma_px]; other names such as "
                                               "pixel_x/pixel_y, col/row, lat/lon, easting/northing/elevation are "
-                                              "read too) or ODM gcp_list.txt")],
+                                              "read too), ODM gcp_list.txt or QGIS .points")],
     image_size: Annotated[str, typer.Option("--image-size", help="video frame size WIDTHxHEIGHT, e.g. 1920x1080")],
     output: Annotated[Path, typer.Option("--output", "-o", help="camera JSON to write")],
     report: Annotated[Path | None, typer.Option(help="validation report JSON to write")] = None,

@@ -32,7 +32,9 @@ def gcp_ui(
     dem: Annotated[Path | None, typer.Option("--dem", help="DEM GeoTIFF for the GCP heights")] = None,
     cloud: Annotated[Path | None, typer.Option("--cloud", help="LAS/LAZ point cloud for the GCP heights")] = None,
     gcps: Annotated[Path | None, typer.Option("--gcps", help="GCP CSV to continue (if it exists) and save to; "
-                                              "changes are autosaved to <name>.autosave.csv beside it")] = None,
+                                              "changes are autosaved to <name>.autosave.csv beside it (a file "
+                                              "in other columns, or a QGIS .points file, is saved beside as "
+                                              "<name>_trafficgeo.csv)")] = None,
     workdir: Annotated[Path | None, typer.Option("--workdir", help="folder for the file names typed in the page "
                                                  "(default: the folder of --gcps, else the current folder)")] = None,
     gcp_crs: Annotated[str | None, typer.Option(help="CRS of the --gcps file's x, y when not the orthophoto's, "

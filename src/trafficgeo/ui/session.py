@@ -373,11 +373,12 @@ class Session:
             del self._pairs[self._index(pair_id)]
             self._changed()
 
-    def set_table(self, table: GCPTable, *, autosave: bool = True) -> None:
+    def set_table(self, table: GCPTable, *, autosave: bool = True, heights_from_ground: bool = False) -> None:
         """Replace every pair by the rows of a GCP table (pixels must lie in the frame).
 
-        A row's z is taken as following the ground when it equals the ground's z (as the autosave writes it).
-        ``autosave=False`` (the table a session starts from) leaves the autosave file alone until the first change.
+        A row's z is taken as following the ground when it equals the ground's z (as the autosave writes it), or
+        always with ``heights_from_ground`` (a file without heights). ``autosave=False`` (the table a session
+        starts from) leaves the autosave file alone until the first change.
         """
         for i in range(table.n):
             u, v = table.pixels[i]
@@ -388,7 +389,11 @@ class Session:
         pairs = [Pair(table.ids[i], float(table.pixels[i, 0]), float(table.pixels[i, 1]), float(table.world[i, 0]),
                       float(table.world[i, 1]), float(table.world[i, 2]), table.roles[i], float(table.sigma_px[i]),
                       z_auto=False) for i in range(table.n)]
-        if self.ground is not None and pairs:
+        if heights_from_ground:
+            for p in pairs:
+                p.z_auto = True
+            self._update_ground(pairs)
+        elif self.ground is not None and pairs:
             samples = self.ground.sample([p.x for p in pairs], [p.y for p in pairs], [p.z for p in pairs])
             for p, s in zip(pairs, samples, strict=True):
                 p.ground = s

@@ -15,8 +15,9 @@ from trafficgeo.ui.session import Session, SessionError
 
 
 def initial_table(gcps_path: Path | None, autosave_path: Path, crs: Any, gcp_crs: Any = None
-                  ) -> tuple[GCPTable | None, Path | None]:
-    """The GCPs a session starts from, and the file they came from.
+                  ) -> tuple[GCPTable | None, Path | None, bool]:
+    """The GCPs a session starts from, the file they came from, and whether that file had no heights (a QGIS
+    ``.points`` file, lon/lat without heights: the session then takes them from the ground).
 
     The autosave when it is newer than the --gcps file (it holds changes made after the last save) or when there is
     no --gcps file; else the --gcps file; None when neither exists. An autosave with no rows gives an empty start.
@@ -30,15 +31,18 @@ def initial_table(gcps_path: Path | None, autosave_path: Path, crs: Any, gcp_crs
     elif gcps_exists:
         path = gcps_path
     if path is None:
-        return None, None
+        return None, None, False
     rows = [line for line in path.read_text(encoding="utf-8", errors="replace").splitlines() if line.strip()]
     if path == autosave_path and len(rows) <= 1:
-        return None, path
+        return None, path, False
     try:
         # the autosave is trafficgeo's own layout in the working CRS; the user's file is in gcp_crs when given
-        return read_gcps(path, crs=crs, gcp_crs=gcp_crs if path != autosave_path else None), path
+        return read_gcps(path, crs=crs, gcp_crs=gcp_crs if path != autosave_path else None), path, False
     except InputError as exc:
         if path != autosave_path:
+            if exc.parameters == ("ground_z",):  # a file without heights (QGIS .points, lon/lat only): the
+                # session takes them from the ground (or the other points), as for a pair clicked in the page
+                return read_gcps(path, crs=crs, gcp_crs=gcp_crs, ground_z=0.0), path, True
             raise
         raise damaged_autosave(autosave_path, exc, gcps_path) from None
 
@@ -87,18 +91,18 @@ def open_session(*, frame: str | Path | None = None, video: str | Path | None = 
         if not gcps_path.parent.resolve().is_dir():
             raise InputError(f"gcps {gcps_path}: folder {gcps_path.parent} does not exist; create it first",
                              parameters=("gcps",))
-        if gcps_path.suffix.lower() != ".csv":
-            raise InputError(f"gcps {gcps_path} must be a .csv file (id,x,y,z,u,v,role,sigma_px)",
-                             parameters=("gcps",))
+        if gcps_path.suffix.lower() not in (".csv", ".points", ".txt"):
+            raise InputError(f"gcps {gcps_path} must be a .csv file (id,x,y,z,u,v,role,sigma_px; or a QGIS .points "
+                             "file)", parameters=("gcps",))
     img = load_frame(frame) if frame is not None else load_video_frame(video, 0.0 if at_s is None else at_s)
     orthophoto = load_ortho(ortho)
     ground = load_ground(dem=dem, cloud=cloud, ortho_crs=orthophoto.crs)
     wd = Path(workdir) if workdir is not None else (gcps_path.parent if gcps_path is not None else Path.cwd())
     session = Session(img, orthophoto, ground, workdir=wd, gcps_path=gcps_path, options=options)
-    table, source = initial_table(gcps_path, session.autosave_path, session.crs, gcp_crs)
+    table, source, no_heights = initial_table(gcps_path, session.autosave_path, session.crs, gcp_crs)
     if table is not None:
         try:
-            session.set_table(table, autosave=False)
+            session.set_table(table, autosave=False, heights_from_ground=no_heights)
         except (InputError, SessionError) as exc:
             if source != session.autosave_path:
                 raise
@@ -106,7 +110,7 @@ def open_session(*, frame: str | Path | None = None, video: str | Path | None = 
         note = f"continuing with {table.n} GCP(s) from {source}"
         if source == session.autosave_path and gcps_path is not None and gcps_path.is_file():
             note += f" (newer than {gcps_path}: unsaved changes of the last session)"
-        if (table.columns_note or table.from_lonlat) and source == gcps_path:
+        if (table.columns_note or table.from_lonlat or no_heights) and source == gcps_path:
             # the user's file keeps its own layout and CRS: Save writes trafficgeo's beside it
             session.gcps_path = gcps_path.with_name(gcps_path.stem + "_trafficgeo.csv")
             how = f"columns read as {table.columns_note}; " if table.columns_note else ""
