@@ -3,18 +3,19 @@
 #   make test   -> create .venv, install trafficgeo with test tools, run ruff and the test suite
 #   make test-fast -> ruff and the tests not marked slow (under a minute; no browser needed)
 #   make test-other-simd -> the reference tests again under another SIMD dispatch (part of make test)
+#   make docs   -> build the docs site offline into build/site with --strict (part of make test)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 
-.PHONY: demo test test-fast test-other-simd lint bench clean
+.PHONY: demo test test-fast test-other-simd lint docs bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[test,cluster]'
+	$(BIN)/python -m pip install --quiet -e '.[test,cluster,docs]'
 	touch $@
 
 demo: $(VENV)/.installed
@@ -42,6 +43,12 @@ endif
 test: $(VENV)/.installed lint $(CHROMIUM)
 	TRAFFICGEO_CHROMIUM=$(CHROMIUM) $(BIN)/python -m pytest -q
 	$(MAKE) --no-print-directory test-other-simd
+	$(MAKE) --no-print-directory docs
+
+# The docs site: mkdocs-material, the API reference from the docstrings (mkdocstrings), the CLI reference from the
+# commands (mkdocs-click); offline (no web fonts; Material's offline plugin) and --strict (a broken link fails).
+docs: $(VENV)/.installed
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
 
 test-other-simd: $(VENV)/.installed
 	@echo 'reference tests under another SIMD dispatch: $(or $(OTHER_SIMD),none on this CPU)'
@@ -56,4 +63,4 @@ bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_traffic.py
 
 clean:
-	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache
+	rm -rf $(VENV) demo-out build .pytest_cache .ruff_cache

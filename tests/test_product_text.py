@@ -11,7 +11,7 @@ ISSUE_REF = re.compile(r"\bissues? ?#\d+|\(#\d+\)|\bsee #\d+", flags=re.I)
 
 
 def _product_files() -> list[Path]:
-    files = [ROOT / "README.md"]
+    files = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
     for ext in ("*.py", "*.html", "*.js", "*.css", "*.j2"):
         files += sorted((ROOT / "src" / "trafficgeo").rglob(ext))
     return files

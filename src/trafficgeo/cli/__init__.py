@@ -326,5 +326,12 @@ def main(argv: list[str] | None = None) -> Any:
         sys.exit(2)
 
 
+def __getattr__(name: str) -> Any:
+    """``click_command``: the command tree as a click command (for the docs site's CLI reference, mkdocs-click)."""
+    if name == "click_command":
+        return typer.main.get_command(app)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()
