@@ -37,6 +37,7 @@ import pyproj
 
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_path, write_json_atomic
+from trafficgeo.io.json_text import loads_json
 
 __all__ = ["DATASET_FILE", "FORMAT", "STAGE1_TABLES", "STAGE2_TABLES", "check_dataset", "day_tables",
            "ensure_dataset", "merge_day", "read_table", "summarize_dataset", "table_path", "write_geo_table",
@@ -66,7 +67,7 @@ def check_dataset(dataset: str | os.PathLike, crs: str | pyproj.CRS) -> dict[str
     if not path.is_file():
         return None
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = loads_json(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         raise InputError(f"{path}: not readable JSON; give another --out folder or remove it") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
@@ -208,7 +209,7 @@ def summarize_dataset(dataset: str | os.PathLike, output_gpkg: str | os.PathLike
     out = Path(output_gpkg)
     if out.suffix.lower() != ".gpkg":
         raise InputError(f"{out}: write the summary as .gpkg", parameters=("output_gpkg",))
-    doc = json.loads((root / DATASET_FILE).read_text(encoding="utf-8"))
+    doc = loads_json((root / DATASET_FILE).read_text(encoding="utf-8"))
     crs = pyproj.CRS.from_user_input(doc.get("crs_wkt") or doc["crs"])
     counts = read_table(root, "counts")
     keys = ["camera", "line", "lane", "direction", "start_utc", "end_utc"]
@@ -240,7 +241,7 @@ def _camera_position(root: Path, camera_id: str) -> tuple[float, float] | None:
     """The camera position (dataset CRS) its track tasks recorded in their ``_SUCCESS.json``."""
     for p in sorted((root / "_tasks").glob("*/_SUCCESS.json")):
         try:
-            doc = json.loads(p.read_text(encoding="utf-8"))
+            doc = loads_json(p.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, json.JSONDecodeError):
             continue
         if doc.get("camera_id") == camera_id and doc.get("camera_position") is not None:

@@ -54,6 +54,7 @@ from trafficgeo.batch.day_report import report_path, write_day_report
 from trafficgeo.batch.model import BATCH_OPTIONS, CameraEntry, Task, TaskOutcome, task_folder, utc_text
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import write_json_atomic
+from trafficgeo.io.json_text import loads_json
 from trafficgeo.pipeline.stages import analyze, detect, track
 from trafficgeo.site.site import Site
 from trafficgeo.video.pipeline import ProcessOptions, settled_options
@@ -172,7 +173,7 @@ def _success_path(dataset: Path, task_id: str) -> Path:
 def _success(dataset: Path, task_id: str) -> dict[str, Any] | None:
     path = _success_path(dataset, task_id)
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = loads_json(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         return None
     return doc if isinstance(doc, dict) and isinstance(doc.get("outputs"), dict) else None

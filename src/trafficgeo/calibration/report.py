@@ -25,6 +25,7 @@ from typing import Any
 from trafficgeo.camera.orientation import Orientation
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import to_json_safe
+from trafficgeo.io.json_text import loads_json
 
 REPORT_FORMAT = "trafficgeo.calibration-report/1"
 NAN = float("nan")
@@ -374,7 +375,7 @@ def read_calibration_report(path: str | Path, what: str | None = None) -> Calibr
     where = f"{what} {p}" if what else str(p)
     named = (what,) if what else ()
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        doc = loads_json(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise InputError(f"{where}: file not found; give the --report JSON of 'trafficgeo calibrate'",
                          parameters=named) from None

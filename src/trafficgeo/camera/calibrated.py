@@ -26,6 +26,7 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.camera.parameters import FULL_NAMES, camera_to_full, full_to_camera
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import write_json_atomic
+from trafficgeo.io.json_text import loads_json
 
 CAMERA_KEYS = frozenset(("format", "image_size", "K", "dist", "R", "position", "crs", "orientation", "rvec", "tvec"))
 TYPED_KEYS = ("gcps", "stats", "model", "uncertainty", "covariance", "refinement")
@@ -304,7 +305,7 @@ class CalibratedCamera:
         if not p.is_file():
             raise InputError(f"{where}: camera file not found; give the JSON written by 'trafficgeo calibrate'")
         try:
-            doc = json.loads(p.read_text(encoding="utf-8"))
+            doc = loads_json(p.read_text(encoding="utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise InputError(f"{where}: not valid JSON ({exc}); give the JSON written by 'trafficgeo calibrate'"
                              ) from None

@@ -56,6 +56,11 @@ _FIT_MIN_POINTS = 32
 #: Lower bound of the lidar noise used by the local-plane fit, metres (noise-free or 1 mm-quantized clouds).
 _SIGMA_FLOOR_M = 0.0005
 
+try:  # the LAZ decompressor laspy uses; its errors are not laspy's
+    from lazrs import LazrsError as _LazrsError
+except ImportError:  # pragma: no cover - lazrs is a dependency
+    _LazrsError = laspy.errors.LaspyException
+
 
 def _readonly(a: np.ndarray) -> np.ndarray:
     a.flags.writeable = False
@@ -196,7 +201,7 @@ def read_point_cloud(path: str | os.PathLike[str], crs: str | pyproj.CRS | None 
         raise InputError(f"point cloud {p} is a folder, not a file; give the path of a .las or .laz file")
     try:
         las = laspy.read(p)
-    except (laspy.errors.LaspyException, ValueError, EOFError, OSError) as exc:
+    except (laspy.errors.LaspyException, _LazrsError, ValueError, EOFError, OSError) as exc:  # lazrs: a cut LAZ
         reason = " ".join(str(exc).split())[:100]
         raise InputError(
             f"point cloud {p} is not a LAS/LAZ file laspy can read ({reason}); give a .las or .laz file"

@@ -468,6 +468,21 @@ def points_layer(
     return Layer(name=name, geometries=list(geoms), attributes=attrs)
 
 
+def gis_layers(path: str | Path) -> list[str]:
+    """The layer names of a GIS vector file (GeoPackage, GeoJSON, ...).
+
+    Raises:
+        InputError: the file is not a vector file GDAL reads (damaged, cut short, another format).
+    """
+    try:
+        return [str(name) for name in pyogrio.list_layers(path)[:, 0]]
+    except (DataSourceError, DataLayerError) as exc:
+        raise InputError(
+            f"{path}: not a GIS vector file GDAL can read ({_one_line(exc)}); give a .gpkg, .geojson or .parquet "
+            "file"
+        ) from None
+
+
 def read_gis(path: str | Path, layer: str | None = None) -> gpd.GeoDataFrame:
     """Read one layer of a GIS vector file (GeoPackage, GeoJSON, GeoParquet, ...) as a GeoDataFrame.
 
@@ -482,20 +497,18 @@ def read_gis(path: str | Path, layer: str | None = None) -> gpd.GeoDataFrame:
         raise InputError(f"{target}: no such GIS file; check the path")
     if target.suffix.lower() == ".parquet":
         return _read_parquet(target, layer)
-    try:
-        names = [str(name) for name in pyogrio.list_layers(target)[:, 0]]
-    except DataSourceError as exc:
-        raise InputError(
-            f"{target}: not a GIS vector file GDAL can read ({_one_line(exc)}); give a .gpkg, .geojson or .parquet "
-            "file"
-        ) from exc
+    names = gis_layers(target)
     if not names:
         raise InputError(f"{target}: the file has no layers; write it again or give another file")
     if layer is None:
         layer = names[0]
     elif layer not in names:
         raise InputError(f"{target}: no layer '{layer}'; the layers are {', '.join(repr(n) for n in names)}")
-    return gpd.read_file(target, layer=layer)
+    try:
+        return gpd.read_file(target, layer=layer)
+    except (DataSourceError, DataLayerError, shapely.errors.GEOSException, ValueError) as exc:  # damaged, impossible
+        raise InputError(f"{target}: layer '{layer}' cannot be read ({_one_line(exc)}); write the file again from "
+                         "your GIS") from None
 
 
 def _read_parquet(target: Path, layer: str | None) -> gpd.GeoDataFrame:

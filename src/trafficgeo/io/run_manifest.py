@@ -29,6 +29,7 @@ from typing import Any
 
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import write_json_atomic
+from trafficgeo.io.json_text import loads_json
 
 MANIFEST = "run.json"
 COMPARE_MANIFEST = "compare_run.json"  # compare-sumo's results in a run folder; invalid once the run is rewritten
@@ -152,7 +153,7 @@ def verify_outputs(folder: str | Path, require: Iterable[str] = (), *, name: str
     if not path.is_file():
         raise _refuse(d, f"no {name}: the run that wrote them did not finish, or an older trafficgeo wrote them")
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = loads_json(path.read_text(encoding="utf-8"))
         files = doc["files"]
         ok = doc.get("format") == FORMAT and isinstance(files, dict) and all(
             isinstance(v, dict) and isinstance(v.get("size"), int) and isinstance(v.get("sha256"), str)

@@ -23,6 +23,7 @@ from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
+from trafficgeo.io.json_text import loads_json
 from trafficgeo.pipeline.stages import analyze
 from trafficgeo.site.gates import Gate
 from trafficgeo.site.lanes import Lanes
@@ -102,10 +103,8 @@ def _keep_what_was_read(checkpoint: Path, read: dict, said: list[str]) -> tuple[
 
     path = checkpoint / READ_RECORD
     if read["frames"] == 0 and not said and path.is_file() and path.stat().st_size < 1 << 20:
-        import json
-
         try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
+            doc = loads_json(path.read_text(encoding="utf-8"))
             kept, told = doc["read"], doc["said"]
             numbers = [kept["first"], kept["last"]]
             if (set(kept) == {"first", "last", "frames"} and isinstance(kept["frames"], int)

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from trafficgeo.errors import InputError
+from trafficgeo.io.json_text import loads_json
 from trafficgeo.registration.refine import Pass
 from trafficgeo.registration.run import MATCH_COLUMNS, REFINE_FORMAT
 
@@ -229,7 +230,7 @@ def read_refine_record(path: str | Path) -> RefineRecord:
     """
     p = Path(path)
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        doc = loads_json(p.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"{p}: not readable JSON ({' '.join(str(exc).split())}); {FIX}",
                          parameters=("refine_report",)) from None

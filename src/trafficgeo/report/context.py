@@ -317,15 +317,9 @@ def _accuracy(b: ReportContext) -> None:
 def _footprint(b: ReportContext) -> None:
     inp = b.inputs
     if inp.site is not None:
-        import pyogrio
+        from trafficgeo.io.gis import gis_layers, read_gis
 
-        from trafficgeo.io.gis import read_gis
-
-        try:
-            layers = set(pyogrio.list_layers(inp.site)[:, 0])
-        except Exception as exc:  # pyogrio raises several types for unreadable files
-            raise InputError(f"{inp.site}: not a GeoPackage GDAL can read ({' '.join(str(exc).split())[:80]})") \
-                from None
+        layers = set(gis_layers(inp.site))
         if "footprint" in layers:
             g = read_gis(inp.site, layer="footprint")
             if len(g):

@@ -13,6 +13,7 @@ from typing import Any
 from trafficgeo.calibration.report import REPORT_FORMAT, CalibrationReport
 from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.errors import InputError
+from trafficgeo.io.json_text import loads_json
 from trafficgeo.io.run_manifest import MANIFEST, RunIncompleteError
 from trafficgeo.traffic.run_folder import RunFolder
 from trafficgeo.traffic.run_records import CompareSummary, ProcessRecord, RunSummary, SimulationRecord
@@ -235,7 +236,7 @@ def _refine_report_of(camera: Path, calibrated: CalibratedCamera) -> tuple[Path 
 
 def _is_calibration_report(path: Path) -> bool:
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = loads_json(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         return False
     return isinstance(doc, dict) and doc.get("format") == REPORT_FORMAT

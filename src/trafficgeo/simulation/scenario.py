@@ -18,7 +18,6 @@ A scenario folder holds (all written atomically, its manifest ``scenario_run.jso
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import shutil
@@ -33,6 +32,7 @@ import pandas as pd
 
 from trafficgeo.crs import parse_crs
 from trafficgeo.errors import InputError
+from trafficgeo.io.json_text import loads_json
 from trafficgeo.simulation.demand import (
     SampledDemand,
     VehicleType,
@@ -350,7 +350,7 @@ def run_fingerprint(run: str | os.PathLike[str]) -> str:
     from trafficgeo.io.run_manifest import MANIFEST
 
     try:
-        files = json.loads((Path(run) / MANIFEST).read_text(encoding="utf-8"))["files"]
+        files = loads_json((Path(run) / MANIFEST).read_text(encoding="utf-8"))["files"]
         return f'{files["crossings.csv"]["sha256"]}:{files["counts.csv"]["sha256"]}'
     except (OSError, ValueError, KeyError, TypeError):
         return ""
@@ -366,7 +366,7 @@ def read_sumo_scenario(folder: str | os.PathLike[str]) -> SumoScenario:
                          parameters=("scenario",))
     verify_outputs(d, require=("scenario.json", "scenario.sumocfg", "demand.rou.xml"), name=SCENARIO_MANIFEST)
     try:
-        doc = json.loads((d / "scenario.json").read_text(encoding="utf-8"))
+        doc = loads_json((d / "scenario.json").read_text(encoding="utf-8"))
         if doc.get("format") != FORMAT:
             raise KeyError("format")
         return SumoScenario(d, Path(doc["run"]), (d / doc["net"]).resolve(), doc["net_crs"],

@@ -41,14 +41,17 @@ columns read back as ``""`` where empty (an unknown class, no lane), never NaN.
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import pandas as pd
 
 from trafficgeo.errors import InputError
+from trafficgeo.io.json_text import loads_json
 from trafficgeo.io.run_manifest import COMPARE_MANIFEST, RunManifest, verify_outputs
 from trafficgeo.traffic.run_records import (
     SIMULATION_RECORD,
@@ -144,6 +147,12 @@ class TableSchema:
         missing = [n for n in need if n not in head.columns]
         if missing:
             raise InputError(f"{path}: no column {', '.join(missing)}; not a {self.file} written by trafficgeo")
+        with open(path, "rb") as fh:  # trafficgeo ends every table with a newline: one without was cut short
+            size = fh.seek(0, os.SEEK_END)
+            last = fh.seek(size - 1) >= 0 and fh.read(1) if size else b"\n"
+        if last != b"\n":
+            raise InputError(f"{path}: the file ends in the middle of a row (cut short); run trafficgeo again to "
+                             "write it")
         text = {c: str for c in head.columns if self._known(c) and self.column(c).dtype == "str"}
         table = pd.read_csv(path, dtype=text, keep_default_na=False, na_values=[""])
         for c in text:
@@ -154,8 +163,18 @@ class TableSchema:
             kind = self.column(c).dtype
             if kind == "bool" and table[c].dtype == object:
                 table[c] = table[c].map({"True": True, "False": False, "true": True, "false": False})
-            elif kind == "int" and table[c].isna().any():
-                table[c] = table[c].astype("Int64")
+                continue
+            if kind not in ("int", "float"):
+                continue
+            values = pd.to_numeric(table[c], errors="coerce")
+            bad = (values.isna() & table[c].notna()) | (kind == "int" and ~(values.isna() | (
+                np.isfinite(values) & (values == np.round(values)) & (values.abs() < 2**53))))
+            if bad.any():
+                row = int(np.flatnonzero(bad.to_numpy())[0])
+                raise InputError(f"{path} row {row + 2}: column {c} is {str(table[c].iloc[row])[:40]!r}, not "
+                                 f"{'an integer' if kind == 'int' else 'a number'}; run trafficgeo again to write it")
+            table[c] = values.astype("Int64") if kind == "int" and values.isna().any() else (
+                values.astype(np.int64) if kind == "int" else values.astype(np.float64))
         later = [c for c in self.columns if c.added and c.name not in table.columns]
         if later:  # a file written before these columns joined the table: empty, in the schema's place
             for c in later:  # as an empty column of the file would read
@@ -456,7 +475,7 @@ class RunFolder:
 
     def _json(self, p: Path) -> Any:
         try:
-            return json.loads(p.read_text(encoding="utf-8"))
+            return loads_json(p.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, json.JSONDecodeError):
             raise InputError(f"{p}: not readable JSON; run trafficgeo again to write it") from None
 
@@ -554,12 +573,10 @@ class RunFolder:
         gpkg = self.path / "trajectories.gpkg"
         if not gpkg.is_file():
             return None
-        import pyogrio
-
-        from trafficgeo.io.gis import read_gis
+        from trafficgeo.io.gis import gis_layers, read_gis
         from trafficgeo.site.gates import Gate, Junction
 
-        if "gates" not in set(pyogrio.list_layers(gpkg)[:, 0]):
+        if "gates" not in gis_layers(gpkg):
             return None
         g = read_gis(gpkg, layer="gates")
         if crs is not None and g.crs is not None:

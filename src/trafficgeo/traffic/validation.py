@@ -79,18 +79,17 @@ def read_observed_run(folder: str | Path) -> ObservedRun:
 def _layout_layers(gpkg: Path) -> tuple[list[CountLine], Lanes | None]:
     if not gpkg.is_file():
         return [], None
-    import geopandas as gpd
-    import pyogrio
+    from trafficgeo.io.gis import gis_layers, read_gis
 
-    names = set(pyogrio.list_layers(gpkg)[:, 0])
+    names = set(gis_layers(gpkg))
     lines: list[CountLine] = []
     lanes = None
     if "count_lines" in names:
-        g = gpd.read_file(gpkg, layer="count_lines")
+        g = read_gis(gpkg, layer="count_lines")
         lines = [CountLine(str(n), geom, tuple(s for s in str(ln or "").split(",") if s))
                  for n, geom, ln in zip(g["name"], g.geometry, g.get("lanes", [""] * len(g)), strict=True)]
     if "lanes" in names:
-        g = gpd.read_file(gpkg, layer="lanes")
+        g = read_gis(gpkg, layer="lanes")
         lanes = lanes_from_polygons(list(g.geometry), [str(v) for v in g["lane"]])
     return lines, lanes
 

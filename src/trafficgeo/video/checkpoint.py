@@ -29,6 +29,7 @@ import numpy as np
 
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_open, write_json_atomic
+from trafficgeo.io.json_text import loads_json
 
 if TYPE_CHECKING:
     from trafficgeo.video.detections import DetectionFrames
@@ -289,7 +290,7 @@ def load_checkpoint(folder: Path, key: str) -> Checkpoint:
     try:
         if path.stat().st_size > 64 << 20:
             raise ValueError(f"{STATE_FILE} is too large")
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = loads_json(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{STATE_FILE} cannot be read ({exc})") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT or doc.get("version") != FORMAT_VERSION:
@@ -338,7 +339,7 @@ def read_detections(out_dir: str | os.PathLike[str]) -> DetectionFrames:
 
     ck = Path(out_dir) / CHECKPOINT_DIR
     try:
-        state = json.loads((ck / STATE_FILE).read_text(encoding="utf-8"))
+        state = loads_json((ck / STATE_FILE).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         state = None
     if not isinstance(state, dict) or not state.get("complete") or not isinstance(state.get("parts"), list):

@@ -36,6 +36,7 @@ from numpy.typing import ArrayLike
 
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import write_csv_atomic
+from trafficgeo.io.json_text import loads_json
 from trafficgeo.io.mot import read_mot
 from trafficgeo.video.detections import Detections
 
@@ -135,7 +136,7 @@ def _read_mot(p: Path) -> pd.DataFrame:
 def _read_coco(p: Path) -> pd.DataFrame:
     where = str(p)
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        doc = loads_json(p.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"{p}: not valid JSON ({' '.join(str(exc).split())}); {HINT}") from None
     if isinstance(doc, list):  # COCO results: a bare list of annotations

@@ -32,6 +32,7 @@ import numpy as np
 
 from trafficgeo.errors import InputError, OutputError
 from trafficgeo.io.atomic import write_json_atomic
+from trafficgeo.io.json_text import loads_json
 
 BACKENDS = ("auto", "onnxruntime", "onnxruntime-int8", "openvino")  # what a user may ask for (``backend``)
 ORT_CPU, ORT_OPENVINO, ORT_CUDA, OPENVINO = "onnxruntime", "onnxruntime-openvino-ep", "onnxruntime-cuda", "openvino"
@@ -282,7 +283,7 @@ def load_choice(key: dict) -> BackendChoice | None:
         # a regular file of a sane size only: a FIFO (or a device) put there would block the read for ever
         if not stat.S_ISREG(path.stat().st_mode) or path.stat().st_size > MAX_CACHE_BYTES:
             return None
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = loads_json(path.read_text(encoding="utf-8"))
         if doc.get("key") != key:
             return None
         c = doc["choice"]
