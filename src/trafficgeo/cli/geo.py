@@ -258,19 +258,57 @@ def ortho_from_image(
                                                  "or more, fitted by least squares")] = None,
     model: Annotated[str, typer.Option(help="how --corners are fitted: 'auto' (projective from 4 points, the image "
                                             "resampled north-up; affine from 3), 'affine' or 'projective'")] = "auto",
+    camera: Annotated[Path | None, typer.Option(help="the image's camera (pose and lens): a camera JSON, or an "
+                                                "OpenCV pose YAML/XML in --crs; with --surface the image is "
+                                                "orthorectified (--corners then check it)")] = None,
+    surface: Annotated[str | None, typer.Option("--surface", "-s", help="with --camera: the ground, a number "
+                                                "(constant Z in CRS units), a GeoTIFF DEM or a LAS/LAZ point "
+                                                "cloud")] = None,
+    surface_crs: SurfaceCrsOpt = None,
+    resolution: ResolutionOpt = 0.25,
+    cell: Annotated[float | None, typer.Option(help="with --camera: the orthophoto's cell size (m); default: the "
+                                               "image's median pixel on the ground")] = None,
+    max_distance: Annotated[float | None, typer.Option(help="with --camera: leave out ground farther than this "
+                                                       "from the camera (m)")] = None,
 ) -> None:
     """Turn a georeferenced image (world file or 3+ control points, and a CRS) into an orthophoto GeoTIFF. From 4
     control points a projective fit makes a perspective image (an oblique drone photo) an orthophoto of flat
-    ground, resampled onto a north-up grid."""
+    ground, resampled onto a north-up grid. With the image's camera and the surface it is orthorectified: every
+    ground cell takes the colour where the camera sees it, following the terrain and the lens."""
     from trafficgeo.geo.image_ortho import image_corners, image_to_geotiff
 
     if output.suffix.lower() not in (".tif", ".tiff"):
         raise InputError(f"--output {output}: write the orthophoto as a GeoTIFF (.tif)")
-    raster, fit = image_to_geotiff(image, output, crs, world_file=world_file, control=corners, model=model)
+    if (surface is None) != (camera is None):
+        raise InputError("--camera and --surface go together: the camera places each pixel's ray, the surface "
+                         "where it meets the ground")
+    for name, value in (("--cell", cell), ("--max-distance", max_distance)):
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise InputError(f"{name} {value}: give a positive number of metres")
+    cam = surf = None
+    if camera is not None:
+        from trafficgeo.crs import parse_crs
+        from trafficgeo.site.surface import surface_in_crs
+
+        if camera.suffix.lower() == ".json":
+            cam = camera_argument(camera).camera
+        else:
+            from trafficgeo.camera.pose_file import read_pose_file
+
+            cam = read_pose_file(camera, crs=crs)
+        surf = surface_in_crs(surface, parse_crs(crs), surface_crs=surface_crs, resolution_m=resolution)
+    raster, fit = image_to_geotiff(image, output, crs, world_file=world_file, control=corners, model=model,
+                                   camera=cam, surface=surf, resolution_m=cell, max_distance_m=max_distance)
     res = raster.resolution
     console.print(f"{raster.cols}x{raster.rows} px, {raster.count} band(s), pixel {res[0]:.4g} x {res[1]:.4g} CRS "
                   f"units, top-left corner at {image_corners(raster)[0][0]:.3f}, {image_corners(raster)[0][1]:.3f}")
-    if fit is not None:
+    if cam is not None:
+        seen = float(np.mean(np.any(raster.data != 0, axis=0)))
+        console.print(f"orthorectified through the camera onto the surface: {seen:.0%} of the grid seen")
+        if fit is not None:
+            console.print(f"{fit.n_points} control points as checks: their pixels land {fit.rmse:.3f} RMS, "
+                          f"{fit.max_error:.3f} at most from their x, y (CRS units)")
+    elif fit is not None:
         kind, exact = ("projective", 4) if type(fit).__name__ == "ProjectiveFit" else ("affine", 3)
         console.print(f"{kind} fitted to {fit.n_points} control points: RMS {fit.rmse:.3f}, max {fit.max_error:.3f} "
                       "CRS units" + (f" ({exact} points: an exact fit, nothing checks it)" if fit.n_points == exact

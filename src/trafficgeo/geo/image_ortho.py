@@ -13,6 +13,9 @@ affine below is for three): columns ``u, v`` (pixels,
 (six parameters) is their least-squares fit; with more than three points its RMS residual tells how well an affine
 describes the image (a photo that is not an orthophoto, or points mistyped, show as metres).
 
+With the image's camera (pose, lens) and the surface, the image is orthorectified instead: each ground cell takes
+the colour where the camera sees it (:mod:`trafficgeo.geo.camera_ortho`); control points then check it.
+
 Everything ends as a :class:`~trafficgeo.geo.raster.GeoRaster` (corner-convention transform) that
 :func:`~trafficgeo.geo.raster.write_geotiff` writes, so every command that takes an orthophoto GeoTIFF takes it.
 """
@@ -31,9 +34,12 @@ from affine import Affine
 from numpy.typing import ArrayLike
 from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
+from trafficgeo.camera.model import Camera
 from trafficgeo.crs import is_geographic, parse_crs
 from trafficgeo.errors import InputError
+from trafficgeo.geo.camera_ortho import CheckPoints, check_points, orthorectify_with_camera
 from trafficgeo.geo.image_projective import ProjectiveFit, check_control_points, fit_projective, orthorectify
+from trafficgeo.geo.mapping import Surface
 from trafficgeo.geo.raster import GeoRaster, pixel_to_map, read_world_file, world_file_candidates, write_geotiff
 
 CORNER_NAMES = ("top-left", "top-right", "bottom-right", "bottom-left")
@@ -139,18 +145,25 @@ MODELS = ("auto", "affine", "projective")
 
 
 def read_image_ortho(image: str | os.PathLike[str], crs: object, *, world_file: str | os.PathLike[str] | None = None,
-                     control: str | os.PathLike[str] | None = None, model: str = "auto"
-                     ) -> tuple[GeoRaster, ControlFit | ProjectiveFit | None]:
+                     control: str | os.PathLike[str] | None = None, model: str = "auto",
+                     camera: Camera | None = None, surface: Surface | None = None,
+                     resolution_m: float | None = None, max_distance_m: float | None = None
+                     ) -> tuple[GeoRaster, ControlFit | ProjectiveFit | CheckPoints | None]:
     """The orthophoto of ``image`` in the projected ``crs``: georeferenced by ``world_file``, or by the control-point
-    CSV ``control``, or else by a world file beside it (``.pgw`` for ``.png``, ``.jgw`` for ``.jpg``, ``.wld``).
+    CSV ``control``, or else by a world file beside it (``.pgw`` for ``.png``, ``.jgw`` for ``.jpg``, ``.wld``); or
+    orthorectified through the image's ``camera`` onto ``surface`` (:mod:`trafficgeo.geo.camera_ortho`; cells of
+    ``resolution_m`` metres, within ``max_distance_m`` of the camera), when ``control`` points are then given they
+    check it.
 
-    Returns the raster and, for control points, the fit (with its residuals). ``model`` says how control points are
-    fitted: "affine" (the image is georeferenced as it is), "projective" (a homography, the image resampled onto a
-    north-up grid: :mod:`trafficgeo.geo.image_projective`), or "auto": projective from 4 points on, affine from 3.
+    Returns the raster and, for control points, the fit (with its residuals), or with a camera their check.
+    ``model`` says how control points are fitted: "affine" (the image is georeferenced as it is), "projective" (a
+    homography, the image resampled onto a north-up grid: :mod:`trafficgeo.geo.image_projective`), or "auto":
+    projective from 4 points on, affine from 3.
 
     Raises:
         InputError: no such image or not an image GDAL reads, no CRS or a geographic one, both ``world_file`` and
-            ``control``, no georeferencing, bad world file or control points.
+            ``control``, no georeferencing, bad world file or control points, a camera without a surface, of
+            another CRS or another image size.
     """
     p = Path(image)
     target = parse_crs(crs) if crs is not None else None
@@ -161,6 +174,16 @@ def read_image_ortho(image: str | os.PathLike[str], crs: object, *, world_file: 
         raise InputError(f"model {model!r} is not one of {', '.join(MODELS)}", parameters=("model",))
     if world_file is not None and control is not None:
         raise InputError("give the world file or the control points, not both", parameters=("world_file", "control"))
+    if camera is not None:
+        if world_file is not None:
+            raise InputError("give the camera or a world file, not both (the camera places every pixel)",
+                             parameters=("camera", "world_file"))
+        if surface is None:
+            raise InputError("camera: an orthophoto from a camera needs the ground it looks at: give `surface` (a "
+                             "DEM, a point cloud or a constant height)", parameters=("camera", "surface"))
+        if camera.crs is not None and not parse_crs(camera.crs).equals(target):
+            raise InputError(f"camera: its CRS ({camera.crs_text}) is not `crs` {crs}; give the camera in the "
+                             "orthophoto's CRS", parameters=("camera", "crs"))
     if not p.is_file():
         raise InputError(f"image {p}: file not found; check the path")
     try:
@@ -178,6 +201,14 @@ def read_image_ortho(image: str | os.PathLike[str], crs: object, *, world_file: 
         raise InputError(f"image {p} is not an image GDAL can read ({' '.join(str(exc).split())[:100]}); give a "
                          "PNG, JPEG or TIFF") from None
     fit: ControlFit | ProjectiveFit | None = None
+    if camera is not None:
+        grid, transform = orthorectify_with_camera(data, camera, surface, resolution_m=resolution_m,
+                                                   max_distance_m=max_distance_m)
+        checks = None
+        if control is not None:
+            uv, xy = read_control_points(control, (data.shape[2], data.shape[1]))
+            checks = check_points(camera, surface, uv, xy)
+        return GeoRaster(grid, transform, target, 0 if nodata is None else nodata, (), str(p)), checks
     if control is not None:
         uv, xy = read_control_points(control, (data.shape[2], data.shape[1]))
         if model == "projective" or (model == "auto" and len(uv) >= 4):
@@ -202,10 +233,13 @@ def read_image_ortho(image: str | os.PathLike[str], crs: object, *, world_file: 
 
 def image_to_geotiff(image: str | os.PathLike[str], output: str | os.PathLike[str], crs: object, *,
                      world_file: str | os.PathLike[str] | None = None,
-                     control: str | os.PathLike[str] | None = None, model: str = "auto"
-                     ) -> tuple[GeoRaster, ControlFit | ProjectiveFit | None]:
+                     control: str | os.PathLike[str] | None = None, model: str = "auto",
+                     camera: Camera | None = None, surface: Surface | None = None,
+                     resolution_m: float | None = None, max_distance_m: float | None = None
+                     ) -> tuple[GeoRaster, ControlFit | ProjectiveFit | CheckPoints | None]:
     """Write the orthophoto of :func:`read_image_ortho` as a GeoTIFF at ``output`` (atomically); returns the same."""
-    raster, fit = read_image_ortho(image, crs, world_file=world_file, control=control, model=model)
+    raster, fit = read_image_ortho(image, crs, world_file=world_file, control=control, model=model, camera=camera,
+                                   surface=surface, resolution_m=resolution_m, max_distance_m=max_distance_m)
     write_geotiff(output, raster.data, raster.transform, raster.crs, nodata=raster.nodata)
     return raster, fit
 
