@@ -271,6 +271,24 @@ def test_trajectory_segments_and_colours(feet_run: tuple[Path, dict[str, pd.Data
     assert len(lc.get_segments()) == pts.groupby("track_id").size().map(lambda n: (n + 1) // 2 + (n % 2 == 0) - 1).sum()
 
 
+def test_the_trajectories_map_is_framed_on_what_was_seen() -> None:
+    """A run with an ROI sees 30 m of road, its counting line spans 400 m of it and one stray point lies 300 m off:
+    the map is framed on the 30 m where vehicles were (the line only where it crosses them), not half blank."""
+    t = np.arange(0.0, 3.0, 0.1)
+    pts = pd.concat([pd.DataFrame({"track_id": str(k), "time": t, "x": E0 + 2.0 * k, "y": N0 + 10.0 * t,
+                                   "speed_kmh": 36.0}) for k in range(8)], ignore_index=True)
+    pts.loc[len(pts)] = {"track_id": "stray", "time": 0.0, "x": E0 + 300.0, "y": N0 + 300.0, "speed_kmh": 36.0}
+    line = ("L", shapely.LineString([(E0 - 200.0, N0 + 15.0), (E0 + 200.0, N0 + 15.0)]))
+    axes = F.MapAxes(origin=(E0, N0))
+    ax = F.trajectories_map(pts, axes, lines=[line]).axes[0]
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    assert -10.0 < x0 <= 0.0 and 14.0 <= x1 < 30.0, (x0, x1)  # vehicles at 0-14 m east, the line cut near them
+    assert -10.0 < y0 <= 0.0 and 29.0 <= y1 < 45.0, (y0, y1)
+    fx, fy = F.seen_frame(np.zeros(0), np.zeros(0), [line])  # nothing seen: the lines frame the map
+    assert fy.min() == fy.max() == N0 + 15.0
+    assert fx.min() == E0 - 200.0 and fx.max() == E0 + 200.0
+
+
 def test_speed_histograms_per_lane(feet_run: tuple[Path, dict[str, pd.DataFrame]]) -> None:
     veh = feet_run[1]["vehicles"]
     fig = F.speed_histograms(veh)

@@ -125,6 +125,34 @@ def set_extent(ax: Any, x: np.ndarray, y: np.ndarray, margin: float = 0.08) -> N
     ax.set_ylim(y0 - pad, y1 + pad)
 
 
+def seen_frame(x: np.ndarray, y: np.ndarray, lines: list[tuple[str, Any]] | None = None, *,
+               reach: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """The x, y a map of trajectories is framed on: the ground where vehicles were seen (their points' 0.5-99.5
+    percentile box, so a few stray far points do not shrink the rest), and the counting lines only as far as they
+    reach into it (a line drawn across the whole road, beyond a run's ROI or view, would leave the map half blank);
+    ``reach`` is how far beyond the box (a share of its size) the lines still count. Without points: the lines."""
+    import shapely
+
+    ok = np.isfinite(x) & np.isfinite(y)
+    geoms = [g for _, g in lines or []]
+    if not ok.any():
+        xs = [np.asarray(g.coords)[:, 0] for g in geoms]
+        ys = [np.asarray(g.coords)[:, 1] for g in geoms]
+        return (np.concatenate(xs), np.concatenate(ys)) if xs else (np.zeros(0), np.zeros(0))
+    x0, x1 = np.percentile(x[ok], [0.5, 99.5])
+    y0, y1 = np.percentile(y[ok], [0.5, 99.5])
+    pad = reach * max(x1 - x0, y1 - y0, 1.0)
+    box = shapely.box(x0 - pad, y0 - pad, x1 + pad, y1 + pad)
+    xs, ys = [np.array([x0, x1])], [np.array([y0, y1])]
+    for g in geoms:
+        part = g.intersection(box)
+        if not part.is_empty:
+            b = part.bounds
+            xs.append(np.array([b[0], b[2]]))
+            ys.append(np.array([b[1], b[3]]))
+    return np.concatenate(xs), np.concatenate(ys)
+
+
 def geometry_parts(geom: Any) -> list[Any]:
     """The polygons/lines of a (multi-part) shapely geometry; none for None or an empty one."""
     if geom is None or getattr(geom, "is_empty", True):
@@ -396,8 +424,6 @@ def trajectories_map(points: pd.DataFrame, axes: MapAxes, *, background: Backgro
     lc.set_gid("trajectories")
     ax.add_collection(lc)
     fig.colorbar(lc, ax=ax, label="speed (km/h)", shrink=0.85)
-    ex = [seg[:, :, 0].ravel()] if len(seg) else []
-    ey = [seg[:, :, 1].ravel()] if len(seg) else []
     for name, geom in lanes or []:
         for part in geometry_parts(geom):
             lx, ly = axes.local(*np.asarray(part.exterior.coords).T[:2])
@@ -410,11 +436,12 @@ def trajectories_map(points: pd.DataFrame, axes: MapAxes, *, background: Backgro
         lx, ly = axes.local(*np.asarray(geom.coords).T[:2])
         ax.plot(lx, ly, color="#d7191c", linewidth=2.0, zorder=4)
         ax.annotate(f"line {name}", (float(lx[-1]), float(ly[-1])), xytext=(3, 3), textcoords="offset points",
-                    fontsize=7, color="#d7191c", zorder=5)
-        ex.append(lx)
-        ey.append(ly)
-    if ex:
-        set_extent(ax, np.concatenate(ex), np.concatenate(ey))
+                    fontsize=7, color="#d7191c", zorder=5, annotation_clip=True)
+    fx, fy = seen_frame(points["x"].to_numpy(float) if len(points) else np.zeros(0),
+                        points["y"].to_numpy(float) if len(points) else np.zeros(0), lines)
+    if fx.size:
+        lx, ly = axes.local(fx, fy)
+        set_extent(ax, np.asarray(lx, float), np.asarray(ly, float))
     axes.label(ax)
     n = points["track_id"].nunique() if len(points) else 0
     ax.set_title(f"{n} trajectories ({len(points)} points{f', every {every}th drawn' if every > 1 else ''}) "

@@ -53,11 +53,9 @@ def _layout(folder: Path, crs: Any) -> tuple[list[tuple[str, Any]], list[tuple[s
     gpkg = folder / "trajectories.gpkg"
     if not gpkg.is_file():
         return [], []
-    import pyogrio
+    from trafficgeo.io.gis import gis_layers, read_gis
 
-    from trafficgeo.io.gis import read_gis
-
-    names = set(pyogrio.list_layers(gpkg)[:, 0])
+    names = set(gis_layers(gpkg))
     lanes, lines = [], []
     if "lanes" in names:
         g = read_gis(gpkg, layer="lanes")
@@ -88,9 +86,8 @@ def traffic_section(b: ReportContext, run: TrafficRun, k: int) -> Section:
         sp = points["speed_kmh"].to_numpy(float)
         sp = sp[np.isfinite(sp)]
         speed_range = (0.0, max(float(np.percentile(sp, 98)) if sp.size else 1.0, 1.0))
-        xs = [points["x"].to_numpy(float)] + [np.asarray(g.coords)[:, 0] for _, g in lines]
-        ys = [points["y"].to_numpy(float)] + [np.asarray(g.coords)[:, 1] for _, g in lines]
-        bg = b.background(xs, ys, f"trajectories, {name}")
+        fx, fy = F.seen_frame(points["x"].to_numpy(float), points["y"].to_numpy(float), lines)
+        bg = b.background([fx], [fy], f"trajectories, {name}")
         parts.append((figure(F.trajectories_map(points, b.axes, background=bg, lanes=lanes, lines=lines,
                                                 speed_range=speed_range),
                              f"World trajectories (smoothed footprint centres) coloured by speed (km/h), with the "
