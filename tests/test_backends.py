@@ -216,6 +216,12 @@ def test_the_cost_line_has_the_right_arithmetic() -> None:
     assert math.isclose(full.other_ms, 45.0) and math.isclose(full.seconds, 600 * (250.0 + 4.0 + 3.0) / 1e3)
     assert estimate_cost(choice, plan, every=3, video_s=60.0, fps=30.0, decode_ms=4.0, track_ms=3.0,
                          detect_ms=100.0).other_ms == 0.0  # faster than the probe: no negative allowance
+    # ... and the run's own detection, 100 ms for 5 passes, is the time per pass: the probe (41 ms, timed once per
+    # machine, maybe while it was busy) cannot be right when the whole detection took 20 ms a pass
+    fast = estimate_cost(choice, plan, every=3, video_s=60.0, fps=30.0, decode_ms=4.0, track_ms=3.0, detect_ms=100.0)
+    assert math.isclose(fast.ms_per_pass, 20.0) and fast.probe_ms_per_pass == 41.0
+    assert math.isclose(fast.seconds, 600 * (100.0 + 4.0 + 3.0) / 1e3)
+    assert full.ms_per_pass == 41.0  # slower than the probe: the probe's passes, the rest is other work
 
 
 def test_a_tile_schedule_counts_each_tile_by_its_share_of_frames() -> None:
