@@ -137,7 +137,7 @@ def test_a_stationary_object_is_flagged_without_speed_and_counted_nowhere() -> N
     assert list(result.crossings["track_id"]) == ["M"]
     counts = result.counts.groupby("lane")["count"].sum()
     assert counts.get("1", 0) == 0 and counts.get("2", 0) == 1
-    from trafficgeo.traffic.analyze import summary
+    from trafficgeo.traffic.outputs import summary
 
     assert summary(result).stationary_vehicles == 1
     assert summary(result).mean_speed_kmh == pytest.approx(veh.at["M", "speed_kmh"])

@@ -126,3 +126,72 @@ def test_the_facade_checks_see_a_facade() -> None:
     tree = ast.parse("from trafficgeo.geo.raster import _to_pyproj, open_raster\nx = 1\ndef f():\n    pass\n")
     assert [n for _, n, _ in _absolute_imports(tree) if n.startswith("_")] == ["_to_pyproj"]
     assert _top_level_names(tree) == {"x", "f"}
+
+
+def _runtime_imports(tree: ast.AST) -> set[str]:
+    """The trafficgeo modules a module imports when it runs (module level and inside functions; not under
+    ``if TYPE_CHECKING:``, which are for type checkers only). ``from trafficgeo.ui import live`` imports the package
+    ``trafficgeo.ui`` (its ``__init__``)."""
+    found: set[str] = set()
+
+    class Visit(ast.NodeVisitor):
+        def visit_If(self, node: ast.If) -> None:
+            if "TYPE_CHECKING" in ast.unparse(node.test):
+                for child in node.orelse:
+                    self.visit(child)
+                return
+            self.generic_visit(node)
+
+        def visit_ImportFrom(self, node: ast.ImportFrom) -> None:
+            if node.level == 0 and node.module and node.module.split(".")[0] == "trafficgeo":
+                found.add(node.module)
+
+    Visit().visit(tree)
+    return found
+
+
+def _circles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """The import circles of a module graph: its strongly connected components of two modules or more (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in edges.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_circles() -> None:
+    """No two modules need each other when they run (a circle means neither can be understood, tested or moved
+    alone; imports inside functions count, those for type checkers only do not)."""
+    edges = {_module_name(p): _runtime_imports(ast.parse(p.read_text(encoding="utf-8")))
+             for p in PACKAGE.rglob("*.py")}
+    assert _circles(edges) == []
+
+
+def test_the_circle_check_sees_a_circle() -> None:
+    assert _circles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    tree = ast.parse("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from trafficgeo.a import X\n"
+                     "def f():\n    from trafficgeo.b import Y\nfrom trafficgeo import c\n")
+    assert _runtime_imports(tree) == {"trafficgeo.b", "trafficgeo"}

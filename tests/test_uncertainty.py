@@ -8,9 +8,10 @@ import json
 import numpy as np
 import pytest
 
+from trafficgeo.calibration.camera_record import camera_covariance
 from trafficgeo.calibration.gcp_table import GCPTable
 from trafficgeo.calibration.pipeline import CalibrationOptions
-from trafficgeo.calibration.run import camera_covariance, run_calibration
+from trafficgeo.calibration.run import run_calibration
 from trafficgeo.camera.calibrated import CalibratedCamera, CameraCovariance
 from trafficgeo.camera.io import write_camera_json
 from trafficgeo.camera.model import Camera

@@ -54,7 +54,7 @@ _API: dict[str, str] = {
     "JourneyOptions": "trafficgeo.traffic.journeys",
     "join_fragments": "trafficgeo.traffic.journeys",
     "RunFolder": "trafficgeo.traffic.run_folder",
-    "SCHEMAS": "trafficgeo.traffic.run_folder",
+    "SCHEMAS": "trafficgeo.traffic.schema",
     "compare_with_sumo": "trafficgeo.traffic.validation",
     "Comparison": "trafficgeo.traffic.validation",
     "export_fcd": "trafficgeo.traffic.validation",
@@ -198,7 +198,8 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.site.surface import load_surface
     from trafficgeo.traffic.analyze import TrafficResult, analyze_tracks
     from trafficgeo.traffic.journeys import JourneyOptions, join_fragments
-    from trafficgeo.traffic.run_folder import SCHEMAS, RunFolder
+    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.traffic.schema import SCHEMAS
     from trafficgeo.traffic.tracks import ImageTracks, load_tracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
     from trafficgeo.traffic.validation import Comparison, compare_with_sumo, export_fcd

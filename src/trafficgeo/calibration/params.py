@@ -108,3 +108,8 @@ def points_in_front(full: np.ndarray, local_world: np.ndarray) -> np.ndarray:
     R, _ = cv2.Rodrigues(full[0:3])
     depth = local_world @ R[2] + full[5]
     return depth > 0
+
+
+def focal_bounds(image_size: tuple[int, int]) -> tuple[float, float]:
+    """Plausible focal lengths (px): 0.15 to 30 image widths (fields of view of about 147 to 2 degrees)."""
+    return 0.15 * image_size[0], 30.0 * image_size[0]

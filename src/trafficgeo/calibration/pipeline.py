@@ -26,7 +26,7 @@ from scipy import stats
 from trafficgeo.calibration.gcp_checks import validate_gcps
 from trafficgeo.calibration.gcp_table import GCPTable
 from trafficgeo.calibration.initial import initial_cameras
-from trafficgeo.calibration.params import ParameterModel, project_full
+from trafficgeo.calibration.params import ParameterModel, focal_bounds, project_full
 from trafficgeo.calibration.refine import (
     LOSSES,
     Fit,
@@ -149,15 +149,12 @@ class Calibration:
         """The camera with what this calibration knows (GCPs and their residuals, statistics, covariance), as
         ``trafficgeo calibrate`` writes it to the camera JSON: a :class:`~trafficgeo.site.Site` built from it has
         the ``"plane"`` surface and calibration-aware speeds without a file."""
-        from trafficgeo.calibration.run import calibrated_camera
+        from trafficgeo.calibration.camera_record import calibrated_camera
 
         return calibrated_camera(self)
 
 
 # ------------------------------------------------------------------------------------------------ helpers
-def focal_bounds(image_size: tuple[int, int]) -> tuple[float, float]:
-    """Plausible focal lengths (px): 0.15 to 30 image widths (fields of view of about 147 to 2 degrees)."""
-    return 0.15 * image_size[0], 30.0 * image_size[0]
 
 
 def _known_intrinsics(options: CalibrationOptions, image_size: tuple[int, int]

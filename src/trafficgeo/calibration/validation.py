@@ -11,11 +11,12 @@ from __future__ import annotations
 
 from itertools import combinations
 from types import MappingProxyType
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import stats
 
-from trafficgeo.calibration.pipeline import Calibration, focal_bounds
+from trafficgeo.calibration.params import focal_bounds
 from trafficgeo.calibration.report import (
     REPORT_FORMAT,
     AnglesDeg,
@@ -37,6 +38,9 @@ from trafficgeo.calibration.report import (
 from trafficgeo.camera.model import Camera
 from trafficgeo.camera.parameters import full_to_camera
 from trafficgeo.crs import metres_per_unit
+
+if TYPE_CHECKING:
+    from trafficgeo.calibration.pipeline import Calibration
 
 __all__ = ["REPORT_FORMAT", "build_report", "explain_outlier", "ground_points"]
 

@@ -13,25 +13,9 @@ from typing import Annotated, Any
 
 import numpy as np
 import typer
-from rich.console import Console
 
+from trafficgeo.cli.app import app, console, parse_image_size
 from trafficgeo.errors import CalibrationError, InputError, TrafficgeoError
-
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  help="Georeferenced, lane-level traffic data from a fixed camera and common GIS data.")
-console = Console()
-
-
-def parse_image_size(text: str) -> tuple[int, int]:
-    """'1920x1080' -> (1920, 1080)."""
-    parts = text.lower().replace("*", "x").split("x")
-    try:
-        w, h = (int(p) for p in parts)
-    except ValueError:
-        raise InputError(f"--image-size '{text}' is not WIDTHxHEIGHT; give e.g. --image-size 1920x1080") from None
-    if w <= 0 or h <= 0:
-        raise InputError(f"--image-size '{text}' must be positive, e.g. 1920x1080")
-    return w, h
 
 
 def _parse_pattern(text: str) -> tuple[int, int]:
@@ -324,13 +308,6 @@ def main(argv: list[str] | None = None) -> Any:
     except (json.JSONDecodeError, OSError) as exc:
         print(f"trafficgeo: error: {exc}", file=sys.stderr)
         sys.exit(2)
-
-
-def __getattr__(name: str) -> Any:
-    """``click_command``: the command tree as a click command (for the docs site's CLI reference, mkdocs-click)."""
-    if name == "click_command":
-        return typer.main.get_command(app)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 if __name__ == "__main__":  # pragma: no cover

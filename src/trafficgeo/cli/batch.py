@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from trafficgeo.cli import app, console
+from trafficgeo.cli.app import app, console
 
 batch_app = typer.Typer(no_args_is_help=True, help="Many cameras and video files: plan the tasks, run them on Dask "
                         "(a local cluster or a running one), summarize the dataset.")

@@ -8,7 +8,7 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from trafficgeo.cli import app, console
+from trafficgeo.cli.app import app, console
 from trafficgeo.errors import InputError
 from trafficgeo.io.tables import check_table_output
 

@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from trafficgeo.cli import app, console
+from trafficgeo.cli.app import app, console
 from trafficgeo.cli.geo import ResolutionOpt, SurfaceCrsOpt, SurfaceOpt
 from trafficgeo.cli.traffic import (
     GatesOpt,

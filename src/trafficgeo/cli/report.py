@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from trafficgeo.cli import app, console
+from trafficgeo.cli.app import app, console
 from trafficgeo.errors import InputError
 
 HTML_SUFFIXES = (".html", ".htm")

@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from trafficgeo.cli import app, console
+from trafficgeo.cli.app import app, console
 from trafficgeo.errors import InputError
 
 #: library parameter -> this command's argument or flag (``lanes`` is the LANES argument here, not ``--lanes``)

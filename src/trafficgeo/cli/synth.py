@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from trafficgeo.cli import app, console, parse_image_size
+from trafficgeo.cli.app import app, console, parse_image_size
 from trafficgeo.errors import InputError
 
 

@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from trafficgeo.cli import app, console
+from trafficgeo.cli.app import app, console
 from trafficgeo.errors import InputError
 
 LOOPBACK_NAMES = ("127.0.0.1", "localhost", "::1")

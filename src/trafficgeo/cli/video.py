@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from trafficgeo.cli import app, console
+from trafficgeo.cli.app import app, console
 from trafficgeo.errors import InputError
 
 FRAME_SUFFIXES = {".png": ".png", ".jpg": ".jpg", ".jpeg": ".jpg"}

@@ -30,10 +30,10 @@ from trafficgeo.site.lanes import Lanes
 from trafficgeo.site.lines import CountLine
 from trafficgeo.site.site import Site
 from trafficgeo.site.surface import check_resolution
-from trafficgeo.traffic.analyze import MOVEMENT_INTERVAL_S, TrafficResult, warn_bare_camera
+from trafficgeo.traffic.analyze import TrafficResult, warn_bare_camera
 from trafficgeo.traffic.counts import check_interval
 from trafficgeo.traffic.journeys import JourneyOptions
-from trafficgeo.traffic.movements import check_movement_interval
+from trafficgeo.traffic.movements import MOVEMENT_INTERVAL_S, check_movement_interval
 from trafficgeo.traffic.run_folder import RunFolder
 from trafficgeo.traffic.trajectories import TrajectoryOptions
 from trafficgeo.video.pipeline import ProcessOptions

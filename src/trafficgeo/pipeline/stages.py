@@ -21,9 +21,10 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.site.site import Site
-from trafficgeo.traffic.analyze import MOVEMENT_INTERVAL_S, TrafficResult
+from trafficgeo.traffic.analyze import TrafficResult
 from trafficgeo.traffic.analyze import analyze as analyze_world
 from trafficgeo.traffic.journeys import JourneyOptions
+from trafficgeo.traffic.movements import MOVEMENT_INTERVAL_S
 from trafficgeo.traffic.speed import ScaleKnowledge
 from trafficgeo.traffic.tracks import ImageTracks, load_tracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions

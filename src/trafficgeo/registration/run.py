@@ -23,9 +23,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from trafficgeo.calibration.camera_record import calibrated_camera
 from trafficgeo.calibration.gcp_read import read_gcps
 from trafficgeo.calibration.gcp_table import ROLE_CHECK, ROLE_CONTROL, GCPTable
-from trafficgeo.calibration.run import calibrated_camera
 from trafficgeo.camera.calibrated import CalibratedCamera, RefinementSummary, load_calibrated_camera
 from trafficgeo.camera.io import camera_to_dict
 from trafficgeo.camera.model import Camera

@@ -5,8 +5,9 @@ from __future__ import annotations
 from rich.console import Console
 from rich.table import Table
 
-from trafficgeo.traffic.analyze import TrafficResult, summary
+from trafficgeo.traffic.analyze import TrafficResult
 from trafficgeo.traffic.counts import MIN_FLOW_SHARE, flow_rule
+from trafficgeo.traffic.outputs import summary
 from trafficgeo.traffic.validation import Comparison
 
 

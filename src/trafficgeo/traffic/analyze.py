@@ -30,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pyproj
 import shapely
 
 from trafficgeo.camera.calibrated import CalibratedCamera
@@ -43,15 +42,11 @@ from trafficgeo.site.lines import CountLine
 from trafficgeo.traffic.counts import aggregate_counts, find_crossings
 from trafficgeo.traffic.journeys import JOURNEY_COLUMNS, JourneyOptions, join_fragments
 from trafficgeo.traffic.lane_changes import lane_visits, main_lane
+from trafficgeo.traffic.movements import MOVEMENT_INTERVAL_S
 from trafficgeo.traffic.occlusion import hidden_crossings
-from trafficgeo.traffic.run_records import LineCount, RunSummary
 from trafficgeo.traffic.speed import ScaleKnowledge, SpeedOptions, scale_drift_warning
 from trafficgeo.traffic.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions, WorldTracks, world_trajectories
-
-OUTPUT_FILES = ("vehicles.csv", "counts.csv", "crossings.csv", "trajectories.csv", "trajectories.parquet",
-                "trajectories.gpkg", "movements.csv", "movement_counts.csv", "turning_movements.csv", "summary.json")
-MOVEMENT_INTERVAL_S = 900.0  # s: turning movements are counted per 15 minutes
 
 
 @dataclass(frozen=True)
@@ -352,139 +347,10 @@ def analyze_tracks(camera: CalibratedCamera | Camera | str | os.PathLike, surfac
 
 
 # ------------------------------------------------------------------------------------------------ writing
-def _paths_layer(points: pd.DataFrame, vehicles: pd.DataFrame):
-    from trafficgeo.io.gis import Layer
-
-    geoms = []
-    groups = dict(tuple(points.groupby("track_id", sort=False))) if len(points) else {}
-    for tid in vehicles["track_id"]:
-        g = groups.get(tid)
-        xy = g[["x", "y"]].to_numpy() if g is not None else np.zeros((0, 2))
-        geoms.append(shapely.LineString(xy) if len(xy) >= 2 else shapely.from_wkt("LINESTRING EMPTY"))
-    return Layer("paths", geoms, {c: vehicles[c].to_numpy() for c in vehicles.columns})
-
-
-def gis_layers(analysis: TrafficResult, crs: pyproj.CRS) -> list:
-    """The GeoPackage layers: points, paths, and the lanes and counting lines used."""
-    from trafficgeo.io.gis import Layer, points_layer
-
-    pts = analysis.points
-    attrs = {c: pts[c].to_numpy() for c in pts.columns if c not in ("x", "y", "z", "lon", "lat")}
-    layers = [points_layer("points", pts["x"].to_numpy(), pts["y"].to_numpy(), pts["z"].to_numpy(), attrs, crs),
-              _paths_layer(pts, analysis.vehicles)]
-    if analysis.lanes is not None:
-        layers.append(Layer("lanes", list(analysis.lanes.polygons), {"lane": list(analysis.lanes.names)}))
-    if analysis.lines:
-        layers.append(Layer("count_lines", [ln.geometry for ln in analysis.lines],
-                            {"name": [ln.name for ln in analysis.lines],
-                             "lanes": [",".join(ln.lanes) for ln in analysis.lines]}))
-    if analysis.junction is not None:
-        j = analysis.junction
-        layers.append(Layer("gates", [g.geometry for g in j.gates],
-                            {"arm": j.arms, "bearing_deg": [j.bearings_deg[a] for a in j.arms],
-                             "approach": [j.approach_bound(a) for a in j.arms]}))
-    return layers
-
-
-def summary(analysis: TrafficResult, crs: pyproj.CRS | None = None) -> RunSummary:
-    """Totals for the terminal and ``summary.json`` (its record; ``crs``: the camera's, written as WKT)."""
-    veh = analysis.vehicles
-    traffic = veh[~veh["stationary"].astype(bool)] if "stationary" in veh.columns else veh
-    c = analysis.counts
-    # every line x lane x direction of the counts table, zeros too (a line nobody crossed is listed)
-    per_line = (c.assign(line=c["line"].astype(str), lane=c["lane"].fillna("").astype(str))
-                .groupby(["line", "lane", "direction"], sort=True)["count"].sum() if len(c) else [])
-    return RunSummary(
-        period_s=(float(analysis.period[0]), float(analysis.period[1])),
-        vehicles=len(veh),
-        points=len(analysis.points),
-        dropped_points=analysis.dropped,
-        outlier_points=int(analysis.points["outlier"].sum()) if len(analysis.points) else 0,
-        mean_speed_kmh=float(traffic["speed_kmh"].mean()) if traffic["speed_kmh"].notna().any() else None,
-        classes={str(k): int(v) for k, v in veh["class"].value_counts().items()} if len(veh) else {},
-        lane_changes=int(veh["lane_changes"].sum()) if len(veh) else 0,
-        crossings=tuple(LineCount(str(k[0]), str(k[1]), int(k[2]), int(v))
-                        for k, v in (per_line.items() if len(per_line) else [])),
-        hidden_crossings=int(analysis.crossings["hidden"].sum()) if "hidden" in analysis.crossings else 0,
-        options=analysis.options,
-        warnings=tuple(analysis.warnings),
-        crs=crs.to_wkt() if crs is not None else None,
-        fragments=int(veh["fragments"].sum()) if "fragments" in veh.columns else None,
-        stationary_vehicles=int(veh["stationary"].sum()) if "stationary" in veh.columns else 0,
-        junction=junction_summary(analysis),
-    )
-
-
-def junction_summary(analysis: TrafficResult) -> dict[str, object] | None:
-    """The junction part of ``summary.json``: the arms (bearing, approach bound), the vehicles through it, the
-    complete movements (and how many had an end assigned by their path), the incomplete ones, and the peak hour
-    (None when less than an hour of whole intervals was observed)."""
-    from trafficgeo.traffic.measurements import HEAVY_CLASSES
-    from trafficgeo.traffic.movements import peak_hour
-
-    j, mv = analysis.junction, analysis.movements
-    if j is None or mv is None:
-        return None
-    done = mv[mv["complete"].astype(bool)]
-    interval = float(analysis.options.get("movement_interval_s", MOVEMENT_INTERVAL_S))
-    peak = peak_hour(analysis.turning, interval) if analysis.turning is not None else None
-    return {
-        "arms": {a: {"bearing_deg": round(j.bearings_deg[a], 3), "approach": j.approach_bound(a)} for a in j.arms},
-        "centre": [float(j.centre[0]), float(j.centre[1])],
-        "vehicles": len(mv),
-        "complete": len(done),
-        "by_path": int(((done["origin_by"] == "path") | (done["destination_by"] == "path")).sum()),
-        "incomplete": int(len(mv) - len(done)),
-        "movements": {k: int(v) for k, v in done["movement"].value_counts().sort_index().items()},
-        "heavy_pct": float(100.0 * done["class"].isin(HEAVY_CLASSES).mean()) if len(done) else None,
-        "interval_s": interval,
-        "peak_hour": None if peak is None else {"start_s": peak.start, "end_s": peak.end, "volume": peak.volume,
-                                                "phf": round(peak.phf, 4), "heavy_pct": round(peak.heavy_pct, 3)},
-    }
-
-
 def write_analysis(out_dir: str | Path, analysis: TrafficResult, camera: Camera, *, publish: bool = True
                    ) -> list[Path]:
-    """Write the outputs (module docstring) into ``out_dir``; returns the paths written.
-
-    The folder's run manifest (:mod:`trafficgeo.io.run_manifest`) is removed first and, with ``publish``, written
-    last; a caller that adds files of its own (``process``) passes ``publish=False`` and publishes them all. The
-    folder is locked while it is written (:func:`~trafficgeo.io.folder_lock.hold_folder`)."""
-    from trafficgeo.io.atomic import write_csv_atomic
-    from trafficgeo.io.folder_lock import hold_folder
-    from trafficgeo.io.gis import write_gis
-    from trafficgeo.io.run_manifest import begin_outputs, publish_outputs
-    from trafficgeo.io.tables import write_point_table
+    """Write the outputs (module docstring) into ``out_dir``: :meth:`RunFolder.write_traffic
+    <trafficgeo.traffic.run_folder.RunFolder.write_traffic>`; returns the paths written."""
     from trafficgeo.traffic.run_folder import RunFolder
 
-    with hold_folder(out_dir):  # one run at a time in a folder
-        out = begin_outputs(out_dir)
-        crs = camera_crs(camera)
-        written = []
-        for name, table in (("vehicles.csv", analysis.vehicles), ("counts.csv", analysis.counts),
-                            ("crossings.csv", analysis.crossings)):
-            write_csv_atomic(out / name, table, float_format="%.4f")
-            written.append(out / name)
-        write_point_table(out / "trajectories.csv", analysis.points, crs)  # lon/lat to 1e-9 degrees
-        written.append(out / "trajectories.csv")
-        if analysis.movements is not None:
-            from trafficgeo.traffic.run_folder import SCHEMAS
-
-            for name in ("movements.csv", "movement_counts.csv"):
-                SCHEMAS[name].check(getattr(analysis, name.removesuffix(".csv")))
-            for name, table in (("movements.csv", analysis.movements),
-                                ("movement_counts.csv", analysis.movement_counts),
-                                ("turning_movements.csv", analysis.turning)):
-                write_csv_atomic(out / name, table, float_format="%.4f")
-                written.append(out / name)
-        if crs is not None and len(analysis.points):
-            layers = gis_layers(analysis, crs)
-            write_gis(out / "trajectories.gpkg", layers, crs)
-            write_gis(out / "trajectories.parquet", layers[:1], crs)
-            written += [out / "trajectories.gpkg", out / "trajectories.parquet"]
-        written.append(RunFolder(out).write_summary(summary(analysis, crs)))
-        for stale in {out / n for n in OUTPUT_FILES} - set(written):  # e.g. no GeoPackage without a CRS
-            stale.unlink(missing_ok=True)
-        if publish:
-            publish_outputs(out, written, command="analyze")
-        return written
+    return RunFolder(out_dir).write_traffic(analysis, camera, publish=publish)

@@ -47,6 +47,7 @@ STOPPED_KMH = 5.0  # km/h: slower than this is stopped
 MOVEMENT_COLUMNS = ["track_id", "class", "origin", "destination", "movement", "entry_time", "exit_time",
                     "travel_time_s", "stopped_s", "origin_by", "destination_by", "complete", "track_ids"]
 U_TURN_REACH_SHARE = 0.5  # a U-turn reaches this share of the centre-to-gate distance from the centre
+MOVEMENT_INTERVAL_S = 900.0  # s: turning movements are counted per 15 minutes
 U_TURN_MIN_DEG = 120.0  # and turns by at least this much between its first and last travel
 
 

@@ -18,8 +18,8 @@ from trafficgeo.calibration.gcp_table import ROLE_CONTROL
 from trafficgeo.calibration.run import CalibrationRun, run_calibration
 from trafficgeo.errors import CalibrationError, InputError
 from trafficgeo.geo.surface import ConstantSurface, PlaneSurface
-from trafficgeo.ui import overlays
 from trafficgeo.ui.inputs import Ground, Orthophoto
+from trafficgeo.ui.overlays import footprint, grid
 
 log = logging.getLogger(__name__)
 
@@ -76,8 +76,8 @@ def draw_overlays(answer: dict[str, Any], run: CalibrationRun, *, ortho: Orthoph
     camera = run.calibration.camera
     try:
         surface = drawing_surface(run, ground, crs)
-        seen, answer["footprint"] = overlays.footprint(camera, surface, ortho, max_distance_m)
-        answer["grid"] = overlays.grid(camera, surface, ortho, seen, unit)
+        seen, answer["footprint"] = footprint(camera, surface, ortho, max_distance_m)
+        answer["grid"] = grid(camera, surface, ortho, seen, unit)
     except Exception as exc:  # the drawings are extras
         log.exception("footprint/grid failed")
         answer["overlay_error"] = f"the footprint and grid could not be drawn ({type(exc).__name__}: {exc})"

@@ -34,8 +34,8 @@ from trafficgeo.geo.surface import PlaneSurface
 from trafficgeo.io.atomic import to_json_safe
 from trafficgeo.registration.refine import OrthoRefinement, RefineOptions, refine_camera
 from trafficgeo.registration.run import write_refinement
-from trafficgeo.ui import live
 from trafficgeo.ui.inputs import FrameImage, Orthophoto
+from trafficgeo.ui.live import drawing_surface
 from trafficgeo.ui.session import CAMERA_SUFFIXES, ConflictError, Session, SessionError
 
 log = logging.getLogger(__name__)
@@ -155,7 +155,7 @@ class SessionRefiner:
         ground = self.session.ground
         if ground is not None:
             return ground.surface, ground.describe()
-        surface = live.drawing_surface(run, None, self.session.crs)
+        surface = drawing_surface(run, None, self.session.crs)
         n = int(np.count_nonzero(run.calibration.inlier))
         if isinstance(surface, PlaneSurface):
             return surface, f"no --dem or --cloud: the plane through the {n} control GCPs"

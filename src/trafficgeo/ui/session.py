@@ -25,14 +25,15 @@ from typing import Any
 import numpy as np
 
 from trafficgeo.calibration import CalibrationOptions, GCPTable, read_gcps
+from trafficgeo.calibration.camera_record import calibrated_camera
 from trafficgeo.calibration.gcp_table import ROLE_CHECK, ROLE_CONTROL, ROLES
 from trafficgeo.calibration.pipeline import required_points
-from trafficgeo.calibration.run import CalibrationRun, calibrated_camera
+from trafficgeo.calibration.run import CalibrationRun
 from trafficgeo.crs import crs_label
 from trafficgeo.errors import InputError, OutputError
 from trafficgeo.io.atomic import to_json_safe
-from trafficgeo.ui import live
 from trafficgeo.ui.inputs import FrameImage, Ground, GroundSample, Orthophoto
+from trafficgeo.ui.live import calibration_answer, draw_overlays
 
 log = logging.getLogger(__name__)
 
@@ -524,11 +525,11 @@ class Session:
 
     def _calibrate(self, pairs: list[Pair], revision: int) -> tuple[dict[str, Any], CalibrationRun | None]:
         """Calibrate on ``pairs`` (:func:`trafficgeo.ui.live.calibration_answer`) and draw the footprint and grid."""
-        answer, run = live.calibration_answer(self._table(pairs), self.frame.size, self.options, revision=revision,
+        answer, run = calibration_answer(self._table(pairs), self.frame.size, self.options, revision=revision,
                                               min_control=self.min_control)
         if run is None:
             return answer, None
-        live.draw_overlays(answer, run, ortho=self.ortho, ground=self.ground, crs=self.crs, unit=self._unit(),
+        draw_overlays(answer, run, ortho=self.ortho, ground=self.ground, crs=self.crs, unit=self._unit(),
                            max_distance_m=self.max_distance_m)
         return to_json_safe(answer), run
 
