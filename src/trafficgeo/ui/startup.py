@@ -91,9 +91,10 @@ def open_session(*, frame: str | Path | None = None, video: str | Path | None = 
         if not gcps_path.parent.resolve().is_dir():
             raise InputError(f"gcps {gcps_path}: folder {gcps_path.parent} does not exist; create it first",
                              parameters=("gcps",))
-        if gcps_path.suffix.lower() not in (".csv", ".points", ".txt"):
-            raise InputError(f"gcps {gcps_path} must be a .csv file (id,x,y,z,u,v,role,sigma_px; or a QGIS .points "
-                             "file)", parameters=("gcps",))
+        theirs = gcps_path.suffix.lower() in (".points", ".txt") and gcps_path.is_file()  # read, saved beside
+        if gcps_path.suffix.lower() != ".csv" and not theirs:
+            raise InputError(f"gcps {gcps_path} must be a .csv file (id,x,y,z,u,v,role,sigma_px), or an existing "
+                             "QGIS .points or OpenDroneMap gcp_list.txt to start from", parameters=("gcps",))
     img = load_frame(frame) if frame is not None else load_video_frame(video, 0.0 if at_s is None else at_s)
     orthophoto = load_ortho(ortho)
     ground = load_ground(dem=dem, cloud=cloud, ortho_crs=orthophoto.crs)
@@ -110,7 +111,8 @@ def open_session(*, frame: str | Path | None = None, video: str | Path | None = 
         note = f"continuing with {table.n} GCP(s) from {source}"
         if source == session.autosave_path and gcps_path is not None and gcps_path.is_file():
             note += f" (newer than {gcps_path}: unsaved changes of the last session)"
-        if (table.columns_note or table.from_lonlat or no_heights) and source == gcps_path:
+        if (table.columns_note or table.from_lonlat or no_heights or source.suffix.lower() != ".csv") \
+                and source == gcps_path:
             # the user's file keeps its own layout and CRS: Save writes trafficgeo's beside it
             session.gcps_path = gcps_path.with_name(gcps_path.stem + "_trafficgeo.csv")
             how = f"columns read as {table.columns_note}; " if table.columns_note else ""
