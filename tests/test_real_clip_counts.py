@@ -63,3 +63,40 @@ def test_without_top_edges_the_down_going_cars_are_lost(intel_run: Path) -> None
     got = analyze_tracks(nominal_camera(), 100.0, intel_run / "run" / "tracks.csv", lines=intel_run / "line.csv",
                          options=TrajectoryOptions(top_edge_clipped=False)).crossings
     assert (got.direction == DOWN).sum() < 2
+
+
+def test_a_detector_object_of_ones_own_runs_the_clip(tmp_path: Path) -> None:
+    """A detector is any object with ``detect(image, time_s)`` (issue 41: a new backend meant editing the names in
+    three files): passed as ``ProcessOptions(detector=...)`` it runs on every detection frame, and the run records
+    it by its ``name``. This one wraps the library's background subtraction and counts what it does."""
+    from trafficgeo.errors import InputError
+    from trafficgeo.geo.surface import ConstantSurface
+    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.video.detectors.factory import make_detector
+
+    camera = nominal_camera()
+
+    class Counting:
+        name = "counting-background"
+        learns_background = True  # learns from every frame: process then detects on every frame
+
+        def __init__(self) -> None:
+            self.inner = make_detector("background", camera=camera, surface=ConstantSurface(100.0))
+            self.frames = 0
+
+        def detect(self, image, time_s):
+            self.frames += 1
+            return self.inner.detect(image, time_s)
+
+    mine = Counting()
+    line = tmp_path / "line.csv"
+    line.write_text("line,u,v\nmid,0,215.5\nmid,767,215.5\n")
+    run = process_video(INTEL, camera, 100.0, tmp_path / "run", lines=line, options=ProcessOptions(detector=mine))
+    assert mine.frames == run.read["frames"] == 377  # every frame of the clip, with the object given
+    assert RunFolder(tmp_path / "run").process().options.detector == "counting-background"
+    truth = pd.read_csv(TRUTH)
+    got = pd.read_csv(tmp_path / "run" / "crossings.csv")
+    for name, sign in (("up", UP), ("down", DOWN)):
+        assert (got.direction == sign).sum() == (truth.direction == name).sum(), got
+    with pytest.raises(InputError, match="not a detector"):
+        ProcessOptions(detector=object())

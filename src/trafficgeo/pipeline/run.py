@@ -314,8 +314,9 @@ def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: Pro
     the asked end, e.g. a truncated file), and how fast (``seconds`` of wall clock). The file is the record
     :class:`~trafficgeo.traffic.run_records.ProcessRecord`, written by the run folder."""
     from trafficgeo.traffic.run_records import ProcessRecord, ProcessSettings, VideoRead
+    from trafficgeo.video.detectors.names import detector_name
 
-    settings = ProcessSettings(detector=options.detector, detector_format=options.detector_format,
+    settings = ProcessSettings(detector=detector_name(options.detector), detector_format=options.detector_format,
                                start_s=options.start_s, end_s=options.end_s, every=options.every,
                                tiles=options.tiles, tiling=options.tiling, backend=options.backend,
                                tile_schedule=options.tile_schedule)

@@ -33,7 +33,7 @@ from __future__ import annotations
 import itertools
 import shutil
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, is_dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -80,7 +80,11 @@ LEARNED_TRACKER = TrackerOptions(lost_track_s=3.0, activation_score=0.3, high_sc
 class ProcessOptions:
     """What ``process`` does with a video (times in seconds of video)."""
 
-    detector: str = "nanodet"  # a name of detectors.names.DETECTOR_NAMES, or the path of an ONNX model
+    # a name of detectors.names.DETECTOR_NAMES, the path of an ONNX model, or a detector object: anything with
+    # ``detect(image, time_s) -> Detections`` (BGR image, s), run on every detection frame of the whole video; its
+    # ``name`` (else its class's) is what the run records and resumes by, ``learns_background`` (default False)
+    # whether it learns from every frame (then every frame is a detection frame)
+    detector: str | object = "nanodet"
     detector_format: str = "auto"  # an ONNX model's layout (onnx_formats.LAYOUTS), or "auto": from the model
     start_s: float = 0.0
     end_s: float | None = None
@@ -94,12 +98,18 @@ class ProcessOptions:
     # "auto": "all" where the estimate keeps real time, else "sparse" (_announce_cost)
 
     def __post_init__(self) -> None:
-        check_detector(self.detector, self.detector_format)  # a bad name or model fails here, before writing
         from trafficgeo.video.detectors.backends import check_backend
         from trafficgeo.video.detectors.names import is_background
 
-        if not is_background(self.detector):
-            check_backend(self.backend)  # openvino asked but not installed: fails here, before writing
+        if not isinstance(self.detector, str):
+            if not callable(getattr(self.detector, "detect", None)):
+                raise InputError(f"detector {type(self.detector).__name__}: not a detector; give a name (nanodet, "
+                                 "background), the path of an ONNX model, or an object with detect(image, time_s)",
+                                 parameters=("detector",))
+        else:
+            check_detector(self.detector, self.detector_format)  # a bad name or model fails here, before writing
+            if not is_background(self.detector):
+                check_backend(self.backend)  # openvino asked but not installed: fails here, before writing
         if not (self.start_s >= 0 and (self.end_s is None or self.end_s > self.start_s)):
             raise InputError(f"start_s {self.start_s} / end_s {self.end_s}: need 0 <= start_s < end_s (seconds)",
                              parameters=("start_s", "end_s"))
@@ -117,6 +127,16 @@ class ProcessOptions:
         if not self.checkpoint_s > 0:
             raise InputError(f"checkpoint_s {self.checkpoint_s}: must be a positive number of seconds",
                              parameters=("checkpoint_s",))
+
+
+def options_record(options: ProcessOptions) -> dict:
+    """``options`` as plain data (a run's key, its record): a detector object by its name
+    (:func:`~trafficgeo.video.detectors.names.detector_name`)."""
+    from trafficgeo.video.detectors.names import detector_name
+
+    doc = {f.name: getattr(options, f.name) for f in fields(options)}
+    doc = {k: asdict(v) if is_dataclass(v) else v for k, v in doc.items()}
+    return {**doc, "detector": detector_name(options.detector)}
 
 
 def settled_options(options: ProcessOptions, fps: float) -> ProcessOptions:
@@ -267,6 +287,8 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     cam = camera if surface is not None else None
 
     def new_detector():
+        if not isinstance(opts.detector, str):
+            return opts.detector  # the caller's: one for the whole run
         return make_detector(opts.detector, camera=cam, surface=surface, roi=roi,
                              detector_format=opts.detector_format, road=lanes, tiles=opts.tiles,
                              tiling=opts.tiling, lines=lines, backend=opts.backend)
@@ -283,7 +305,8 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
         detector_info({"tiling": plan.to_dict() if plan is not None else None,
                        **({"backend": cost[0].to_dict(), "estimate": cost[1].to_dict()} if cost else {}),
                        **({"tile_schedule": used} if used else {})})
-    model = Path(opts.detector) if not learns and Path(opts.detector).is_file() else None
+    model = Path(opts.detector) if isinstance(opts.detector, str) and not learns and Path(opts.detector).is_file() \
+        else None
     tiles = plan.tiles.tolist() if plan is not None else None  # the lanes enter the detections through the tiles
     # not what tile_schedule="auto" chose: a resumed run may choose otherwise (the machine's load changed) and keeps
     # the segments already detected, which are the same video's detections either way
@@ -291,7 +314,7 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     # resumed where the probe chooses another starts again rather than mixing two models' detections
     runtime = cost[0].backend if cost else None
     key = run_key(video, camera=camera, surface=surface, roi=roi,
-                  options={**asdict(opts), "prime_s": PRIME_S, "tile_boxes": tiles, "runtime": runtime},
+                  options={**options_record(opts), "prime_s": PRIME_S, "tile_boxes": tiles, "runtime": runtime},
                   detector_file=model)
     out = Path(out_dir)
     ck = out / CHECKPOINT_DIR

@@ -46,6 +46,17 @@ def detector_kind(spec: str) -> str:
     raise InputError(f"detector {s!r} is not known; use {DETECTOR_HELP}", parameters=DETECTOR_PARAMETERS)
 
 
-def is_background(spec: str) -> bool:
-    """Does ``spec`` name a background subtraction detector (which learns the background before detecting)?"""
+def is_background(spec: object) -> bool:
+    """Does ``spec`` name a background subtraction detector (which learns the background before detecting)? A
+    detector object says so itself (``learns_background``, default False)."""
+    if not isinstance(spec, str):
+        return bool(getattr(spec, "learns_background", False))
     return detector_kind(spec) in ("mog2", "knn")
+
+
+def detector_name(detector: object) -> str:
+    """What a run records as its detector: the name or ONNX path it was given, or a detector object's ``name``
+    (else its class's name)."""
+    if isinstance(detector, str):
+        return detector
+    return str(getattr(detector, "name", None) or type(detector).__qualname__)
