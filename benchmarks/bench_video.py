@@ -63,6 +63,7 @@ from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.pipeline.run import process_video
 from trafficgeo.site.lanes import read_lanes
 from trafficgeo.site.lines import read_count_lines
+from trafficgeo.site.site import Site
 from trafficgeo.site.surface import load_surface
 from trafficgeo.synth.detections import ideal_detections
 from trafficgeo.synth.identity import identity_scores, vehicle_ids
@@ -300,7 +301,8 @@ def part_world(camera_name: str, wdir: Path, world: WorldOptions, specs: list[st
     for spec in specs:
         options = run_options(spec, end, args.checkpoint, args.backend)
         out = ROOT / "out" / f"{prefix}-{spec.replace('@', '-')}"
-        run = process_video(video, camera, surface, out, lanes, lines, options=options, restart=True)
+        run = process_video(video, Site.load(camera, surface, lanes, lines), out,
+                            options=replace(options, restart=True))
         detections, result, t_pipe = run.detections, run.traffic, run.seconds  # t_pipe: decode + detect + track
         step = int(run.options.every or 1)  # detection ran on frames 0, step, 2 step, ...: scored there
         precision, recall, n_true = detection_scores(detections, truth[(truth["time"] < end)

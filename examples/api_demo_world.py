@@ -56,8 +56,8 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     print(f"pixels to the ground: median error {np.nanmedian(err):.2f} m over {np.isfinite(err).sum()} points")
 
     # 3. The video: detect, track, georeference and count (resumable; the run folder holds every table).
-    run = tg.process_video(world / "video.mp4", camera, surface, out / "video", world / "lanes.gpkg",
-                           world / "count_lines.gpkg", restart=True)
+    site = tg.Site.load(camera, surface, lanes=world / "lanes.gpkg", lines=world / "count_lines.gpkg")
+    run = tg.process_video(world / "video.mp4", site, out / "video", options=tg.ProcessOptions(restart=True))
     knows = run.traffic.options["speed_scale_knowledge"]  # what placed each headline speed: covariance, GCPs
     score = count_scores(run.traffic.crossings, pd.read_csv(world / "truth_counts.csv"))
     errs = score.speed_errors[np.isfinite(score.speed_errors)]

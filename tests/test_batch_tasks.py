@@ -54,12 +54,13 @@ def _run(ctx: BatchContext, *tasks: Task) -> list:
 def anchor(small_world: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
     """``process`` and a one-file batch (background detector) over the whole small-world video."""
     from trafficgeo.pipeline.run import process_video
+    from trafficgeo.site.site import Site
     from trafficgeo.video.pipeline import ProcessOptions
 
     root = tmp_path_factory.mktemp("batch_anchor")
     w = small_world
-    run = process_video(w / "video.mp4", w / "camera_truth.json", 90.0, root / "run", lanes=w / "lanes.gpkg",
-                        lines=w / "count_lines.gpkg", options=ProcessOptions(detector="background"))
+    site = Site.load(w / "camera_truth.json", 90.0, lanes=w / "lanes.gpkg", lines=w / "count_lines.gpkg")
+    run = process_video(w / "video.mp4", site, root / "run", options=ProcessOptions(detector="background"))
     det = _detect(w / "video.mp4", "whole", START, 8.0)
     trk = _track(det)
     ctx = BatchContext(root / "ds", {"cam1": _entry(w)}, "EPSG:2949", {t.task_id: t for t in (det, trk)})

@@ -20,6 +20,7 @@ import pytest
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.pipeline.run import process_video
+from trafficgeo.site.site import Site
 from trafficgeo.traffic.analyze import analyze_tracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions
 from trafficgeo.video.pipeline import ProcessOptions
@@ -40,8 +41,9 @@ def intel_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("intel")
     line = out / "line.csv"
     line.write_text("line,u,v\nmid,0,215.5\nmid,767,215.5\n")  # the truth's row, across the whole frame
-    process_video(INTEL, nominal_camera(), 100.0, out / "run", lines=line,
-                  options=ProcessOptions(detector="background"))
+    site = Site.load(nominal_camera(), 100.0, lines=line)
+    with pytest.warns(UserWarning, match="no record of a calibration"):  # a nominal camera: said, not silent
+        process_video(INTEL, site, out / "run", options=ProcessOptions(detector="background"))
     return out
 
 
@@ -91,7 +93,9 @@ def test_a_detector_object_of_ones_own_runs_the_clip(tmp_path: Path) -> None:
     mine = Counting()
     line = tmp_path / "line.csv"
     line.write_text("line,u,v\nmid,0,215.5\nmid,767,215.5\n")
-    run = process_video(INTEL, camera, 100.0, tmp_path / "run", lines=line, options=ProcessOptions(detector=mine))
+    with pytest.warns(UserWarning, match="no record of a calibration"):
+        run = process_video(INTEL, Site.load(camera, 100.0, lines=line), tmp_path / "run",
+                            options=ProcessOptions(detector=mine))
     assert mine.frames == run.read["frames"] == 377  # every frame of the clip, with the object given
     assert RunFolder(tmp_path / "run").process().options.detector == "counting-background"
     truth = pd.read_csv(TRUTH)

@@ -7,7 +7,8 @@ paths, returns plain dataclasses and tables, and raises :class:`InputError` nami
 
     camera = tg.load_camera("camera.json")      # a CalibratedCamera; or tg.calibrate(gcps, size).calibrated_camera()
     surface = tg.load_surface("cloud.laz", "camera.json")        # a number, "plane", a DEM or a point cloud
-    run = tg.process_video("video.mp4", camera, surface, "run", lanes="lanes.gpkg", lines="lines.gpkg")
+    site = tg.Site.load(camera, surface, lanes="lanes.gpkg", lines="lines.gpkg")  # loaded once, passed on
+    run = tg.process_video("video.mp4", site, "run")
     run.traffic.counts                                           # per line, lane, direction and interval
     tg.RunFolder("run").vehicles()                               # read back, typed by one schema
 
@@ -49,6 +50,7 @@ _API: dict[str, str] = {
     "ImageTracks": "trafficgeo.traffic.tracks",
     # traffic
     "analyze_tracks": "trafficgeo.traffic.analyze",
+    "AnalysisOptions": "trafficgeo.traffic.analyze",
     "TrafficResult": "trafficgeo.traffic.analyze",
     "TrajectoryOptions": "trafficgeo.traffic.trajectories",
     "JourneyOptions": "trafficgeo.traffic.journeys",
@@ -80,6 +82,7 @@ _API: dict[str, str] = {
     "process_video": "trafficgeo.pipeline.run",
     "ProcessResult": "trafficgeo.pipeline.run",
     "ProcessOptions": "trafficgeo.video.pipeline",
+    "RunCallbacks": "trafficgeo.pipeline.run",
     "stitch": "trafficgeo.pipeline.run",
     "make_detector": "trafficgeo.video.detectors.factory",
     "Detections": "trafficgeo.video.detections",
@@ -96,6 +99,7 @@ _API: dict[str, str] = {
 
 __all__ = [
     "SCHEMAS",
+    "AnalysisOptions",
     "BatchPlan",
     "BatchReport",
     "CalibratedCamera",
@@ -121,6 +125,7 @@ __all__ = [
     "ProcessOptions",
     "ProcessResult",
     "RefineOptions",
+    "RunCallbacks",
     "RunFolder",
     "RunOptions",
     "Site",
@@ -186,7 +191,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.geo.drape import drape_orthophoto
     from trafficgeo.geo.mapping import GroundPoints, georeference
     from trafficgeo.geo.surface import ConstantSurface
-    from trafficgeo.pipeline.run import ProcessResult, process_video, stitch
+    from trafficgeo.pipeline.run import ProcessResult, RunCallbacks, process_video, stitch
     from trafficgeo.registration.from_ortho import OrthoCalibration, OrthoPoseOptions, calibrate_from_ortho
     from trafficgeo.registration.refine import OrthoRefinement, RefineOptions, refine_camera
     from trafficgeo.simulation.loop import SumoLoopResult, SumoValidation, close_sumo_loop, validate_sumo_scenario
@@ -196,7 +201,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.site.lines import CountLine
     from trafficgeo.site.site import Site, load_camera, load_lanes, load_lines
     from trafficgeo.site.surface import load_surface
-    from trafficgeo.traffic.analyze import TrafficResult, analyze_tracks
+    from trafficgeo.traffic.analyze import AnalysisOptions, TrafficResult, analyze_tracks
     from trafficgeo.traffic.journeys import JourneyOptions, join_fragments
     from trafficgeo.traffic.run_folder import RunFolder
     from trafficgeo.traffic.schema import SCHEMAS

@@ -285,9 +285,11 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     far road), track, analyze."""
     from rich.progress import BarColumn, Progress, TimeRemainingColumn
 
-    from trafficgeo.pipeline.run import process_video
+    from trafficgeo.pipeline.run import RunCallbacks, process_video
     from trafficgeo.report.traffic import print_analysis
+    from trafficgeo.site.site import Site
     from trafficgeo.synth.scoring import count_scores, detection_scores
+    from trafficgeo.video.pipeline import ProcessOptions
     from trafficgeo.video.reader import video_info
 
     folder = out / "video"
@@ -297,10 +299,11 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     with Progress("detect + track", BarColumn(), "{task.completed}/{task.total} frames", TimeRemainingColumn(),
                   console=con, transient=True) as bar:
         task = bar.add_task("video", total=info.frame_count)
-        run = process_video(wdir / "video.mp4", out / "camera.json", surf, folder, wdir / "lanes.gpkg",
-                            wdir / "count_lines.gpkg", restart=True,  # the defaults: NanoDet, tiles, ~10 Hz
-                            progress=lambda d, n, t: bar.update(task, completed=d, total=n),
-                            notice=lambda text: con.print(text, markup=False))
+        site = Site.load(out / "camera.json", surf, wdir / "lanes.gpkg", wdir / "count_lines.gpkg")
+        run = process_video(wdir / "video.mp4", site, folder,  # the defaults: NanoDet, tiles, ~10 Hz
+                            options=ProcessOptions(restart=True),
+                            callbacks=RunCallbacks(progress=lambda d, n, t: bar.update(task, completed=d, total=n),
+                                                   notice=lambda text: con.print(text, markup=False)))
     result, detections, options, elapsed = run.traffic, run.detections, run.options, run.seconds
     print_analysis(result, con)
     truth = pd.read_csv(wdir / "truth_tracks.csv")
@@ -458,14 +461,16 @@ def run_junction_demo(out: Path, *, seed: int = 3, duration_s: float = 60.0, pro
     t.add_row("simulated tracker output", str(int(sc.table["counted"].sum())), str(int(sc.table["true"].sum())),
               f"{sc.accuracy:.1%}", f"{sc.heavy_counted_pct:.0f} / {sc.heavy_true_pct:.0f} %")
     if process_s is not None:
-        from trafficgeo.pipeline.run import process_video
+        from trafficgeo.pipeline.run import RunCallbacks, process_video
+        from trafficgeo.site.site import Site
         from trafficgeo.video.pipeline import ProcessOptions
 
         con.print(f"\n$ trafficgeo process {wdir / 'video.mp4'} --camera {out / 'camera.json'} --surface "
                   f"{wdir / 'dem.tif'} --gates {wdir / 'gates.gpkg'} --end {process_s:g} --out {out / 'video'}")
-        run = process_video(wdir / "video.mp4", out / "camera.json", wdir / "dem.tif", out / "video",
-                            gates=wdir / "gates.gpkg", options=ProcessOptions(end_s=process_s), restart=True,
-                            notice=lambda text: con.print(text, markup=False))
+        site = Site.load(out / "camera.json", wdir / "dem.tif", gates=wdir / "gates.gpkg")
+        run = process_video(wdir / "video.mp4", site, out / "video",
+                            options=ProcessOptions(end_s=process_s, restart=True),
+                            callbacks=RunCallbacks(notice=lambda text: con.print(text, markup=False)))
         print_analysis(run.traffic, con)
         sc = _movement_scores(wdir, run.traffic.movements, run.traffic.points, process_s)
         scores["video_movement_accuracy"] = sc.accuracy

@@ -436,6 +436,7 @@ def analysis_origin(first: datetime, midnight: datetime, interval_s: float) -> d
 
 
 def _run_track(task: Task, ctx: BatchContext, entry: CameraEntry):
+    from trafficgeo.traffic.analyze import AnalysisOptions
     from trafficgeo.traffic.counts import check_interval
     from trafficgeo.traffic.tracks import tracks_from_table
 
@@ -455,7 +456,7 @@ def _run_track(task: Task, ctx: BatchContext, entry: CameraEntry):
         origin = analysis_origin(first, midnight, interval_s)
         origin_us = (origin - datetime(1970, 1, 1, tzinfo=UTC)) // timedelta(microseconds=1)
         tracks["time"] = (tracks["time_us"].to_numpy() - origin_us) / 1e6
-        result = analyze(tracks_from_table(tracks), site, interval_s=interval_s)
+        result = analyze(tracks_from_table(tracks), site, analysis=AnalysisOptions(interval_s=interval_s))
         results.append((result, origin, tracks))
     day = merge_day(results, midnight, lane_set, count_lines)
     tables = day_tables(day, cam, ctx.crs, midnight, task.camera_id)

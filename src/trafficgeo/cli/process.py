@@ -82,8 +82,10 @@ def process(
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from trafficgeo.cli.report import check_html_path
-    from trafficgeo.pipeline.run import process_video
+    from trafficgeo.pipeline.run import RunCallbacks, process_video
     from trafficgeo.report.traffic import print_analysis
+    from trafficgeo.site.site import Site
+    from trafficgeo.traffic.analyze import AnalysisOptions
     from trafficgeo.traffic.journeys import JourneyOptions
     from trafficgeo.video.pipeline import ProcessOptions
 
@@ -91,8 +93,10 @@ def process(
     check_html_path(report_html)
     opts = ProcessOptions(detector=detector, detector_format=detector_format, start_s=start, end_s=end, every=every,
                           checkpoint_s=checkpoint, tiles=tiles, tiling=tiling, backend=backend,
-                          tile_schedule=tile_schedule)
-    journeys = JourneyOptions.with_gap(join_gap)
+                          tile_schedule=tile_schedule, restart=restart)
+    analysis = AnalysisOptions(interval_s=interval, movement_interval_s=movement_interval,
+                               journeys=JourneyOptions.with_gap(join_gap))
+    site = Site.load(camera, surface, lanes, lines, gates=gates, surface_crs=surface_crs, resolution_m=resolution)
     columns = (TextColumn("[progress.description]{task.description}"), BarColumn(),
                TextColumn("{task.completed}/{task.total} frames, {task.fields[rate]:.1f} fps, video {task.fields[t]}"),
                TimeRemainingColumn())
@@ -106,12 +110,11 @@ def process(
                 rate = done / max(time.perf_counter() - t0, 1e-9)
                 bar.update(task, completed=done, total=total, rate=rate, t=f"{t:.1f} s")
 
-            run = process_video(video, camera, surface, out, lanes, lines, options=opts, interval_s=interval, roi=roi,
-                                journeys=journeys, gates=gates, movement_interval_s=movement_interval,
-                                restart=restart, resolution_m=resolution, surface_crs=surface_crs, annotate=annotate,
-                                progress=tick, notice=lambda text: console.print(text, markup=False),
+            said = RunCallbacks(progress=tick, notice=lambda text: console.print(text, markup=False),
                                 annotate_progress=lambda d, n: bar.update(drawn, completed=d, total=n,
                                                                           visible=True))
+            run = process_video(video, site, out, options=opts, analysis=analysis, roi=roi, annotate=annotate,
+                                callbacks=said)
     except KeyboardInterrupt:
         console.print(f"interrupted; run the same command again to resume from the last checkpoint in {out}")
         sys.exit(130)
@@ -150,10 +153,13 @@ def stitch(
     """Join the tracks of time chunks of one video (processed apart, e.g. on several machines) and analyze them."""
     from trafficgeo.pipeline.run import stitch as stitch_runs
     from trafficgeo.report.traffic import print_analysis
+    from trafficgeo.site.site import Site
+    from trafficgeo.traffic.analyze import AnalysisOptions
 
     check_out_dir(out)
-    result = stitch_runs(chunks, camera, surface, out, lanes, lines, interval_s=interval, resolution_m=resolution,
-                         surface_crs=surface_crs, gates=gates, movement_interval_s=movement_interval,
+    analysis = AnalysisOptions(interval_s=interval, movement_interval_s=movement_interval)
+    site = Site.load(camera, surface, lanes, lines, gates=gates, surface_crs=surface_crs, resolution_m=resolution)
+    result = stitch_runs(chunks, site, out, analysis=analysis,
                          notice=lambda text: console.print(text, markup=False, highlight=False))
     print_analysis(result, console)
     console.print(f"stitched {len(chunks)} chunks: {len(result.vehicles)} vehicles; wrote {out}")

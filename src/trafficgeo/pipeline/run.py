@@ -19,26 +19,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from trafficgeo.camera.calibrated import CalibratedCamera
-from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
-from trafficgeo.geo.mapping import Surface
 from trafficgeo.io.json_text import loads_json
 from trafficgeo.pipeline.stages import analyze
-from trafficgeo.site.gates import Gate
-from trafficgeo.site.lanes import Lanes
-from trafficgeo.site.lines import CountLine
 from trafficgeo.site.site import Site
-from trafficgeo.site.surface import check_resolution
-from trafficgeo.traffic.analyze import TrafficResult, warn_bare_camera
-from trafficgeo.traffic.counts import check_interval
-from trafficgeo.traffic.journeys import JourneyOptions
-from trafficgeo.traffic.movements import MOVEMENT_INTERVAL_S, check_movement_interval
+from trafficgeo.traffic.analyze import AnalysisOptions, TrafficResult
 from trafficgeo.traffic.run_folder import RunFolder
-from trafficgeo.traffic.trajectories import TrajectoryOptions
 from trafficgeo.video.pipeline import ProcessOptions
 
-__all__ = ["ProcessResult", "process_video", "stitch", "write_run_info"]
+__all__ = ["SITE_WITHOUT_CALIBRATION", "ProcessResult", "RunCallbacks", "process_video", "stitch", "write_run_info"]
 
 PathLike = str | os.PathLike
 
@@ -138,34 +127,51 @@ def _what_was_read(video: Path, opts: ProcessOptions, read: dict, said: list[str
             f"warning: read {got} of the asked {opts.start_s:g}-{asked:.2f} s; {why}")
 
 
-def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike, surface: Surface | float | PathLike,
-                  out_dir: PathLike, lanes: Lanes | PathLike | None = None,
-                  lines: Sequence[CountLine] | PathLike | None = None, *, options: ProcessOptions | None = None,
-                  interval_s: float = 60.0, trajectory: TrajectoryOptions | None = None,
-                  roi: np.ndarray | PathLike | None = None, restart: bool = False, resolution_m: float = 0.25,
-                  journeys: JourneyOptions | None = None, gates: Sequence[Gate] | PathLike | None = None,
-                  movement_interval_s: float = MOVEMENT_INTERVAL_S,
-                  surface_crs: str | None = None, annotate: PathLike | None = None,
-                  progress: Callable[[int, int, float], None] | None = None,
-                  notice: Callable[[str], None] | None = None,
-                  annotate_progress: Callable[[int, int], None] | None = None) -> ProcessResult:
-    """Detect, track and georeference the vehicles of ``video``, then count them (``trafficgeo process``), writing
-    the run folder ``out_dir`` (:mod:`trafficgeo.traffic.run_folder`). Resumes from the folder's checkpoint when run
-    again with the same inputs (``restart`` to start over).
+@dataclass(frozen=True)
+class RunCallbacks:
+    """What a long run tells its caller as it goes (each None: nothing): ``progress(frames_done, frames_total,
+    video_time_s)`` per frame, ``notice(line)`` with the tile plan, the cost and the checkpoint news (and a stitch's
+    gaps), ``annotate_progress(done, total)`` while the annotated video is written."""
 
-    ``camera``, ``surface``, ``lanes``, ``lines``: objects or paths (:class:`trafficgeo.site.Site`; the surface of a
-    point cloud gridded at ``resolution_m`` m, ``surface_crs`` for a file without a CRS); ``options``: the detector,
-    time range, frame step and checkpoints (:class:`~trafficgeo.video.pipeline.ProcessOptions`); counts per
-    ``interval_s`` s; ``trajectory``: the smoother's options; ``journeys``: how the pieces of one vehicle's track are
-    joined (:mod:`trafficgeo.traffic.journeys`); ``gates``: a junction's gates (objects or a file,
-    :mod:`trafficgeo.site.gates`) for turning movements per ``movement_interval_s`` s; ``roi``: a bool mask (H, W) or a
-    mask image / CSV polygon; ``annotate``: also write an annotated ``.mp4``. ``progress(frames_done, frames_total,
-    time_s)`` per frame, ``notice(line)`` for the tile plan and checkpoint news, ``annotate_progress(done, total)``.
+    progress: Callable[[int, int, float], None] | None = None
+    notice: Callable[[str], None] | None = None
+    annotate_progress: Callable[[int, int], None] | None = None
+
+
+SITE_WITHOUT_CALIBRATION = (
+    "site: its camera carries no record of a calibration (no GCPs, no covariance), so each vehicle's speed_kmh is "
+    "measured over the middle half of the time it is seen, not where the calibration knows the ground scale; load "
+    "the site from the camera JSON or the CalibratedCamera (tg.load_camera(path), Calibration.calibrated_camera())")
+
+
+def _check_site(site: object) -> Site:
+    """``site`` as the :class:`Site` it must be (an InputError naming the fix otherwise), having warned when its
+    camera carries nothing of a calibration (:data:`SITE_WITHOUT_CALIBRATION`)."""
+    if not isinstance(site, Site):
+        raise InputError(f"site: {type(site).__name__} is not a Site; load it once with tg.Site.load(camera, "
+                         "surface, lanes=..., lines=..., gates=...)", parameters=("site",))
+    if site.camera.gcps is None and site.camera.covariance is None:
+        warnings.warn(SITE_WITHOUT_CALIBRATION, UserWarning, stacklevel=3)
+    return site
+
+
+def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: ProcessOptions | None = None,
+                  analysis: AnalysisOptions | None = None, roi: np.ndarray | PathLike | None = None,
+                  annotate: PathLike | None = None, callbacks: RunCallbacks | None = None) -> ProcessResult:
+    """Detect, track and georeference the vehicles of ``video`` on ``site``, then count them (``trafficgeo
+    process``), writing the run folder ``out_dir`` (:mod:`trafficgeo.traffic.run_folder`). Resumes from the folder's
+    checkpoint when run again with the same inputs (``options.restart`` to start over).
+
+    ``site``: the camera, surface, lanes, counting lines and gates, loaded once (:class:`trafficgeo.site.Site`);
+    ``options``: the detector, time range, frame step and checkpoints (:class:`~trafficgeo.video.pipeline.
+    ProcessOptions`); ``analysis``: counting intervals, the smoother and journeys
+    (:class:`~trafficgeo.traffic.analyze.AnalysisOptions`); ``roi``: a bool mask (H, W) or a mask image / CSV polygon;
+    ``annotate``: also write an annotated ``.mp4``; ``callbacks``: progress and news (:class:`RunCallbacks`).
 
     >>> import trafficgeo as tg
-    >>> run = tg.process_video(world / "video.mp4", world / "camera_truth.json", world / "cloud.laz", out / "run",
-    ...                        lanes=world / "lanes.gpkg", lines=world / "count_lines.gpkg",
-    ...                        options=tg.ProcessOptions(end_s=4.0))
+    >>> site = tg.Site.load(world / "camera_truth.json", world / "cloud.laz", lanes=world / "lanes.gpkg",
+    ...                     lines=world / "count_lines.gpkg")
+    >>> run = tg.process_video(world / "video.mp4", site, out / "run", options=tg.ProcessOptions(end_s=4.0))
     >>> run.read["complete"], sorted(run.folder.counts().columns)[:2]
     (True, ['count', 'count_car'])
     """
@@ -177,13 +183,12 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
 
     out = Path(out_dir)
     check_writable_folder(out, "out_dir")
-    check_interval(interval_s)
-    check_movement_interval(movement_interval_s)
     if annotate is not None and Path(annotate).suffix.lower() != ".mp4":
         raise InputError(f"annotate {annotate}: write the annotated video as .mp4", parameters=("annotate",))
     video = Path(video)
-    warn_bare_camera(camera)
-    site = Site.load(camera, surface, lanes, lines, gates=gates, surface_crs=surface_crs, resolution_m=resolution_m)
+    site = _check_site(site)
+    how = analysis or AnalysisOptions()
+    said = callbacks or RunCallbacks()
     cam, surf, lane_set, count_lines = site.camera.camera, site.surface, site.lanes, site.count_lines
     opts = settled_options(options or ProcessOptions(), video_info(video).fps)
     mask = roi
@@ -201,15 +206,14 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
         def tick(done: int, total: int, t: float) -> None:
             read.update(first=read["first"] if read["first"] is not None else t if done == 1 else opts.start_s,
                         last=t, frames=done)
-            if progress is not None:
-                progress(done, total, t)
+            if said.progress is not None:
+                said.progress(done, total, t)
 
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", VideoReadWarning)
-            detections, tracks = detect_and_track(video, cam, surf, out, opts, roi=mask, restart=restart,
+            detections, tracks = detect_and_track(video, cam, surf, out, opts, roi=mask, restart=opts.restart,
                                                   lanes=lane_set, lines=site.tiling_lines, progress=tick,
-                                                  notice=notice,
-                                                  detector_info=detector_doc.update)
+                                                  notice=said.notice, detector_info=detector_doc.update)
         elapsed = time.perf_counter() - t0
         read, said = _keep_what_was_read(out / CHECKPOINT_DIR, read, _reader_said(caught))
         read_doc, short = _what_was_read(video, opts, read, said)
@@ -217,8 +221,7 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
             raise InputError(f"{video}: no vehicle was tracked; check the ROI, the time range and the detector")
         from trafficgeo.traffic.tracks import tracks_from_table
 
-        result = analyze(tracks_from_table(tracks), site, interval_s=interval_s, options=trajectory,
-                         journeys=journeys, movement_interval_s=movement_interval_s)
+        result = analyze(tracks_from_table(tracks), site, analysis=how)
         plan_doc = detector_doc.get("tiling") or {}
         if plan_doc.get("line_warnings"):  # the counting lines too far for the detector: in summary.json too
             result = replace(result, warnings=[*plan_doc["line_warnings"], *result.warnings])
@@ -227,7 +230,7 @@ def process_video(video: PathLike, camera: CalibratedCamera | Camera | PathLike,
             from trafficgeo.video.annotate import annotate_video
 
             annotate_video(video, annotate, tracks, result.points, camera=cam, lines=count_lines, surface=surf,
-                           start_s=opts.start_s, end_s=opts.end_s, progress=annotate_progress)
+                           start_s=opts.start_s, end_s=opts.end_s, progress=said.annotate_progress)
         write_run_info(out, video=str(video), camera=site.camera.source, options=opts,
                        seconds=elapsed, detections=len(detections), track_rows=len(tracks), read=read_doc,
                        detector=detector_doc or None)
@@ -254,28 +257,20 @@ def _chunk(folder: Path) -> tuple[pd.DataFrame, tuple[float, float], str | None]
     return table, (start, end), video
 
 
-def stitch(chunks: Sequence[PathLike], camera: CalibratedCamera | Camera | PathLike,
-           surface: Surface | float | PathLike, out_dir: PathLike, lanes: Lanes | PathLike | None = None,
-           lines: Sequence[CountLine] | PathLike | None = None, *, interval_s: float = 60.0,
-           resolution_m: float = 0.25, surface_crs: str | None = None,
-           notice: Callable[[str], None] | None = None, journeys: JourneyOptions | None = None,
-           gates: Sequence[Gate] | PathLike | None = None, movement_interval_s: float = MOVEMENT_INTERVAL_S
-           ) -> TrafficResult:
+def stitch(chunks: Sequence[PathLike], site: Site, out_dir: PathLike, *, analysis: AnalysisOptions | None = None,
+           notice: Callable[[str], None] | None = None) -> TrafficResult:
     """Join the tracks of the runs of overlapping time chunks of one video (``process_video`` with ``start_s`` /
-    ``end_s``, e.g. on several machines; folders in any order) and analyse them into the run folder ``out_dir``
-    (``trafficgeo stitch``). ``notice(line)`` gets a warning per gap or unequal overlap between chunks. The pieces of
-    one vehicle's track are joined across the chunks as within one (``journeys``:
-    :mod:`trafficgeo.traffic.journeys`); ``gates``: a junction's gates for turning movements, as in
-    :func:`process_video`."""
+    ``end_s``, e.g. on several machines; folders in any order) and analyse them on ``site`` into the run folder
+    ``out_dir`` (``trafficgeo stitch``), as ``analysis`` says (the pieces of one vehicle's track are joined across the
+    chunks as within one). ``notice(line)`` gets a warning per gap or unequal overlap between chunks."""
     from trafficgeo.io.folder_lock import hold_folder
     from trafficgeo.io.run_manifest import check_writable_folder
     from trafficgeo.video.stitch import plan_chunks, stitch_tracks
 
     out = Path(out_dir)
     check_writable_folder(out, "out_dir")
-    check_interval(interval_s)
-    check_movement_interval(movement_interval_s)
-    check_resolution(resolution_m)
+    site = _check_site(site)
+    how = analysis or AnalysisOptions()
     seen: dict[Path, Path] = {}
     for folder in map(Path, chunks):
         key = folder.resolve()
@@ -291,14 +286,11 @@ def stitch(chunks: Sequence[PathLike], camera: CalibratedCamera | Camera | PathL
         for text in problems:
             if notice is not None:
                 notice(f"warning: {text}")
-        site = Site.load(camera, surface, lanes, lines, gates=gates, surface_crs=surface_crs,
-                         resolution_m=resolution_m)
         joined = stitch_tracks([read[k][0] for k in order])
         joined["class"] = joined["class"].fillna("")
         from trafficgeo.traffic.tracks import tracks_from_table
 
-        result = analyze(tracks_from_table(joined), site, interval_s=interval_s, journeys=journeys,
-                         movement_interval_s=movement_interval_s)
+        result = analyze(tracks_from_table(joined), site, analysis=how)
         folder = RunFolder(out)
         written = folder.write_traffic(result, site.camera.camera, publish=False)
         written.append(folder.write_table("tracks.csv", joined))

@@ -21,13 +21,10 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.site.site import Site
-from trafficgeo.traffic.analyze import TrafficResult
+from trafficgeo.traffic.analyze import AnalysisOptions, TrafficResult
 from trafficgeo.traffic.analyze import analyze as analyze_world
-from trafficgeo.traffic.journeys import JourneyOptions
-from trafficgeo.traffic.movements import MOVEMENT_INTERVAL_S
 from trafficgeo.traffic.speed import ScaleKnowledge
 from trafficgeo.traffic.tracks import ImageTracks, load_tracks
-from trafficgeo.traffic.trajectories import TrajectoryOptions
 from trafficgeo.video.detections import DetectionFrames
 from trafficgeo.video.pipeline import ProcessOptions
 from trafficgeo.video.track import TrackerOptions, track_frames
@@ -69,17 +66,18 @@ def track(frames: DetectionFrames, fps: float, options: TrackerOptions | None = 
                          "class": np.concatenate([tr.classes for _, tr in out]).astype(object)})
 
 
-def analyze(tracks: ImageTracks | pd.DataFrame | str | os.PathLike, site: Site, *, interval_s: float = 60.0,
-            options: TrajectoryOptions | None = None, fps: float | None = None, progress: Any = None,
-            knowledge: ScaleKnowledge | None = None, journeys: JourneyOptions | None = None,
-            movement_interval_s: float = MOVEMENT_INTERVAL_S) -> TrafficResult:
+def analyze(tracks: ImageTracks | pd.DataFrame | str | os.PathLike, site: Site, *,
+            analysis: AnalysisOptions | None = None, fps: float | None = None, progress: Any = None,
+            knowledge: ScaleKnowledge | None = None) -> TrafficResult:
     """Image tracks (a table or file, see :func:`~trafficgeo.traffic.tracks.load_tracks`) on ``site`` -> world
-    trajectories, fragments joined into vehicles (``journeys``: :mod:`trafficgeo.traffic.journeys`), speeds
-    (km/h), lanes and counts per ``interval_s`` s (with the site's gates: turning movements per
-    ``movement_interval_s`` s); the headline speeds placed by what the site's calibrated camera
-    knows of its ground scale (``knowledge`` overrides it)."""
+    trajectories, fragments joined into vehicles, speeds (km/h), lanes and counts (with the site's gates: turning
+    movements), as ``analysis`` says (:class:`~trafficgeo.traffic.analyze.AnalysisOptions`: intervals, smoother,
+    journeys); the headline speeds placed by what the site's calibrated camera knows of its ground scale
+    (``knowledge`` overrides it)."""
+    how = analysis or AnalysisOptions()
     return analyze_world(site.camera.camera, site.surface, load_tracks(tracks, fps=fps), lanes=site.lanes,
-                         lines=site.count_lines, interval_s=interval_s, options=options, progress=progress,
+                         lines=site.count_lines, interval_s=how.interval_s, options=how.trajectory,
+                         progress=progress,
                          knowledge=knowledge if knowledge is not None else ScaleKnowledge.from_camera(site.camera),
-                         journeys=journeys, gates=list(site.gates) if site.gates else None,
-                         movement_interval_s=movement_interval_s)
+                         journeys=how.journeys, gates=list(site.gates) if site.gates else None,
+                         movement_interval_s=how.movement_interval_s)

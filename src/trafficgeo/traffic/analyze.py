@@ -78,6 +78,26 @@ class TrafficResult:
 Analysis = TrafficResult  # the former name
 
 
+@dataclass(frozen=True)
+class AnalysisOptions:
+    """How image tracks become traffic data (:func:`analyze`): counts per ``interval_s`` s, a junction's turning
+    movements per ``movement_interval_s`` s, the smoother's options (``trajectory``; None: the defaults) and how the
+    pieces of one vehicle's track are joined (``journeys``, :mod:`trafficgeo.traffic.journeys`; None: the defaults).
+    Checked when made: a bad interval fails before any work."""
+
+    interval_s: float = 60.0
+    movement_interval_s: float = MOVEMENT_INTERVAL_S
+    trajectory: TrajectoryOptions | None = None
+    journeys: JourneyOptions | None = None
+
+    def __post_init__(self) -> None:
+        from trafficgeo.traffic.counts import check_interval
+        from trafficgeo.traffic.movements import check_movement_interval
+
+        check_interval(self.interval_s)
+        check_movement_interval(self.movement_interval_s)
+
+
 def add_lanes(world: WorldTracks, lanes: Lanes, *, min_dwell_s: float = 1.0) -> None:
     """Lane of every point, and each vehicle's main lane, lane sequence and number of lane changes (in place)."""
     pts, veh = world.points, world.vehicles

@@ -96,6 +96,7 @@ class ProcessOptions:
     backend: str = "auto"  # what runs a learned detector's network (video.detectors.backends.BACKENDS)
     tile_schedule: str = "auto"  # "all": every tile, every frame; "sparse": each tile as often as its road needs;
     # "auto": "all" where the estimate keeps real time, else "sparse" (_announce_cost)
+    restart: bool = False  # start over, ignoring the run folder's checkpoint (not part of the run's key)
 
     def __post_init__(self) -> None:
         from trafficgeo.video.detectors.backends import check_backend
@@ -136,6 +137,7 @@ def options_record(options: ProcessOptions) -> dict:
 
     doc = {f.name: getattr(options, f.name) for f in fields(options)}
     doc = {k: asdict(v) if is_dataclass(v) else v for k, v in doc.items()}
+    doc.pop("restart", None)  # how to start, not what is run: a restarted run resumes as any other
     return {**doc, "detector": detector_name(options.detector)}
 
 
