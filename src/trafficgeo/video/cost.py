@@ -106,11 +106,12 @@ def estimate_cost(choice: BackendChoice, plan: TilePlan | None, *, every: int, v
     """The run's cost: detection frames = ceil(``video_s`` x ``fps`` / ``every``), each costing the plan's passes
     (:func:`plan_passes`, each tile weighted by its ``tile_share`` under a tile schedule) x the time per pass, plus
     the rest of the detection (``detect_ms``, a whole detection's measured time with every tile, minus those passes;
-    0 when not given or less), ``decode_ms`` (decoding the frame and skipping the ``every`` - 1 before it) and
-    ``track_ms``. The time per pass is the probe's, or less where the run's own detection (``detect_ms``) took less
-    than the probe's time for its passes: the probe is timed once per machine and model (the backend cache), on
-    whatever else the machine was doing then; the 13 junction runs of ``bench_junction`` took 0.24-0.58 of an
-    estimate from a probe timed on a busy machine (``benchmarks/bench_cost.py``)."""
+    0 when not given or less; it is work per pass, so a tile schedule runs less of it), ``decode_ms`` (decoding the
+    frame and skipping the ``every`` - 1 before it) and ``track_ms``. The time per pass is the probe's, or less
+    where the run's own detection (``detect_ms``) took less than the probe's time for its passes: the probe is
+    timed once per machine and model (the backend cache), on whatever else the machine was doing then; the 13
+    junction runs of ``bench_junction`` took 0.24-0.58 of an estimate from a probe timed on a busy machine
+    (``benchmarks/bench_cost.py``)."""
     passes, all_units = plan_passes(plan, choice.probe_input_hw)
     _, units = plan_passes(plan, choice.probe_input_hw, tile_share)
     frames = max(1, math.ceil(video_s * fps / every - 1e-9))
@@ -120,7 +121,10 @@ def estimate_cost(choice: BackendChoice, plan: TilePlan | None, *, every: int, v
         # have been timed while the machine was busy): its network cannot have taken longer than all of it
         pass_ms = min(pass_ms, float(detect_ms) / all_units)
     network_ms = units * pass_ms
-    other_ms = max(0.0, float(detect_ms) - all_units * pass_ms) if detect_ms is not None else 0.0
+    # the rest of a detection (crops, letterboxing, decoding each pass's outputs, merging) is work per pass too:
+    # under a tile schedule it shrinks with the passes run
+    other_ms = max(0.0, float(detect_ms) - all_units * pass_ms) * units / all_units \
+        if detect_ms is not None and all_units > 0 else 0.0
     seconds = frames * (network_ms + other_ms + decode_ms + track_ms) / 1e3
     scheduled = None if tile_share is None else 1.0 + float(np.sum(tile_share))
     return RunCost(passes, units, int(every), choice.backend, pass_ms, other_ms, float(decode_ms),

@@ -379,17 +379,21 @@ def _decode_ms(video: Path, start_s: float, end_s: float, every: int, frames: in
     return 1e3 * (stamps[-1] - stamps[0]) / (len(stamps) - 1), first
 
 
-def _detect_ms(detector: object, frame) -> float | None:
-    """Wall-clock ms of one detection on ``frame`` (a second call, after one that warms the runtime up for the
-    plan's input sizes), or None without a frame. The learned detectors keep no state between frames."""
+def _detect_ms(detector: object, frame, repeats: int = 3) -> float | None:
+    """Wall-clock ms of one detection on ``frame``: the median of ``repeats`` calls after one that warms the runtime
+    up for the plan's input sizes (one call alone strayed by 2x on a busy machine), or None without a frame. The
+    learned detectors keep no state between frames."""
     import time
 
     if frame is None:
         return None
     detector.detect(frame.image, frame.time_s)
-    t0 = time.perf_counter()
-    detector.detect(frame.image, frame.time_s)
-    return 1e3 * (time.perf_counter() - t0)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        detector.detect(frame.image, frame.time_s)
+        times.append(1e3 * (time.perf_counter() - t0))
+    return float(np.median(times))
 
 
 def _announce_cost(detector: object, plan, video: Path, fps: float, opts: ProcessOptions, end_s: float,
