@@ -273,7 +273,9 @@ def test_process_tells_and_records_the_backend_and_the_estimate(no_openvino, tmp
     passes = len(seen["tiling"]["tiles"]) + 1
     assert estimate["passes"] == passes and estimate["every"] == 2 and estimate["detection_frames"] == 5
     assert estimate["other_ms"] >= 0 and estimate["decode_ms"] > 0
-    per_frame = (estimate["pass_units"] * backend["ms_per_pass"] + estimate["other_ms"] + estimate["decode_ms"]
+    # the time per pass the estimate used: the probe's, or less where the run's own detection took less
+    assert estimate["probe_ms_per_pass"] == backend["ms_per_pass"] >= estimate["ms_per_pass"] > 0
+    per_frame = (estimate["pass_units"] * estimate["ms_per_pass"] + estimate["other_ms"] + estimate["decode_ms"]
                  + estimate["track_ms"])
     assert math.isclose(estimate["seconds"], 5 * per_frame / 1e3, rel_tol=1e-3)
     assert passes > 1
