@@ -42,7 +42,7 @@ def intel_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     line = out / "line.csv"
     line.write_text("line,u,v\nmid,0,215.5\nmid,767,215.5\n")  # the truth's row, across the whole frame
     site = Site.load(nominal_camera(), 100.0, lines=line)
-    with pytest.warns(UserWarning, match="no record of a calibration"):  # a nominal camera: said, not silent
+    with pytest.warns(UserWarning, match="loaded from a bare Camera"):  # a nominal camera: said, not silent
         process_video(INTEL, site, out / "run", options=ProcessOptions(detector="background"))
     return out
 
@@ -93,7 +93,7 @@ def test_a_detector_object_of_ones_own_runs_the_clip(tmp_path: Path) -> None:
     mine = Counting()
     line = tmp_path / "line.csv"
     line.write_text("line,u,v\nmid,0,215.5\nmid,767,215.5\n")
-    with pytest.warns(UserWarning, match="no record of a calibration"):
+    with pytest.warns(UserWarning, match="loaded from a bare Camera"):
         run = process_video(INTEL, Site.load(camera, 100.0, lines=line), tmp_path / "run",
                             options=ProcessOptions(detector=mine))
     assert mine.frames == run.read["frames"] == 377  # every frame of the clip, with the object given

@@ -139,18 +139,19 @@ class RunCallbacks:
 
 
 SITE_WITHOUT_CALIBRATION = (
-    "site: its camera carries no record of a calibration (no GCPs, no covariance), so each vehicle's speed_kmh is "
-    "measured over the middle half of the time it is seen, not where the calibration knows the ground scale; load "
-    "the site from the camera JSON or the CalibratedCamera (tg.load_camera(path), Calibration.calibrated_camera())")
+    "site: it was loaded from a bare Camera, which carries no record of its calibration (no GCPs, no covariance), so "
+    "each vehicle's speed_kmh is measured over the middle half of the time it is seen, not where the calibration "
+    "knows the ground scale; load the site from the camera JSON or the CalibratedCamera (tg.load_camera(path), "
+    "Calibration.calibrated_camera())")
 
 
 def _check_site(site: object) -> Site:
-    """``site`` as the :class:`Site` it must be (an InputError naming the fix otherwise), having warned when its
-    camera carries nothing of a calibration (:data:`SITE_WITHOUT_CALIBRATION`)."""
+    """``site`` as the :class:`Site` it must be (an InputError naming the fix otherwise), having warned when it was
+    loaded from a bare Camera, dropping what a calibration knows (:data:`SITE_WITHOUT_CALIBRATION`)."""
     if not isinstance(site, Site):
         raise InputError(f"site: {type(site).__name__} is not a Site; load it once with tg.Site.load(camera, "
                          "surface, lanes=..., lines=..., gates=...)", parameters=("site",))
-    if site.camera.gcps is None and site.camera.covariance is None:
+    if site.bare_camera:
         warnings.warn(SITE_WITHOUT_CALIBRATION, UserWarning, stacklevel=3)
     return site
 

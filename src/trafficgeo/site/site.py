@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from trafficgeo.camera.calibrated import CalibratedCamera, as_camera, load_calibrated_camera
@@ -45,6 +45,7 @@ class Site:
     lanes: Lanes | None = None
     lines: tuple[CountLine, ...] | None = None
     gates: tuple[Gate, ...] | None = None
+    bare_camera: bool = False  # loaded from a bare Camera: nothing of its calibration was given (see load)
 
     @classmethod
     def load(cls, camera: CameraLike | Site, surface: Surface | float | PathLike | None = None,
@@ -59,10 +60,11 @@ class Site:
             site = camera
             if surface is None and lanes is None and lines is None and gates is None:
                 return site
-            return cls.load(site.camera, site.surface if surface is None else surface,
-                            site.lanes if lanes is None else lanes, site.lines if lines is None else lines,
-                            gates=site.gates if gates is None else gates, surface_crs=surface_crs,
-                            resolution_m=resolution_m)
+            again = cls.load(site.camera, site.surface if surface is None else surface,
+                             site.lanes if lanes is None else lanes, site.lines if lines is None else lines,
+                             gates=site.gates if gates is None else gates, surface_crs=surface_crs,
+                             resolution_m=resolution_m)
+            return replace(again, bare_camera=site.bare_camera)
         if surface is None:
             raise InputError("surface: the site needs the road surface (a number in metres, 'plane', a DEM or a "
                              "point cloud)", parameters=("surface",))
@@ -72,7 +74,8 @@ class Site:
         found = load_lines(lines, calibrated.camera, surf)
         arms = load_gates(gates, calibrated.camera, surf)
         return cls(calibrated, surf, load_lanes(lanes, calibrated.camera, surf),
-                   None if found is None else tuple(found), None if arms is None else tuple(arms))
+                   None if found is None else tuple(found), None if arms is None else tuple(arms),
+                   bare_camera=isinstance(camera, Camera))
 
     @property
     def count_lines(self) -> list[CountLine] | None:
