@@ -13,6 +13,7 @@ import pytest
 from trafficgeo.errors import InputError
 from trafficgeo.pipeline.stages import TRACKED_COLUMNS, analyze, detect, track
 from trafficgeo.site import Site
+from trafficgeo.traffic.analyze import AnalysisOptions
 from trafficgeo.video.checkpoint import read_detections
 from trafficgeo.video.pipeline import ProcessOptions, settled_options
 from trafficgeo.video.reader import video_info
@@ -64,7 +65,7 @@ def test_analyze_on_the_site_counts_the_tracks(detected: dict) -> None:
     from trafficgeo.traffic.speed import ScaleKnowledge
 
     site = detected["site"]
-    result = analyze(detected["work"] / "tracks.csv", site, interval_s=5.0)
+    result = analyze(detected["work"] / "tracks.csv", site, analysis=AnalysisOptions(interval_s=5.0))
     direct = tg.analyze_tracks(site.camera.camera, site.surface, tg.load_tracks(detected["work"] / "tracks.csv"),
                                lanes=site.lanes, lines=site.count_lines, interval_s=5.0,
                                knowledge=ScaleKnowledge.from_camera(site.camera))

@@ -189,7 +189,7 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
     video = Path(video)
     site = _check_site(site)
     how = analysis or AnalysisOptions()
-    said = callbacks or RunCallbacks()
+    calls = callbacks or RunCallbacks()
     cam, surf, lane_set, count_lines = site.camera.camera, site.surface, site.lanes, site.count_lines
     opts = settled_options(options or ProcessOptions(), video_info(video).fps)
     mask = roi
@@ -207,14 +207,14 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
         def tick(done: int, total: int, t: float) -> None:
             read.update(first=read["first"] if read["first"] is not None else t if done == 1 else opts.start_s,
                         last=t, frames=done)
-            if said.progress is not None:
-                said.progress(done, total, t)
+            if calls.progress is not None:
+                calls.progress(done, total, t)
 
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", VideoReadWarning)
             detections, tracks = detect_and_track(video, cam, surf, out, opts, roi=mask, restart=opts.restart,
                                                   lanes=lane_set, lines=site.tiling_lines, progress=tick,
-                                                  notice=said.notice, detector_info=detector_doc.update)
+                                                  notice=calls.notice, detector_info=detector_doc.update)
         elapsed = time.perf_counter() - t0
         read, said = _keep_what_was_read(out / CHECKPOINT_DIR, read, _reader_said(caught))
         read_doc, short = _what_was_read(video, opts, read, said)
@@ -231,7 +231,7 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
             from trafficgeo.video.annotate import annotate_video
 
             annotate_video(video, annotate, tracks, result.points, camera=cam, lines=count_lines, surface=surf,
-                           start_s=opts.start_s, end_s=opts.end_s, progress=said.annotate_progress)
+                           start_s=opts.start_s, end_s=opts.end_s, progress=calls.annotate_progress)
         write_run_info(out, video=str(video), camera=site.camera.source, options=opts,
                        seconds=elapsed, detections=len(detections), track_rows=len(tracks), read=read_doc,
                        detector=detector_doc or None)
