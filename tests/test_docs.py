@@ -26,10 +26,15 @@ FENCE = re.compile(r"(?:<!-- docs-test: (?P<mark>[^>]*?) -->\n)?```(?P<lang>\w*)
                    flags=re.S | re.M)
 
 
+def _blocks_of_text(text: str) -> list[tuple[str, str, str]]:
+    """(language, mark, code) of each fenced block of a Markdown text (blocks indented in lists included)."""
+    text = re.sub(r"^ {2,}(?=(```|<!-- docs-test))", "", text, flags=re.M)
+    return [(m["lang"], (m["mark"] or "").strip(), m["code"]) for m in FENCE.finditer(text)]
+
+
 def _blocks(page: Path) -> list[tuple[str, str, str]]:
     """(language, mark, code) of each fenced block of a page (blocks indented in lists included)."""
-    text = re.sub(r"^ {2,}(?=(```|<!-- docs-test))", "", page.read_text(encoding="utf-8"), flags=re.M)
-    return [(m["lang"], (m["mark"] or "").strip(), m["code"]) for m in FENCE.finditer(text)]
+    return _blocks_of_text(page.read_text(encoding="utf-8"))
 
 
 def _runnable() -> list[str]:
@@ -69,7 +74,7 @@ def _run(lang: str, code: str, cwd: Path, env: dict[str, str]) -> None:
 def _command_lines(text: str) -> list[str]:
     """The ``trafficgeo ...`` command lines of bash blocks (continuations joined, comments cut)."""
     out = []
-    for lang, _, code in (b for b in _blocks_of_text(text)):
+    for lang, _, code in _blocks_of_text(text):
         if lang not in ("bash", "sh", "console", ""):
             continue
         joined = re.sub(r"\\\n\s*", " ", code)
@@ -78,11 +83,6 @@ def _command_lines(text: str) -> list[str]:
             if line.startswith("trafficgeo "):
                 out.append(line)
     return out
-
-
-def _blocks_of_text(text: str) -> list[tuple[str, str, str]]:
-    text = re.sub(r"^ {2,}(?=(```|<!-- docs-test))", "", text, flags=re.M)
-    return [(m["lang"], (m["mark"] or "").strip(), m["code"]) for m in FENCE.finditer(text)]
 
 
 def test_every_command_and_option_the_docs_and_readme_name_exists() -> None:

@@ -123,8 +123,8 @@ def _understand(raw: list[str]) -> _Header:
             for nu, nv in PIXEL_BESIDE_LONLAT:  # x, y beside lon, lat are the pixel's
                 if nu in normal and nv in normal:
                     col["u"], col["v"] = normal.index(nu), normal.index(nv)
-                    if nu == "x":
-                        col.pop("x", None), col.pop("y", None)
+                    if nu == "x":  # they were taken for the world's x, y above
+                        del col["x"], col["y"]
                     break
         if "x" not in col and "y" not in col:
             col["x"], col["y"], lonlat = lon, lat, True

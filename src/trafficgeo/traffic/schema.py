@@ -102,7 +102,9 @@ class TableSchema:
             raise InputError(f"{path}: no column {', '.join(missing)}; not a {self.file} written by trafficgeo")
         with open(path, "rb") as fh:  # trafficgeo ends every table with a newline: one without was cut short
             size = fh.seek(0, os.SEEK_END)
-            last = fh.seek(size - 1) >= 0 and fh.read(1) if size else b"\n"
+            if size:
+                fh.seek(size - 1)
+            last = fh.read(1) if size else b"\n"
         if last != b"\n":
             raise InputError(f"{path}: the file ends in the middle of a row (cut short); run trafficgeo again to "
                              "write it")
@@ -117,17 +119,8 @@ class TableSchema:
             if kind == "bool" and table[c].dtype == object:
                 table[c] = table[c].map({"True": True, "False": False, "true": True, "false": False})
                 continue
-            if kind not in ("int", "float"):
-                continue
-            values = pd.to_numeric(table[c], errors="coerce")
-            bad = (values.isna() & table[c].notna()) | (kind == "int" and ~(values.isna() | (
-                np.isfinite(values) & (values == np.round(values)) & (values.abs() < 2**53))))
-            if bad.any():
-                row = int(np.flatnonzero(bad.to_numpy())[0])
-                raise InputError(f"{path} row {row + 2}: column {c} is {str(table[c].iloc[row])[:40]!r}, not "
-                                 f"{'an integer' if kind == 'int' else 'a number'}; run trafficgeo again to write it")
-            table[c] = values.astype("Int64") if kind == "int" and values.isna().any() else (
-                values.astype(np.int64) if kind == "int" else values.astype(np.float64))
+            if kind in ("int", "float"):
+                table[c] = _numbers(table[c], kind, f"{path} column {c}")
         later = [c for c in self.columns if c.added and c.name not in table.columns]
         if later:  # a file written before these columns joined the table: empty, in the schema's place
             for c in later:  # as an empty column of the file would read
@@ -136,6 +129,25 @@ class TableSchema:
             order = [n for n in self.names if n in table.columns]
             table = table[order + [n for n in table.columns if n not in order]]
         return table
+
+
+def _numbers(values: pd.Series, kind: str, where: str) -> pd.Series:
+    """A column read from CSV as the schema's ``kind`` ("int": int64, or Int64 with NA where empty; "float":
+    float64); a value that is not such a number (a word, a huge or fractional value in an integer column) is an
+    InputError naming its row."""
+    if pd.api.types.is_integer_dtype(values) or (kind == "float" and pd.api.types.is_float_dtype(values)):
+        return values  # as pandas read it: nothing to check
+    numbers = pd.to_numeric(values, errors="coerce")
+    bad = numbers.isna() & values.notna()
+    if kind == "int":
+        bad |= numbers.notna() & ~(np.isfinite(numbers) & (numbers == np.round(numbers)) & (numbers.abs() < 2**53))
+    if bad.any():
+        row = int(np.flatnonzero(bad.to_numpy())[0])
+        raise InputError(f"{where} row {row + 2} is {str(values.iloc[row])[:40]!r}, not "
+                         f"{'an integer' if kind == 'int' else 'a number'}; run trafficgeo again to write it")
+    if kind == "float":
+        return numbers.astype(np.float64)
+    return numbers.astype("Int64") if numbers.isna().any() else numbers.astype(np.int64)
 
 
 S, KMH, M, CRS_UNITS, PX, DEG = "s", "km/h", "m", "crs", "px", "deg"
