@@ -93,7 +93,7 @@ def test_run_folder_reads_back_what_was_written_with_the_schema(world: Path, tmp
                                boxes[["frame", "time", "track_id", "x1", "y1", "x2", "y2", "class"]],
                                lanes=world / "lanes.gpkg", lines=world / "count_lines.gpkg")
     run = tg.RunFolder(tmp_path / "run")
-    run.write_traffic(result, tg.load_camera(world / "camera_truth.json"))
+    tg.write_analysis(run.path, result, tg.load_camera(world / "camera_truth.json"))
     for name, table in (("vehicles.csv", result.vehicles), ("crossings.csv", result.crossings),
                         ("counts.csv", result.counts), ("trajectories.csv", result.points)):
         schema = tg.SCHEMAS[name]
@@ -157,7 +157,7 @@ def test_analyze_outputs_equal_those_of_the_release_before_the_api(tmp_path: Pat
     with pytest.warns(UserWarning, match="a bare Camera"):  # the reference scene's camera is made by hand
         result = tg.analyze_tracks(cam, surface, ref / "input_tracks.csv", lines=lines, interval_s=10.0)
     run = tg.RunFolder(tmp_path / "run")
-    run.write_traffic(result, cam)
+    tg.write_analysis(run.path, result, cam)
     for name in ("vehicles.csv", "crossings.csv", "counts.csv", "trajectories.csv"):  # by value: reference_values.py
         assert_csv_close(tmp_path / "run" / name, ref / name, name, TRAFFIC)
     assert len(result.vehicles) == 10 and len(result.crossings) == 3

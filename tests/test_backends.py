@@ -256,7 +256,7 @@ def test_process_tells_and_records_the_backend_and_the_estimate(no_openvino, tmp
                                                                tile_schedule: str) -> None:
     from test_video_learned import FLAT, lanes_along_y
     from trafficgeo.camera.model import Camera
-    from trafficgeo.pipeline.run import write_run_info
+    from trafficgeo.pipeline.run import run_info
     from trafficgeo.video.pipeline import ProcessOptions, detect_and_track
     from video_support import write_two_car_video
 
@@ -296,9 +296,8 @@ def test_process_tells_and_records_the_backend_and_the_estimate(no_openvino, tmp
     assert any(line.startswith("backend: onnxruntime") for line in told)
     assert any(line.startswith(f"detector: {passes} passes per detection frame") and "every 2nd frame" in line
                for line in told)
-    write_run_info(tmp_path / "a", video="v.mp4", camera="", options=opts, seconds=1.0, detections=0, track_rows=0,
-                   detector=seen)
-    doc = json.loads((tmp_path / "a" / "process.json").read_text())
+    doc = run_info(video="v.mp4", camera="", options=opts, seconds=1.0, detections=0, track_rows=0,
+                   detector=seen).to_dict()
     assert doc["options"]["backend"] == "auto"
     assert doc["detector"]["backend"]["backend"] == backend["backend"]
     assert doc["detector"]["estimate"]["passes"] == passes

@@ -370,7 +370,7 @@ def test_another_dataset_crs_moves_positions_and_a_mismatch_is_refused(anchor: d
 
 def test_the_schema_names_every_moment_on_the_clock() -> None:
     """The columns a batch day moves to seconds since midnight (moments), and not the durations."""
-    from trafficgeo.traffic.run_folder import SCHEMAS
+    from trafficgeo.run.folder import SCHEMAS
 
     assert SCHEMAS["vehicles.csv"].clock_columns == ("first_time", "last_time", "speed_start_time", "speed_end_time")
     assert SCHEMAS["crossings.csv"].clock_columns == ("time",)

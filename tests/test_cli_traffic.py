@@ -197,7 +197,7 @@ def test_analyze_is_refused_while_another_run_writes_its_folder(scene: dict[str,
     import sys
 
     from trafficgeo.errors import InputError
-    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.run.folder import RunFolder
 
     run = tmp_path / "run"
     code, _stdout, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
@@ -216,8 +216,8 @@ def test_analyze_is_refused_while_another_run_writes_its_folder(scene: dict[str,
         folder = RunFolder(run)
         with pytest.raises(InputError, match="another trafficgeo run"):
             folder.write_comparison({}, None)  # refused before it looks at what it writes
-        with pytest.raises(InputError, match="another trafficgeo run"):
-            folder.publish(["counts.csv"], command="analyze")
+        with pytest.raises(InputError, match="another trafficgeo run"), folder.writing("analyze"):
+            pass  # refused before the block runs
     finally:
         holder.kill()
         holder.wait(timeout=30)

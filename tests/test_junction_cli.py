@@ -9,9 +9,9 @@ import json
 import pytest
 
 from cli_support import invoke
+from trafficgeo.run.folder import MOVEMENT_COUNTS, MOVEMENTS, RunFolder
 from trafficgeo.synth.junction_sumo import JunctionOptions
 from trafficgeo.synth.junction_world import build_junction_world
-from trafficgeo.traffic.run_folder import MOVEMENT_COUNTS, MOVEMENTS, RunFolder
 
 pytest.importorskip("sumolib")
 pytestmark = pytest.mark.slow

@@ -11,9 +11,9 @@ import pandas as pd
 import pytest
 
 from cli_support import invoke
+from trafficgeo.run.folder import RunFolder
 from trafficgeo.synth.junction_sumo import JunctionOptions
 from trafficgeo.synth.junction_world import build_junction_world
-from trafficgeo.traffic.run_folder import RunFolder
 
 pytest.importorskip("sumolib")
 pytestmark = pytest.mark.slow

@@ -15,8 +15,8 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "trafficgeo"
 # Each top-level part of the package and its layer; a part may import only parts of a lower layer.
 LAYER = {"errors": 0, "version": 0, "crs": 1, "groups": 1, "io": 2, "camera": 3, "calibration": 4, "geo": 5,
-         "site": 6, "traffic": 7, "registration": 7, "video": 7, "simulation": 8, "pipeline": 8,
-         "synth": 9, "report": 9, "ui": 9, "batch": 10, "demo": 10, "cli": 11, "__init__": 12}
+         "site": 6, "run": 7, "traffic": 8, "registration": 8, "video": 8, "simulation": 9, "pipeline": 9,
+         "synth": 10, "report": 10, "ui": 10, "batch": 11, "demo": 11, "cli": 12, "__init__": 13}
 
 
 def part_of(path: Path) -> str:

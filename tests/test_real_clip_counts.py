@@ -73,7 +73,7 @@ def test_a_detector_object_of_ones_own_runs_the_clip(tmp_path: Path) -> None:
     it by its ``name``. This one wraps the library's background subtraction and counts what it does."""
     from trafficgeo.errors import InputError
     from trafficgeo.geo.surface import ConstantSurface
-    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.run.folder import RunFolder
     from trafficgeo.video.detectors.factory import make_detector
 
     camera = nominal_camera()

@@ -520,8 +520,8 @@ def test_compare_sumo_results_are_shown(feet_run: tuple[Path, dict[str, pd.DataF
                   "interval_end": [60.0, 60.0], "observed": [10, 12], "simulated": [11, 30],
                   "observed_flow_veh_h": [600.0, 720.0], "simulated_flow_veh_h": [660.0, 1800.0],
                   "geh": [2.4, 30.4], "geh_ok": [True, False]}).to_csv(run / "compare_counts.csv", index=False)
-    from trafficgeo.traffic.run_folder import RunFolder
-    from trafficgeo.traffic.run_records import CompareSummary, CountSummary
+    from trafficgeo.run.folder import RunFolder
+    from trafficgeo.run.records import CompareSummary, CountSummary
 
     RunFolder(run).write_compare_summary(CompareSummary(CountSummary(
         rows=2, share_geh_below_5=0.5, mean_geh=16.4, total_observed=22, total_simulated=41, geh_total=8.3),

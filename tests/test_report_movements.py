@@ -23,10 +23,10 @@ from trafficgeo.report.movement_figures import (
     movement_flows,
 )
 from trafficgeo.report.movement_section import DIAGRAM_CAPTION
+from trafficgeo.run.folder import RunFolder
 from trafficgeo.site.gates import MOVEMENTS
 from trafficgeo.synth.junction_sumo import JunctionOptions
 from trafficgeo.synth.junction_world import build_junction_world
-from trafficgeo.traffic.run_folder import RunFolder
 
 pytest.importorskip("sumolib")
 pytestmark = pytest.mark.slow  # builds the junction world, analyzes it and renders a report page

@@ -20,7 +20,7 @@ from scipy import stats
 import trafficgeo as tg
 from trafficgeo.report import simulation_figures as SF
 from trafficgeo.report.html import build_page
-from trafficgeo.traffic.run_records import SIMULATION_RECORD
+from trafficgeo.run.records import SIMULATION_RECORD
 
 STATIONS = (-100.0, 100.0)  # two counting lines 200 m apart
 LANES = ("d1_1", "d1_2", "d2_1", "d2_2")  # 2 lanes per direction (RoadSpec's default)

@@ -389,7 +389,7 @@ def test_stitch_tracks_sorts_tables_by_time() -> None:
 def test_tables_written_before_a_column_joined_still_read(tmp_path: Path) -> None:
     # vehicles.csv gained travel_speed_kmh and counts.csv observed_s (issue 29): run folders written before read on,
     # the new column empty; a column that was always there is still required
-    from trafficgeo.traffic.run_folder import COUNTS, VEHICLES
+    from trafficgeo.run.folder import COUNTS, VEHICLES
 
     ref = Path(__file__).parent / "data" / "api-reference"
     for schema, column in ((VEHICLES, "travel_speed_kmh"), (COUNTS, "observed_s")):

@@ -1,4 +1,4 @@
-"""The typed records of a run folder's JSON files (:mod:`trafficgeo.traffic.run_records`): ``RunFolder`` writes
+"""The typed records of a run folder's JSON files (:mod:`trafficgeo.run.records`): ``RunFolder`` writes
 them and reads them back equal, refuses a damaged or foreign file with one line naming it, and a real run's files
 (``analyze``, ``process``'s writer, a comparison) read back typed, as the files hold them."""
 
@@ -19,8 +19,8 @@ import trafficgeo as tg
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import to_json_safe
 from trafficgeo.io.run_manifest import COMPARE_MANIFEST, publish_outputs
-from trafficgeo.traffic.run_folder import RunFolder
-from trafficgeo.traffic.run_records import (
+from trafficgeo.run.folder import RunFolder
+from trafficgeo.run.records import (
     CompareSummary,
     CountSummary,
     LineCount,
@@ -31,6 +31,7 @@ from trafficgeo.traffic.run_records import (
     TravelTimeSummary,
     VideoRead,
 )
+from trafficgeo.traffic.analyze import write_analysis
 
 REF = Path(__file__).parent / "data" / "api-reference"
 
@@ -185,7 +186,7 @@ def reference_run(tmp_path_factory: pytest.TempPathFactory) -> dict:
     cam, surface, _table, lines = module.scene()
     result = tg.analyze_tracks(cam, surface, REF / "input_tracks.csv", lines=lines, interval_s=10.0)
     folder = tmp_path_factory.mktemp("records") / "run"
-    RunFolder(folder).write_traffic(result, cam)
+    write_analysis(folder, result, cam)
     return {"folder": folder, "result": result, "camera": cam, "line": lines[0]}
 
 
@@ -261,14 +262,14 @@ def test_a_simulation_record_joins_the_comparison_and_a_new_comparison_drops_it(
 
 
 def test_process_json_of_the_pipeline_writer_reads_back_typed(tmp_path: Path) -> None:
-    from trafficgeo.pipeline.run import write_run_info
+    from trafficgeo.pipeline.run import run_info
     from trafficgeo.video.pipeline import ProcessOptions
 
     opts = ProcessOptions(detector="background", start_s=1.5, end_s=6.0, every=2)
     read = {"start_s": 1.5, "end_s": 5.0, "frames": 88, "complete": False}
-    write_run_info(tmp_path, video="clip.mp4", camera="camera.json", options=opts, seconds=3.25, detections=120,
-                   track_rows=96, read=read, detector={"tiling": {"tiles": [], "warnings": ["far line"]}})
-    publish_outputs(tmp_path, ["process.json"], command="process")
+    with RunFolder(tmp_path).writing("process") as run:
+        run.process(run_info(video="clip.mp4", camera="camera.json", options=opts, seconds=3.25, detections=120,
+                             track_rows=96, read=read, detector={"tiling": {"tiles": [], "warnings": ["far line"]}}))
     info = RunFolder(tmp_path).process()
     assert isinstance(info, ProcessRecord) and info.read == VideoRead(1.5, 5.0, 88, False)
     assert info.options == ProcessSettings("background", "auto", 1.5, 6.0, 2, True, "squares", "auto", "auto")
@@ -296,7 +297,7 @@ def test_a_table_is_written_only_under_its_schema(reference_run: dict, tmp_path:
 def test_the_video_room_writes_its_two_tables_under_the_run_schema() -> None:
     """detections.csv and tracks.csv are written by video.pipeline as it finishes (it sits beside traffic, so it
     cannot use RunFolder): their columns are the run folder's schema, in order."""
-    from trafficgeo.traffic.run_folder import DETECTIONS, TRACKS
+    from trafficgeo.run.folder import DETECTIONS, TRACKS
     from trafficgeo.video.pipeline import DETECTION_COLUMNS, TRACK_COLUMNS
 
     assert DETECTION_COLUMNS == DETECTIONS.names and TRACK_COLUMNS == TRACKS.names

@@ -52,11 +52,13 @@ _API: dict[str, str] = {
     "analyze_tracks": "trafficgeo.traffic.analyze",
     "AnalysisOptions": "trafficgeo.traffic.analyze",
     "TrafficResult": "trafficgeo.traffic.analyze",
+    "write_analysis": "trafficgeo.traffic.analyze",
     "TrajectoryOptions": "trafficgeo.traffic.trajectories",
     "JourneyOptions": "trafficgeo.traffic.journeys",
     "join_fragments": "trafficgeo.traffic.journeys",
-    "RunFolder": "trafficgeo.traffic.run_folder",
-    "SCHEMAS": "trafficgeo.traffic.schema",
+    "RunFolder": "trafficgeo.run.folder",
+    "RunWriter": "trafficgeo.run.folder",
+    "SCHEMAS": "trafficgeo.run.schema",
     "compare_with_sumo": "trafficgeo.traffic.validation",
     "Comparison": "trafficgeo.traffic.validation",
     "export_fcd": "trafficgeo.traffic.validation",
@@ -128,6 +130,7 @@ __all__ = [
     "RunCallbacks",
     "RunFolder",
     "RunOptions",
+    "RunWriter",
     "Site",
     "SumoLoopResult",
     "SumoNet",
@@ -165,6 +168,7 @@ __all__ = [
     "stitch",
     "summarize_dataset",
     "validate_sumo_scenario",
+    "write_analysis",
 ]
 
 
@@ -194,6 +198,8 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.pipeline.run import ProcessResult, RunCallbacks, process_video, stitch
     from trafficgeo.registration.from_ortho import OrthoCalibration, OrthoPoseOptions, calibrate_from_ortho
     from trafficgeo.registration.refine import OrthoRefinement, RefineOptions, refine_camera
+    from trafficgeo.run.folder import RunFolder, RunWriter
+    from trafficgeo.run.schema import SCHEMAS
     from trafficgeo.simulation.loop import SumoLoopResult, SumoValidation, close_sumo_loop, validate_sumo_scenario
     from trafficgeo.simulation.network import SumoNet, build_sumo_net
     from trafficgeo.simulation.scenario import SumoScenario, build_sumo_scenario
@@ -201,10 +207,8 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.site.lines import CountLine
     from trafficgeo.site.site import Site, load_camera, load_lanes, load_lines
     from trafficgeo.site.surface import load_surface
-    from trafficgeo.traffic.analyze import AnalysisOptions, TrafficResult, analyze_tracks
+    from trafficgeo.traffic.analyze import AnalysisOptions, TrafficResult, analyze_tracks, write_analysis
     from trafficgeo.traffic.journeys import JourneyOptions, join_fragments
-    from trafficgeo.traffic.run_folder import RunFolder
-    from trafficgeo.traffic.schema import SCHEMAS
     from trafficgeo.traffic.tracks import ImageTracks, load_tracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
     from trafficgeo.traffic.validation import Comparison, compare_with_sumo, export_fcd

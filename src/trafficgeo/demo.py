@@ -342,8 +342,7 @@ def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console)
     from trafficgeo.synth.scoring import count_scores
     from trafficgeo.synth.sumo_world import WARMUP_S
     from trafficgeo.synth.world import truth_lane_name
-    from trafficgeo.traffic.analyze import analyze_tracks
-    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.traffic.analyze import analyze_tracks, write_analysis
     from trafficgeo.traffic.validation import compare_with_sumo
 
     truth = pd.read_csv(wdir / "truth_tracks.csv")
@@ -355,7 +354,7 @@ def _traffic(out: Path, wdir: Path, cam, surf, opts: WorldOptions, con: Console)
     # the camera JSON, as the command above: its covariance and control points place the headline speed windows
     result = analyze_tracks(out / "camera.json", surf, out / "tracks.csv", wdir / "lanes.gpkg",
                             wdir / "count_lines.gpkg", fps=opts.fps)
-    RunFolder(out / "traffic").write_traffic(result, cam)
+    write_analysis(out / "traffic", result, cam)
     print_analysis(result, con)
     # against the truth
     vehicle_of = noisy.set_index(["track_id", "frame"])["vehicle"]
@@ -416,8 +415,7 @@ def run_junction_demo(out: Path, *, seed: int = 3, duration_s: float = 60.0, pro
     from trafficgeo.synth.detections import noisy_tracks
     from trafficgeo.synth.junction_sumo import JunctionOptions
     from trafficgeo.synth.junction_world import build_junction_world
-    from trafficgeo.traffic.analyze import analyze_tracks
-    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.traffic.analyze import analyze_tracks, write_analysis
 
     con = console or Console()
     out = Path(out)
@@ -454,7 +452,7 @@ def run_junction_demo(out: Path, *, seed: int = 3, duration_s: float = 60.0, pro
               f"{wdir / 'dem.tif'} --gates {wdir / 'gates.gpkg'} --out {out / 'traffic'}")
     result = analyze_tracks(out / "camera.json", wdir / "dem.tif", out / "tracks.csv", fps=opts.fps,
                             gates=wdir / "gates.gpkg")
-    RunFolder(out / "traffic").write_traffic(result, calibrated.camera)
+    write_analysis(out / "traffic", result, calibrated.camera)
     print_analysis(result, con)
     sc = _movement_scores(wdir, result.movements, result.points, duration_s)
     scores["tracker_movement_accuracy"] = sc.accuracy

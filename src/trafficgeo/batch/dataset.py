@@ -14,7 +14,7 @@ detector saw, so that the tracker of stage 2 advances over frames without a dete
 :func:`trafficgeo.video.pipeline.detect_and_track` did; its Parquet metadata (key ``trafficgeo``) holds the frame
 rate, the frame step and whether the video has a variable frame rate.
 
-Stage 2 tables have the columns of the run folder schemas (:data:`trafficgeo.traffic.schema.SCHEMAS`) with
+Stage 2 tables have the columns of the run folder schemas (:data:`trafficgeo.run.schema.SCHEMAS`) with
 their times in **seconds since the camera's local midnight** of the partition's date, plus absolute times
 (``first_utc``, ``last_utc``, ``time_utc``, ``start_utc``/``end_utc``; timestamp[us, UTC]), ``lon``/``lat``
 (EPSG:4326) and a geometry in the dataset CRS: vehicles the smoothed path (LineString; a Point for a vehicle of one
@@ -259,7 +259,7 @@ def camera_position(camera: Any, crs: str, camera_id: str) -> list[float]:
 
 def _conform(table: pd.DataFrame, schema_name: str) -> pd.DataFrame:
     """``table`` with every column of the run folder schema (missing ones empty), in its dtypes."""
-    from trafficgeo.traffic.schema import SCHEMAS
+    from trafficgeo.run.schema import SCHEMAS
 
     schema = SCHEMAS[schema_name]
     out = {}
@@ -304,8 +304,8 @@ def _times_utc(midnight: Any, seconds: pd.Series) -> pd.Series:
 
 def _on_day_clock(table: pd.DataFrame, file: str, shift_s: float) -> pd.DataFrame:
     """A copy of ``table`` (of the run folder table ``file``) with every column that is a moment on the run's
-    clock (:attr:`~trafficgeo.traffic.run_folder.TableSchema.clock_columns`) moved by ``shift_s`` seconds."""
-    from trafficgeo.traffic.schema import SCHEMAS
+    clock (:attr:`~trafficgeo.run.folder.TableSchema.clock_columns`) moved by ``shift_s`` seconds."""
+    from trafficgeo.run.schema import SCHEMAS
 
     out = table.copy()
     for name in SCHEMAS[file].clock_columns:

@@ -30,13 +30,13 @@ def write_day_report(dataset: str | os.PathLike, camera_id: str, day: str, timez
     TrafficResult) and its ``camera`` (read from ``camera_file``); returns the page's path. Nothing is left in the
     work folder, whatever happens."""
     from trafficgeo.report.html import write_report_html
-    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.traffic.analyze import write_analysis
 
     work = Path(dataset) / "_work" / REPORTS / f"{camera_id}_{day}"
     if work.exists():
         shutil.rmtree(work)
     try:
-        RunFolder(work).write_traffic(analysis, camera)
+        write_analysis(work, analysis, camera)
         path = report_path(dataset, camera_id, day)
         path.parent.mkdir(parents=True, exist_ok=True)
         about = [("camera, day", f"{camera_id}, {day} ({timezone}); times in s since local midnight"),

@@ -67,14 +67,14 @@ def analyze(
     from rich.progress import Progress
 
     from trafficgeo.cli.report import check_html_path
-    from trafficgeo.io.folder_lock import hold_folder
     from trafficgeo.report.traffic import print_analysis
+    from trafficgeo.run.folder import RunFolder
     from trafficgeo.site.surface import check_resolution, load_surface
     from trafficgeo.traffic.analyze import analyze_tracks
     from trafficgeo.traffic.counts import check_interval
     from trafficgeo.traffic.journeys import JourneyOptions
     from trafficgeo.traffic.movements import check_movement_interval
-    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.traffic.outputs import write_traffic
     from trafficgeo.traffic.tracks import read_tracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
 
@@ -87,7 +87,7 @@ def analyze(
     opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
                              max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
     calibrated = camera_argument(camera)  # a bad camera file is named before the tracks are read
-    with hold_folder(out):  # refused at once while another run writes this folder, held until written
+    with RunFolder(out).writing("analyze") as run:  # refused at once while another run writes this folder
         image_tracks = read_tracks(tracks, fps=fps)
         surf = load_surface(surface, calibrated, surface_crs=surface_crs, resolution_m=resolution)
         console.print(f"surface: {surf.describe()}")
@@ -96,7 +96,7 @@ def analyze(
             analysis = analyze_tracks(calibrated, surf, image_tracks, lanes, lines, interval_s=interval,
                                       options=opts, progress=lambda i, n: progress.update(task, completed=i),
                                       journeys=journeys, gates=gates, movement_interval_s=movement_interval)
-        written = RunFolder(out).write_traffic(analysis, calibrated)
+        written = write_traffic(run, analysis, calibrated)
     print_analysis(analysis, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")
     if report_html is not None:
@@ -145,7 +145,7 @@ def export_fcd(
 ) -> None:
     """Export the observed trajectories as SUMO FCD (front bumpers, m/s) for replay and comparison in SUMO."""
     from trafficgeo.io.run_manifest import check_writable_file
-    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.run.folder import RunFolder
     from trafficgeo.traffic.validation import export_fcd as write_observed_fcd
 
     if output.suffix.lower() != ".xml":

@@ -2,7 +2,7 @@
 :func:`process_video` (``trafficgeo process``: decode -> detect -> track -> analyze, streaming and resumable, into a
 run folder) and :func:`stitch` (``trafficgeo stitch``: the runs of time chunks of one video joined and analysed).
 
-Both write a :class:`~trafficgeo.traffic.run_folder.RunFolder` and return what they computed. Inputs are objects or
+Both write a :class:`~trafficgeo.run.folder.RunFolder` and return what they computed. Inputs are objects or
 paths (:class:`trafficgeo.site.Site`). Times are seconds of video from its start.
 """
 
@@ -22,12 +22,13 @@ import pandas as pd
 from trafficgeo.errors import InputError
 from trafficgeo.io.json_text import loads_json
 from trafficgeo.pipeline.stages import analyze
+from trafficgeo.run.folder import RunFolder
+from trafficgeo.run.records import ProcessRecord
 from trafficgeo.site.site import Site
 from trafficgeo.traffic.analyze import AnalysisOptions, TrafficResult
-from trafficgeo.traffic.run_folder import RunFolder
 from trafficgeo.video.pipeline import ProcessOptions
 
-__all__ = ["SITE_WITHOUT_CALIBRATION", "ProcessResult", "RunCallbacks", "process_video", "stitch", "write_run_info"]
+__all__ = ["SITE_WITHOUT_CALIBRATION", "ProcessResult", "RunCallbacks", "process_video", "run_info", "stitch"]
 
 PathLike = str | os.PathLike
 
@@ -160,7 +161,7 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
                   analysis: AnalysisOptions | None = None, roi: np.ndarray | PathLike | None = None,
                   annotate: PathLike | None = None, callbacks: RunCallbacks | None = None) -> ProcessResult:
     """Detect, track and georeference the vehicles of ``video`` on ``site``, then count them (``trafficgeo
-    process``), writing the run folder ``out_dir`` (:mod:`trafficgeo.traffic.run_folder`). Resumes from the folder's
+    process``), writing the run folder ``out_dir`` (:mod:`trafficgeo.run.folder`). Resumes from the folder's
     checkpoint when run again with the same inputs (``options.restart`` to start over).
 
     ``site``: the camera, surface, lanes, counting lines and gates, loaded once (:class:`trafficgeo.site.Site`);
@@ -176,8 +177,8 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
     >>> run.read["complete"], sorted(run.folder.counts().columns)[:2]
     (True, ['count', 'count_car'])
     """
-    from trafficgeo.io.folder_lock import hold_folder
-    from trafficgeo.io.run_manifest import begin_outputs, check_writable_folder
+    from trafficgeo.io.run_manifest import check_writable_folder
+    from trafficgeo.traffic.outputs import write_traffic
     from trafficgeo.video.checkpoint import CHECKPOINT_DIR
     from trafficgeo.video.pipeline import detect_and_track, finish_run, settled_options
     from trafficgeo.video.reader import VideoReadWarning, video_info
@@ -198,8 +199,7 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
 
         mask = read_roi(Path(roi), cam.image_size)
     folder = RunFolder(out)
-    with hold_folder(out):  # one run in a folder at a time
-        begin_outputs(out)  # from here until the end, readers refuse the folder
+    with folder.writing("process") as run:  # one run in a folder at a time; readers refuse it until it ends
         t0 = time.perf_counter()
         read: dict = {"first": None, "last": None, "frames": 0}
         detector_doc: dict = {}
@@ -226,18 +226,18 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
         plan_doc = detector_doc.get("tiling") or {}
         if plan_doc.get("line_warnings"):  # the counting lines too far for the detector: in summary.json too
             result = replace(result, warnings=[*plan_doc["line_warnings"], *result.warnings])
-        written = folder.write_traffic(result, cam, publish=False)
+        run.adopt("detections.csv", "tracks.csv")  # written as the video was read (checked: RunFolder.write_table)
+        write_traffic(run, result, cam)
         if annotate is not None:
             from trafficgeo.video.annotate import annotate_video
 
             annotate_video(video, annotate, tracks, result.points, camera=cam, lines=count_lines, surface=surf,
                            start_s=opts.start_s, end_s=opts.end_s, progress=calls.annotate_progress)
-        write_run_info(out, video=str(video), camera=site.camera.source, options=opts,
-                       seconds=elapsed, detections=len(detections), track_rows=len(tracks), read=read_doc,
-                       detector=detector_doc or None)
+        run.process(run_info(video=str(video), camera=site.camera.source, options=opts, seconds=elapsed,
+                             detections=len(detections), track_rows=len(tracks), read=read_doc,
+                             detector=detector_doc or None))
         finish_run(out)
-        files = ("detections.csv", "tracks.csv", *(p.name for p in written), "process.json")
-        folder.publish(files, command="process")
+        files = tuple(p.name for p in run.written)
     return ProcessResult(result, detections, tracks, folder, opts, read_doc, elapsed, short,
                          detector_doc.get("tiling"), files, detector_doc.get("schedule"))
 
@@ -264,8 +264,8 @@ def stitch(chunks: Sequence[PathLike], site: Site, out_dir: PathLike, *, analysi
     ``end_s``, e.g. on several machines; folders in any order) and analyse them on ``site`` into the run folder
     ``out_dir`` (``trafficgeo stitch``), as ``analysis`` says (the pieces of one vehicle's track are joined across the
     chunks as within one). ``notice(line)`` gets a warning per gap or unequal overlap between chunks."""
-    from trafficgeo.io.folder_lock import hold_folder
     from trafficgeo.io.run_manifest import check_writable_folder
+    from trafficgeo.traffic.outputs import write_traffic
     from trafficgeo.video.stitch import plan_chunks, stitch_tracks
 
     out = Path(out_dir)
@@ -281,7 +281,7 @@ def stitch(chunks: Sequence[PathLike], site: Site, out_dir: PathLike, *, analysi
             raise InputError(f"out_dir {out}: is one of the chunks; write the stitched run to a folder of its own",
                              parameters=("out_dir",))
         seen[key] = folder
-    with hold_folder(out):  # one run at a time in a folder
+    with RunFolder(out).writing("stitch") as run:  # one run at a time in a folder
         read = [_chunk(Path(folder)) for folder in chunks]
         order, problems = plan_chunks([r[1] for r in read], [str(c) for c in chunks], [r[2] for r in read])
         for text in problems:
@@ -292,28 +292,25 @@ def stitch(chunks: Sequence[PathLike], site: Site, out_dir: PathLike, *, analysi
         from trafficgeo.traffic.tracks import tracks_from_table
 
         result = analyze(tracks_from_table(joined), site, analysis=how)
-        folder = RunFolder(out)
-        written = folder.write_traffic(result, site.camera.camera, publish=False)
-        written.append(folder.write_table("tracks.csv", joined))
-        folder.publish(written, command="stitch")
+        write_traffic(run, result, site.camera.camera)
+        run.table("tracks.csv", joined, float_format="%.3f")
     return result
 
 
-def write_run_info(out_dir: str | Path, *, video: str, camera: str, options: ProcessOptions, seconds: float,
-                   detections: int, track_rows: int, read: dict | None = None, detector: dict | None = None) -> None:
-    """``process.json``: what was processed (``video``, ``camera``: paths as given, or relative to ``out_dir``), how
-    (the detector and time range asked for in ``options``), what was read (``read``: ``start_s``/``end_s`` of the
-    frames decoded (s, the end of the last frame), ``frames``, and ``complete``: false when the video ended before
-    the asked end, e.g. a truncated file), and how fast (``seconds`` of wall clock). The file is the record
-    :class:`~trafficgeo.traffic.run_records.ProcessRecord`, written by the run folder."""
-    from trafficgeo.traffic.run_records import ProcessRecord, ProcessSettings, VideoRead
+def run_info(*, video: str, camera: str, options: ProcessOptions, seconds: float, detections: int,
+             track_rows: int, read: dict | None = None, detector: dict | None = None) -> ProcessRecord:
+    """The record of ``process.json``: what was processed (``video``, ``camera``: paths as given, or relative to
+    the run folder), how (the detector and time range asked for in ``options``), what was read (``read``:
+    ``start_s``/``end_s`` of the frames decoded (s, the end of the last frame), ``frames``, and ``complete``: false
+    when the video ended before the asked end, e.g. a truncated file), and how fast (``seconds`` of wall clock)."""
+    from trafficgeo.run.records import ProcessSettings, VideoRead
     from trafficgeo.video.detectors.names import detector_name
 
     settings = ProcessSettings(detector=detector_name(options.detector), detector_format=options.detector_format,
                                start_s=options.start_s, end_s=options.end_s, every=options.every,
                                tiles=options.tiles, tiling=options.tiling, backend=options.backend,
                                tile_schedule=options.tile_schedule)
-    RunFolder(out_dir).write_process(ProcessRecord(
+    return ProcessRecord(
         video=video, camera=camera, options=settings, detector=detector,
         read=VideoRead(read["start_s"], read["end_s"], read["frames"], read["complete"]) if read is not None else None,
-        seconds=seconds, detections=detections, track_rows=track_rows))
+        seconds=seconds, detections=detections, track_rows=track_rows)

@@ -15,8 +15,8 @@ from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.errors import InputError
 from trafficgeo.io.json_text import loads_json
 from trafficgeo.io.run_manifest import MANIFEST, RunIncompleteError
-from trafficgeo.traffic.run_folder import RunFolder
-from trafficgeo.traffic.run_records import CompareSummary, ProcessRecord, RunSummary, SimulationRecord
+from trafficgeo.run.folder import RunFolder
+from trafficgeo.run.records import CompareSummary, ProcessRecord, RunSummary, SimulationRecord
 
 CAMERA_NAMES = ("camera.json",)
 REPORT_NAMES = ("report.json", "calibration_report.json", "calibration.json")
@@ -31,7 +31,7 @@ SITE_NAMES = ("site.gpkg",)
 
 @dataclass(frozen=True)
 class TrafficRun:
-    """An ``analyze``/``process`` output folder (read through :class:`~trafficgeo.traffic.run_folder.RunFolder`):
+    """An ``analyze``/``process`` output folder (read through :class:`~trafficgeo.run.folder.RunFolder`):
     its ``summary.json`` and, for process runs, ``process.json``, as typed records."""
 
     folder: Path

@@ -29,7 +29,7 @@ from trafficgeo.report.traffic_sections import (
     flows_figure,
     run_table,
 )
-from trafficgeo.traffic.run_records import SimulationRecord, TravelTimeSummary
+from trafficgeo.run.records import SimulationRecord, TravelTimeSummary
 
 GEH_LIMIT = 5.0
 

@@ -19,15 +19,15 @@ from trafficgeo.report.blocks import Block, Heading, Part, Section, Table, Text,
 from trafficgeo.report.context import ReportContext
 from trafficgeo.report.inputs import TrafficRun
 from trafficgeo.report.movement_section import movement_parts
+from trafficgeo.run.records import ProcessRecord, RunSummary
 from trafficgeo.traffic.counts import MIN_FLOW_SHARE, flow_rule, period_counts
-from trafficgeo.traffic.run_records import ProcessRecord, RunSummary
 
 TABLE_ROWS = 200
 
 
 def comparison_table(run: TrafficRun, name: str) -> pd.DataFrame | None:
     """Table ``name`` of the run's comparison with a simulation (``compare_counts.csv``, ``compare_speeds.csv``,
-    ``simulated_crossings.csv``) read through its :class:`~trafficgeo.traffic.run_folder.RunFolder`; None when the
+    ``simulated_crossings.csv``) read through its :class:`~trafficgeo.run.folder.RunFolder`; None when the
     run has no usable comparison or the comparison has no such table.
 
     Raises:
@@ -37,8 +37,8 @@ def comparison_table(run: TrafficRun, name: str) -> pd.DataFrame | None:
 
 
 def run_table(run: TrafficRun, name: str) -> pd.DataFrame | None:
-    """The run's output table ``name`` (a table of :data:`trafficgeo.traffic.run_folder.SCHEMAS`) read through its
-    :class:`~trafficgeo.traffic.run_folder.RunFolder`, with the schema's dtypes; None when the run has none. No
+    """The run's output table ``name`` (a table of :data:`trafficgeo.run.folder.SCHEMAS`) read through its
+    :class:`~trafficgeo.run.folder.RunFolder`, with the schema's dtypes; None when the run has none. No
     column is required: a run written before a column existed still shows what it has.
 
     Raises:

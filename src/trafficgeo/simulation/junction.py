@@ -78,7 +78,7 @@ def run_has_movements(outputs: frozenset[str] | set[str]) -> bool:
 
 def read_run_junction(folder: str | os.PathLike[str], crs: pyproj.CRS | None) -> Junction:
     """The junction of a run: the ``gates`` layer of its ``trajectories.gpkg`` (lines with ``arm``), in ``crs``."""
-    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.run.folder import RunFolder
 
     junction = RunFolder(folder).junction(crs)
     if junction is None:

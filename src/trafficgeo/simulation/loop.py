@@ -21,8 +21,8 @@ vehicle entering near its end is followed until it leaves, as the observed count
 A run without counting lines has an empty line comparison.
 
 Beside the comparison tables ``sumo-validate`` writes ``compare_simulation.json``
-(:class:`~trafficgeo.traffic.run_records.SimulationRecord`: the scenario simulated and the headline figures,
-through :meth:`~trafficgeo.traffic.run_folder.RunFolder.write_simulation_record`) and lists it in the comparison's
+(:class:`~trafficgeo.run.records.SimulationRecord`: the scenario simulated and the headline figures,
+through :meth:`~trafficgeo.run.folder.RunFolder.write_simulation_record`) and lists it in the comparison's
 manifest, whose command is then ``sumo-validate``: what tells the HTML report that the comparison is of a
 trafficgeo scenario (a plain ``compare-sumo`` writes neither).
 """
@@ -146,13 +146,13 @@ def _compare_movements(sc: SumoScenario, observed: ObservedRun, points: pd.DataF
     interval over its period, the simulated ones found and counted alike
     (:func:`~trafficgeo.simulation.junction.simulated_movement_counts`)."""
     from trafficgeo.crs import metres_per_unit
+    from trafficgeo.run.folder import RunFolder
     from trafficgeo.simulation.junction import (
         observed_movement_counts,
         read_run_junction,
         simulated_movement_counts,
     )
     from trafficgeo.traffic.movements import compare_movement_counts, movement_comparison_summary
-    from trafficgeo.traffic.run_folder import RunFolder
 
     junction = read_run_junction(observed.folder, observed.crs)
     run = RunFolder(observed.folder)
@@ -205,8 +205,8 @@ def validate_sumo_scenario(scenario: SumoScenario | str | os.PathLike[str],
 def _record_simulation(out: Path, val: SumoValidation) -> list[Path]:
     """Write ``compare_simulation.json`` into ``out`` beside the comparison (which then has ``sumo-validate`` as
     its command); returns all the files written."""
-    from trafficgeo.traffic.run_folder import RunFolder
-    from trafficgeo.traffic.run_records import SimulationRecord
+    from trafficgeo.run.folder import RunFolder
+    from trafficgeo.run.records import SimulationRecord
 
     sc = val.scenario
     record = SimulationRecord(

@@ -301,7 +301,7 @@ def _line_parts(observed: ObservedRun, net: Path, interval: float, b: float, e: 
 def _junction_parts(observed: ObservedRun, net: Path, interval: float, b: float, e: float, net_crs,
                     seed: int) -> _DemandParts:
     """The demand of a junction's turning movements (:mod:`trafficgeo.simulation.junction`)."""
-    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.run.folder import RunFolder
 
     if not net.is_file():
         raise InputError(f"net {net}: SUMO network file not found; give the .net.xml of the network to simulate",

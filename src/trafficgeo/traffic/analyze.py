@@ -52,7 +52,7 @@ from trafficgeo.traffic.trajectories import TrajectoryOptions, WorldTracks, worl
 @dataclass(frozen=True)
 class TrafficResult:
     """Everything ``analyze`` computes from one set of image tracks: the tables of
-    :mod:`trafficgeo.traffic.run_folder` (``points`` is ``trajectories.csv``), the ``period`` (s) the tracks span,
+    :mod:`trafficgeo.run.folder` (``points`` is ``trajectories.csv``), the ``period`` (s) the tracks span,
     the points dropped per reason, the lanes and lines used, the options, the warnings and ``links``, the pieces of
     track joined into vehicles (:class:`trafficgeo.traffic.journeys.Journeys`; not written to the run folder).
     With gates: the ``junction``, its ``movements``, ``movement_counts`` and ``turning`` table
@@ -343,7 +343,7 @@ def analyze_tracks(camera: CalibratedCamera | Camera | str | os.PathLike, surfac
     calibration knows of its ground scale (``knowledge``, which places the headline speeds) comes from a calibrated
     camera (its JSON or :class:`~trafficgeo.camera.calibrated.CalibratedCamera`); give it for a bare Camera, which
     is otherwise warned about (:data:`BARE_CAMERA_WARNING`). Nothing is written: see
-    :meth:`trafficgeo.traffic.run_folder.RunFolder.write_traffic`.
+    :func:`trafficgeo.traffic.outputs.write_traffic`.
 
     >>> import pandas as pd, trafficgeo as tg
     >>> boxes = pd.read_csv(world / "truth_tracks.csv").dropna(subset=["x1"]).rename(columns={"vehicle": "track_id"})
@@ -367,10 +367,13 @@ def analyze_tracks(camera: CalibratedCamera | Camera | str | os.PathLike, surfac
 
 
 # ------------------------------------------------------------------------------------------------ writing
-def write_analysis(out_dir: str | Path, analysis: TrafficResult, camera: Camera, *, publish: bool = True
-                   ) -> list[Path]:
-    """Write the outputs (module docstring) into ``out_dir``: :meth:`RunFolder.write_traffic
-    <trafficgeo.traffic.run_folder.RunFolder.write_traffic>`; returns the paths written."""
-    from trafficgeo.traffic.run_folder import RunFolder
+def write_analysis(out_dir: str | Path, analysis: TrafficResult, camera: Camera | CalibratedCamera, *,
+                   command: str = "analyze") -> list[Path]:
+    """Write the outputs (module docstring) into the run folder ``out_dir`` as one run of ``command``
+    (:meth:`~trafficgeo.run.folder.RunFolder.writing`, :func:`~trafficgeo.traffic.outputs.write_traffic`); returns
+    the paths written."""
+    from trafficgeo.run.folder import RunFolder
+    from trafficgeo.traffic.outputs import write_traffic
 
-    return RunFolder(out_dir).write_traffic(analysis, camera, publish=publish)
+    with RunFolder(out_dir).writing(command) as run:
+        return write_traffic(run, analysis, camera)

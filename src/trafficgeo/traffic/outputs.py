@@ -1,6 +1,6 @@
-"""What a run's analysis writes, as data: the GIS layers (:func:`gis_layers`), the summary record
-(:func:`summary`, :func:`junction_summary`) and the names of the output files (:data:`OUTPUT_FILES`); the run folder
-writes them (:meth:`trafficgeo.traffic.run_folder.RunFolder.write_traffic`)."""
+"""What a run's analysis writes: the GIS layers (:func:`gis_layers`), the summary record (:func:`summary`,
+:func:`junction_summary`), the names of the output files (:data:`OUTPUT_FILES`), and :func:`write_traffic`, which
+writes them all through the run's writer (:meth:`trafficgeo.run.folder.RunFolder.writing`)."""
 
 from __future__ import annotations
 
@@ -11,14 +11,44 @@ import pandas as pd
 import pyproj
 import shapely
 
+from trafficgeo.run.records import LineCount, RunSummary
 from trafficgeo.traffic.movements import MOVEMENT_INTERVAL_S
-from trafficgeo.traffic.run_records import LineCount, RunSummary
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
+    from trafficgeo.camera.calibrated import CalibratedCamera
+    from trafficgeo.camera.model import Camera
+    from trafficgeo.run.folder import RunWriter
     from trafficgeo.traffic.analyze import TrafficResult
 
 OUTPUT_FILES = ("vehicles.csv", "counts.csv", "crossings.csv", "trajectories.csv", "trajectories.parquet",
                 "trajectories.gpkg", "movements.csv", "movement_counts.csv", "turning_movements.csv", "summary.json")
+
+
+def write_traffic(run: RunWriter, result: TrafficResult, camera: Camera | CalibratedCamera) -> list[Path]:
+    """Write ``result`` through ``run`` (``with RunFolder(out).writing(...) as run``): vehicles, crossings, counts,
+    trajectories (CSV, and GIS layers where the camera has a CRS), a junction's movements and turning-movement
+    table, summary.json; outputs of an earlier run that this one does not have are removed (e.g. no GeoPackage
+    without a CRS). Returns the paths written."""
+    from trafficgeo.camera.calibrated import as_camera
+    from trafficgeo.geo.mapping import camera_crs
+
+    crs = camera_crs(as_camera(camera))
+    written = [run.table(name, table) for name, table in (("vehicles.csv", result.vehicles),
+                                                           ("counts.csv", result.counts),
+                                                           ("crossings.csv", result.crossings))]
+    written.append(run.points("trajectories.csv", result.points, crs))
+    if result.movements is not None:
+        written += [run.table(name, table) for name, table in (("movements.csv", result.movements),
+                                                                ("movement_counts.csv", result.movement_counts),
+                                                                ("turning_movements.csv", result.turning))]
+    if crs is not None and len(result.points):
+        layers = gis_layers(result, crs)
+        written += [run.layers("trajectories.gpkg", layers, crs), run.layers("trajectories.parquet", layers[:1], crs)]
+    written.append(run.summary(summary(result, crs)))
+    run.remove(OUTPUT_FILES)
+    return written
 
 
 def _paths_layer(points: pd.DataFrame, vehicles: pd.DataFrame):

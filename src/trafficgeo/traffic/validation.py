@@ -52,8 +52,8 @@ class ObservedRun:
 
 
 def read_observed_run(folder: str | Path) -> ObservedRun:
-    """Read an ``analyze``/``process`` output folder (:class:`~trafficgeo.traffic.run_folder.RunFolder`)."""
-    from trafficgeo.traffic.run_folder import RunFolder
+    """Read an ``analyze``/``process`` output folder (:class:`~trafficgeo.run.folder.RunFolder`)."""
+    from trafficgeo.run.folder import RunFolder
 
     d = Path(folder)
     if not d.is_dir():
@@ -154,10 +154,10 @@ def compare_with_simulation(observed: ObservedRun, simulated: pd.DataFrame, *,
 def write_comparison(out_dir: str | Path, comparison: Comparison, crs: pyproj.CRS | None) -> list[Path]:
     """``compare_counts.csv``, ``compare_speeds.csv``, ``simulated_crossings.csv`` (at a junction also
     ``compare_movements.csv`` and ``simulated_movements.csv``) and ``compare_summary.json`` into ``out_dir``,
-    under the comparison's manifest (:meth:`~trafficgeo.traffic.run_folder.RunFolder.write_comparison`); returns the
+    under the comparison's manifest (:meth:`~trafficgeo.run.folder.RunFolder.write_comparison`); returns the
     paths written."""
-    from trafficgeo.traffic.run_folder import RunFolder
-    from trafficgeo.traffic.run_records import CompareSummary
+    from trafficgeo.run.folder import RunFolder
+    from trafficgeo.run.records import CompareSummary
 
     doc = {"counts": comparison.count_summary, "travel_times": comparison.travel_times, "crs": crs_label(crs),
            "movements": comparison.movement_summary}
@@ -209,7 +209,7 @@ def export_fcd(run: str | Path, output: str | Path, *, net: str | Path | None = 
     from trafficgeo.geo.cuboids import dimensions_for
     from trafficgeo.io.fcd_write import write_fcd
     from trafficgeo.io.run_manifest import check_writable_file
-    from trafficgeo.traffic.run_folder import RunFolder
+    from trafficgeo.run.folder import RunFolder
 
     if Path(output).suffix.lower() != ".xml":
         raise InputError(f"output {output}: SUMO FCD is XML; name it .xml (e.g. observed.fcd.xml)")

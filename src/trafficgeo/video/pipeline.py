@@ -43,8 +43,9 @@ import pandas as pd
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import Surface
-from trafficgeo.io.atomic import remove_stale_temporaries, write_csv_atomic
+from trafficgeo.io.atomic import remove_stale_temporaries
 from trafficgeo.io.folder_lock import hold_folder
+from trafficgeo.run.folder import RunFolder
 from trafficgeo.site.lanes import Lanes
 from trafficgeo.site.lines import CountLine
 from trafficgeo.video.checkpoint import (
@@ -239,14 +240,16 @@ def _tables(part: Part) -> tuple[pd.DataFrame, pd.DataFrame]:
 
 
 def _write_tables(folder: Path, state: Checkpoint, out: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """``detections.csv`` and ``tracks.csv`` from the parts; returns them as written (3 decimals)."""
+    """``detections.csv`` and ``tracks.csv`` from the parts, each checked against its schema
+    (:meth:`~trafficgeo.run.folder.RunFolder.write_table`); returns them as written (3 decimals) and read back."""
     tables = [_tables(read_part(folder, e)) for e in state.parts]
+    run = RunFolder(out)
     result = []
     for k, (name, columns) in enumerate((("detections.csv", DETECTION_COLUMNS), ("tracks.csv", TRACK_COLUMNS))):
         parts = [t[k] for t in tables if len(t[k])]
         table = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=columns)
-        write_csv_atomic(out / name, table, float_format="%.3f")
-        back = pd.read_csv(out / name, dtype={"class": str}, keep_default_na=False, na_values=[""])
+        back = pd.read_csv(run.write_table(name, table, float_format="%.3f"), dtype={"class": str},
+                           keep_default_na=False, na_values=[""])
         back["class"] = back["class"].fillna("")
         result.append(back)
     return result[0], result[1]

@@ -1,10 +1,11 @@
 """A run's output folder: the one writer and reader of its files (the schema of its tables:
-:mod:`trafficgeo.traffic.schema`).
+:mod:`trafficgeo.run.schema`).
 
 ``analyze``, ``process`` and ``stitch`` write a run folder; ``compare-sumo``, ``export-fcd``, ``stitch`` (its chunks),
-the HTML report and the demo read one. All of them go through :class:`RunFolder` (but ``process``'s detections and
-tracks, which the video room writes under the same schemas), and every table's columns, dtypes and units are
-defined once here (:data:`SCHEMAS`):
+the HTML report and the demo read one. All of them go through :class:`RunFolder`: a run is written in one
+``with RunFolder(out).writing(command) as run:`` block (lock, manifest removed first and written last; the
+:class:`RunWriter` checks every table against its schema), and every table's columns, dtypes and units are
+defined once (:data:`SCHEMAS`, :mod:`trafficgeo.run.schema`):
 
 ============================  =========================================================================
 ``vehicles.csv``              one row per vehicle (track): class, times, speed, length, lane (:data:`VEHICLES`)
@@ -27,7 +28,7 @@ defined once here (:data:`SCHEMAS`):
                               ``sumo-validate``
 ============================  =========================================================================
 
-The JSON files are typed records (:mod:`trafficgeo.traffic.run_records`): :class:`RunFolder` writes them
+The JSON files are typed records (:mod:`trafficgeo.run.records`): :class:`RunFolder` writes them
 (:meth:`RunFolder.write_summary`, :meth:`~RunFolder.write_process`, :meth:`~RunFolder.write_comparison`,
 :meth:`~RunFolder.write_simulation_record`) and reads them back (:meth:`RunFolder.summary`,
 :meth:`~RunFolder.process`, :meth:`~RunFolder.compare_summary`, :meth:`~RunFolder.simulation_record`); the
@@ -42,7 +43,8 @@ columns read back as ``""`` where empty (an unknown class, no lane), never NaN.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -50,15 +52,15 @@ import pandas as pd
 
 from trafficgeo.errors import InputError
 from trafficgeo.io.json_text import loads_json
-from trafficgeo.io.run_manifest import COMPARE_MANIFEST, RunManifest, verify_outputs
-from trafficgeo.traffic.run_records import (
+from trafficgeo.io.run_manifest import COMPARE_MANIFEST, MANIFEST, RunManifest, verify_outputs
+from trafficgeo.run.records import (
     SIMULATION_RECORD,
     CompareSummary,
     ProcessRecord,
     RunSummary,
     SimulationRecord,
 )
-from trafficgeo.traffic.schema import (  # the tables' schema, defined in its own module
+from trafficgeo.run.schema import (  # the tables' schema, defined in its own module
     COUNTS,
     CROSSINGS,
     DETECTIONS,
@@ -73,13 +75,10 @@ from trafficgeo.traffic.schema import (  # the tables' schema, defined in its ow
 )
 
 if TYPE_CHECKING:
-    from trafficgeo.camera.calibrated import CalibratedCamera
-    from trafficgeo.camera.model import Camera
     from trafficgeo.site.gates import Junction
-    from trafficgeo.traffic.analyze import TrafficResult
 
 __all__ = ["COMPARE_TABLES", "COUNTS", "CROSSINGS", "DETECTIONS", "MOVEMENTS", "MOVEMENT_COUNTS", "SCHEMAS", "TRACKS",
-           "TRAJECTORIES", "VEHICLES", "Column", "RunFolder", "TableSchema"]
+           "TRAJECTORIES", "VEHICLES", "Column", "RunFolder", "RunWriter", "TableSchema"]
 
 
 RUN_HINT = "give the output folder of 'trafficgeo analyze' or 'trafficgeo process'"
@@ -87,6 +86,85 @@ COMPARE_TABLES = ("compare_counts.csv", "compare_speeds.csv", "simulated_crossin
                   "compare_movements.csv", "simulated_movements.csv")  # sumo-validate at a junction's gates
 COMPARE_TEXT_COLUMNS = ("track_id", "class", "lane", "line", "source_track", "origin", "destination", "movement",
                         "origin_by", "destination_by")  # read as text ("" where empty)
+# written without a schema: the turning-movement table (a column per arm and movement) and a comparison's tables
+FREE_TABLES = ("turning_movements.csv", *COMPARE_TABLES)
+
+
+class RunWriter:
+    """The files of a run being written (:meth:`RunFolder.writing`): each table checked against its schema and
+    written atomically, the GIS layers, the JSON records; :attr:`written` is what the manifest will list.
+    Units and conventions: the module docstring."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.written: list[Path] = []
+
+    def __repr__(self) -> str:
+        return f"RunWriter({str(self.path)!r}, {len(self.written)} files)"
+
+    def adopt(self, *files: str | Path) -> None:
+        """List ``files`` (names in the folder, or paths) in the manifest: files written by another writer of the
+        run (``process``'s detections and tracks, written as the video is read: :meth:`RunFolder.write_table`)."""
+        for f in files:
+            p = self.path / Path(f).name
+            if p not in self.written:
+                self.written.append(p)
+
+    def table(self, name: str, table: pd.DataFrame, *, float_format: str = "%.4f") -> Path:
+        """Write table ``name`` (a key of :data:`SCHEMAS`: no column it does not know, and the schema's columns the
+        table lacks written empty, :meth:`~trafficgeo.run.schema.TableSchema.conformed`; or one of
+        :data:`FREE_TABLES`) as CSV, atomically; returns its path."""
+        from trafficgeo.io.atomic import write_csv_atomic
+
+        if name in SCHEMAS:
+            table = SCHEMAS[name].conformed(table)
+        elif name not in FREE_TABLES:
+            raise ValueError(f"{name}: not a table of a run folder; one of {', '.join([*SCHEMAS, *FREE_TABLES])}")
+        write_csv_atomic(self.path / name, table, float_format=float_format)
+        self.adopt(name)
+        return self.path / name
+
+    def points(self, name: str, points: pd.DataFrame, crs: Any) -> Path:
+        """Write a table of ground points (``trajectories.csv``: as :meth:`table`, with ``lon, lat`` to 1e-9 degrees
+        where ``crs`` is known; :func:`~trafficgeo.io.tables.write_point_table`); returns its path."""
+        from trafficgeo.io.tables import write_point_table
+
+        table = SCHEMAS[name].conformed(points)
+        table = table.drop(columns=[c for c in ("lon", "lat") if c not in points.columns])  # from the CRS, or none
+        write_point_table(self.path / name, table, crs)
+        self.adopt(name)
+        return self.path / name
+
+    def layers(self, name: str, layers: list, crs: Any) -> Path:
+        """Write GIS ``layers`` (:class:`~trafficgeo.io.gis.Layer`) as ``name`` (.gpkg, or .parquet for the first
+        layer alone) in ``crs``; returns its path."""
+        from trafficgeo.io.gis import write_gis
+
+        write_gis(self.path / name, layers, crs)
+        self.adopt(name)
+        return self.path / name
+
+    def summary(self, summary: RunSummary) -> Path:
+        """Write ``summary.json``; returns its path."""
+        return self._json("summary.json", summary.to_dict())
+
+    def process(self, record: ProcessRecord) -> Path:
+        """Write ``process.json``; returns its path."""
+        return self._json("process.json", record.to_dict())
+
+    def remove(self, names: Iterable[str]) -> None:
+        """Remove the files ``names`` that this run did not write (left by an earlier run into the folder)."""
+        keep = {p.name for p in self.written}
+        for n in names:
+            if n not in keep:
+                (self.path / n).unlink(missing_ok=True)
+
+    def _json(self, name: str, doc: dict[str, Any]) -> Path:
+        from trafficgeo.io.atomic import write_json_atomic
+
+        write_json_atomic(self.path / name, doc)
+        self.adopt(name)
+        return self.path / name
 
 
 class RunFolder:
@@ -105,56 +183,29 @@ class RunFolder:
         return f"RunFolder({str(self.path)!r})"
 
     # ------------------------------------------------------------------------------------------------ writing
-    def write_traffic(self, result: TrafficResult, camera: Camera | CalibratedCamera, *, publish: bool = True
-                      ) -> list[Path]:
-        """Write ``result`` (vehicles, crossings, counts, trajectories as CSV and GIS layers, a junction's movements,
-        summary.json; :mod:`trafficgeo.traffic.analyze`); returns the paths written. The folder's manifest is
-        removed first and, with ``publish``, written last; a caller that adds files of its own (``process``)
-        passes ``publish=False`` and publishes them all. The folder is locked while it is written
-        (:func:`~trafficgeo.io.folder_lock.hold_folder`)."""
-        from trafficgeo.camera.calibrated import as_camera
-        from trafficgeo.geo.mapping import camera_crs
-        from trafficgeo.io.atomic import write_csv_atomic
+    @contextmanager
+    def writing(self, command: str, *, manifest: str = MANIFEST) -> Iterator[RunWriter]:
+        """Write a run into the folder: ``with RunFolder(out).writing("analyze") as run: run.table(...)``.
+
+        Holds the folder's lock for the block (:func:`~trafficgeo.io.folder_lock.hold_folder`: one run at a time),
+        removes the manifest ``manifest`` first (from then on readers refuse the folder) and, when the block ends
+        without an error, writes it last, listing every file the :class:`RunWriter` wrote or adopted, under
+        ``command``. A block that raises leaves the folder unpublished: never half a run that reads as whole."""
         from trafficgeo.io.folder_lock import hold_folder
-        from trafficgeo.io.gis import write_gis
         from trafficgeo.io.run_manifest import begin_outputs, publish_outputs
-        from trafficgeo.io.tables import write_point_table
-        from trafficgeo.traffic.outputs import OUTPUT_FILES, gis_layers, summary
 
         self._manifest = self._comparison = None
-        with hold_folder(self.path):  # one run at a time in a folder
-            out = begin_outputs(self.path)
-            crs = camera_crs(as_camera(camera))
-            written = []
-            for name, table in (("vehicles.csv", result.vehicles), ("counts.csv", result.counts),
-                                ("crossings.csv", result.crossings)):
-                write_csv_atomic(out / name, table, float_format="%.4f")
-                written.append(out / name)
-            write_point_table(out / "trajectories.csv", result.points, crs)  # lon/lat to 1e-9 degrees
-            written.append(out / "trajectories.csv")
-            if result.movements is not None:
-                for name in ("movements.csv", "movement_counts.csv"):
-                    SCHEMAS[name].check(getattr(result, name.removesuffix(".csv")))
-                for name, table in (("movements.csv", result.movements),
-                                    ("movement_counts.csv", result.movement_counts),
-                                    ("turning_movements.csv", result.turning)):
-                    write_csv_atomic(out / name, table, float_format="%.4f")
-                    written.append(out / name)
-            if crs is not None and len(result.points):
-                layers = gis_layers(result, crs)
-                write_gis(out / "trajectories.gpkg", layers, crs)
-                write_gis(out / "trajectories.parquet", layers[:1], crs)
-                written += [out / "trajectories.gpkg", out / "trajectories.parquet"]
-            written.append(self.write_summary(summary(result, crs)))
-            for stale in {out / n for n in OUTPUT_FILES} - set(written):  # e.g. no GeoPackage without a CRS
-                stale.unlink(missing_ok=True)
-            if publish:
-                publish_outputs(out, written, command="analyze")
-            return written
+        with hold_folder(self.path):
+            begin_outputs(self.path, manifest)
+            writer = RunWriter(self.path)
+            yield writer
+            publish_outputs(self.path, writer.written, command=command, name=manifest)
+        self._manifest = self._comparison = None
 
     def write_table(self, name: str, table: pd.DataFrame, *, float_format: str = "%.3f") -> Path:
         """Write output table ``name`` (a key of :data:`SCHEMAS`; ``table`` must follow its schema) as CSV,
-        atomically; returns its path. The manifest is the caller's (:meth:`publish`)."""
+        atomically, outside a :meth:`writing` block (``process`` writes its detections and tracks so as the video is
+        read; the run's writer then adopts them: :meth:`RunWriter.adopt`); returns its path."""
         from trafficgeo.io.atomic import write_csv_atomic
 
         if name not in SCHEMAS:
@@ -176,22 +227,14 @@ class RunFolder:
         """Write a comparison with a simulation (``compare-sumo``): ``tables`` (:data:`COMPARE_TABLES` by name) as
         CSV, ``compare_summary.json``, then the comparison's manifest (``compare_run.json``); returns the paths
         written. Until the manifest is written, readers refuse the comparison."""
-        from trafficgeo.io.atomic import write_csv_atomic
-        from trafficgeo.io.folder_lock import hold_folder
-        from trafficgeo.io.run_manifest import begin_outputs, publish_outputs
-
         unknown = sorted(set(tables) - set(COMPARE_TABLES))
         if unknown:
             raise ValueError(f"{unknown}: not tables of a comparison; one of {', '.join(COMPARE_TABLES)}")
-        self._comparison = None
-        with hold_folder(self.path):
-            begin_outputs(self.path, COMPARE_MANIFEST)
-            written = []
+        with self.writing("compare-sumo", manifest=COMPARE_MANIFEST) as run:
             for name, table in tables.items():
-                write_csv_atomic(self.path / name, table, float_format="%.4f")
-                written.append(self.path / name)
-            written.append(self.write_compare_summary(summary))
-            publish_outputs(self.path, written, command="compare-sumo", name=COMPARE_MANIFEST)
+                run.table(name, table, float_format="%.4f")
+            run.adopt(self.write_compare_summary(summary))
+            written = list(run.written)
         return written
 
     def write_compare_summary(self, summary: CompareSummary) -> Path:
@@ -220,15 +263,6 @@ class RunFolder:
         self.path.mkdir(parents=True, exist_ok=True)
         write_json_atomic(self.path / name, doc)
         return self.path / name
-
-    def publish(self, files: Iterable[str | Path], *, command: str) -> None:
-        """Write the manifest listing ``files`` (names in the folder): the run is finished."""
-        from trafficgeo.io.folder_lock import hold_folder
-        from trafficgeo.io.run_manifest import publish_outputs
-
-        with hold_folder(self.path):
-            publish_outputs(self.path, files, command=command)
-        self._manifest = self._comparison = None
 
     # ------------------------------------------------------------------------------------------------ reading
     @property

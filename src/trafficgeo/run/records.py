@@ -3,14 +3,14 @@
 ============================  ==========================  ===================================================
 ``summary.json``              :class:`RunSummary`         ``analyze`` / ``process`` / ``stitch``
                                                           (:func:`trafficgeo.traffic.analyze.summary`)
-``process.json``              :class:`ProcessRecord`      ``process`` (:func:`trafficgeo.pipeline.run.write_run_info`)
+``process.json``              :class:`ProcessRecord`      ``process`` (:func:`trafficgeo.pipeline.run.run_info`)
 ``compare_summary.json``      :class:`CompareSummary`     ``compare-sumo`` / ``sumo-validate``
                                                           (:func:`trafficgeo.traffic.validation.write_comparison`)
 ``compare_simulation.json``   :class:`SimulationRecord`   ``sumo-validate``
                                                           (:func:`trafficgeo.simulation.loop.validate_sumo_scenario`)
 ============================  ==========================  ===================================================
 
-:class:`~trafficgeo.traffic.run_folder.RunFolder` writes them (``write_summary``, ``write_process``,
+:class:`~trafficgeo.run.folder.RunFolder` writes them (``write_summary``, ``write_process``,
 ``write_compare_summary``, ``write_simulation_record``: :meth:`to_dict` through
 :func:`trafficgeo.io.atomic.write_json_atomic`) and reads them back (``summary()``, ``process()``,
 ``compare_summary()``, ``simulation_record()``: ``from_dict``, which names the file and the key in an

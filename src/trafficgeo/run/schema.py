@@ -1,4 +1,4 @@
-"""The one schema of every table trafficgeo writes into a run folder (:mod:`trafficgeo.traffic.run_folder`): each
+"""The one schema of every table trafficgeo writes into a run folder (:mod:`trafficgeo.run.folder`): each
 table's columns, dtypes, units and meaning, defined once (:data:`SCHEMAS`), with the reader that gives a table
 those dtypes back (:meth:`TableSchema.read`) and the check a writer makes (:meth:`TableSchema.check`).
 
@@ -78,7 +78,19 @@ class TableSchema:
         extra = [n for n in table.columns if not self._known(n)]
         if missing or extra:
             raise InputError(f"{self.file}: columns {missing} missing and {extra} unknown; the table does not follow "
-                             f"the {self.file} schema of trafficgeo.traffic.run_folder")
+                             f"the {self.file} schema of trafficgeo.run.folder")
+
+    def conformed(self, table: pd.DataFrame) -> pd.DataFrame:
+        """``table`` with the schema's columns it lacks added empty (NaN, ``""`` for text), after its own, as a
+        reader reads a file without them (a run whose tracks had no boxes measures no ``length_m``); InputError
+        for a column the schema does not know."""
+        extra = [n for n in table.columns if not self._known(n)]
+        if extra:
+            self.check(table)
+        missing = [c for c in self.columns if c.name not in table.columns]
+        if not missing:
+            return table
+        return table.assign(**{c.name: "" if c.dtype == "str" else float("nan") for c in missing})
 
     def _known(self, name: str) -> bool:
         try:
