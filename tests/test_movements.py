@@ -264,3 +264,58 @@ def test_two_boxes_on_one_vehicle_seen_at_once_are_one_movement_but_neighbours_a
     inside = np.flatnonzero(np.hypot(again["x"], again["y"]) < 8.0)
     halves = [again.iloc[: inside[0]].assign(track_id="p"), again.iloc[inside[-1] + 1:].assign(track_id="q")]
     assert not run(halves, j)["complete"].any()
+
+
+def _with_trackers(pieces: list[pd.DataFrame], trackers: dict[str, str], j: Junction) -> pd.DataFrame:
+    """vehicle_movements of ``pieces`` whose vehicles came from the tracker ids ``trackers`` (vehicle -> ids)."""
+    pts = pd.concat(pieces, ignore_index=True)
+    veh = pts.groupby("track_id", as_index=False).agg(**{"class": ("class", "first")})
+    veh["tracker_ids"] = veh["track_id"].map(trackers)
+    return vehicle_movements(pts, veh, j)
+
+
+def test_a_track_cut_where_its_vehicle_stood_is_one_movement_not_two() -> None:
+    j = junction()
+    car = path("N", "S", stop_s=30.0, tid="car")  # stands 30 s 10 m before the centre, then goes straight on
+    moving = car["speed_kmh"].to_numpy() > 0
+    restart = float(car["time"].to_numpy()[np.flatnonzero(~moving)[-1]])
+    t = car["time"].to_numpy()
+    # the tracker kept one id, but its boxes jumped as the car set off: the smoother cut the track there and the
+    # id's points went to two pieces that interleave for 2.5 s; each piece looks whole by its path
+    both = (t > restart) & (t <= restart + 2.5)
+    odd = np.cumsum(both) % 2 == 1
+    first = car[(t <= restart + 2.5) & ~(both & odd)].assign(track_id="a")
+    second = car[(t > restart) & ~(both & ~odd)].assign(track_id="b")
+    alone = [_with_trackers([p], {p["track_id"].iloc[0]: "7"}, j).iloc[0] for p in (first, second)]
+    assert [(r.origin_by, r.destination_by) for r in alone] == [("gate", "path"), ("path", "gate")]
+    assert all((r.origin, r.destination) == ("N", "S") and r.complete for r in alone)
+    rows = _with_trackers([first, second], {"a": "7", "b": "7"}, j)
+    assert len(rows) == 1 and rows.iloc[0].track_ids == "a;b" and rows.iloc[0].complete
+    r = rows.iloc[0]
+    assert (r.origin, r.destination, r.origin_by, r.destination_by) == ("N", "S", "gate", "gate")
+    assert r.exit_time == alone[1].exit_time and r.entry_time == alone[0].entry_time
+    # a car ahead on the same movement, its track lost 10 m past the centre 1 s before this one sets off: under
+    # another tracker id, another vehicle (as far as anything shows), not this one's first half
+    ahead = path("N", "S", tid="ahead", t0=restart - 1.0 - 7.0)
+    ahead = ahead[ahead["time"] <= restart - 1.0]
+    tail = car[t > restart].assign(track_id="b")
+    rows = _with_trackers([ahead, tail], {"ahead": "6", "b": "7"}, j)
+    assert len(rows.query("complete")) == 2 and set(rows["track_ids"]) == {"ahead", "b"}
+    assert len(_with_trackers([ahead, tail], {"ahead": "7", "b": "7"}, j)) == 1  # one id: one vehicle
+
+
+def test_a_tail_that_begins_as_its_head_ends_is_joined_to_it() -> None:
+    j = junction()
+    whole = path("E", "W", tid="car")  # straight through at 10 m/s
+    d = np.hypot(whole["x"], whole["y"])
+    k = int(np.flatnonzero(d < 2.0)[0])
+    ahead = np.array([-1.0, 0.0])  # its direction of travel (westbound)
+    first = whole.iloc[:k + 1].assign(track_id="a")  # lost near the centre ...
+    # ... and a new id on a box 3 m farther along, from 0.3 s before the first one ends: not standing together
+    second = whole.iloc[k - 2:].assign(track_id="b", x=lambda p: p["x"] + 3.0 * ahead[0])
+    rows = _with_trackers([first, second], {"a": "1", "b": "2"}, j)
+    assert len(rows) == 1 and rows.iloc[0].track_ids == "a;b"
+    assert (rows.iloc[0].origin, rows.iloc[0].destination) == ("E", "W") and rows.iloc[0].complete
+    # begun 1 s before the first ends (10 m back along it), it is another vehicle
+    early = whole.iloc[k - 10:].assign(track_id="b", x=lambda p: p["x"] + 3.0 * ahead[0])
+    assert not _with_trackers([first, early], {"a": "1", "b": "2"}, j)["complete"].any()

@@ -35,7 +35,7 @@ import numpy as np
 
 from trafficgeo.traffic.measurements import HEAVY_CLASSES
 
-__all__ = ["merge_doubles", "pair_halves"]
+__all__ = ["join_judged_halves", "merge_doubles", "pair_halves"]
 
 CHORD_TOLERANCE_DEG = 45.0  # the chord between two halves runs within this of the mean of their directions
 PAIR_GAP_S = 5.0  # s: the longest a vehicle may go unseen between the two halves of its movement
@@ -45,6 +45,7 @@ SAME_ACROSS_M = 1.5  # m: two pieces of track seen at once, this close across th
 SAME_ALONG_M = {"light": 2.5, "heavy": 6.0}  # ... and this close along it (half the longer vehicle) are one vehicle
 SAME_MIN_OVERLAP_S = 0.3  # s: seen at once for at least this long
 PAIR_OVERLAP_S = 2.0  # s: a tail may begin this long before its head ends if the two stand together meanwhile
+TOUCH_S = 0.5  # s: ... or this long before, anyway, where it begins within PAIR_SLACK_M of where the head ends
 
 
 def _family(vehicle_class: str) -> str:
@@ -160,6 +161,7 @@ def _absorb(a: dict, b: dict) -> None:
     xy = np.concatenate([a["_xy"], b["_xy"]])
     keep = np.argsort(t, kind="stable")
     a.update(_t=t[keep], _xy=xy[keep], track_ids=f"{a['track_ids']};{b['track_ids']}",
+             _trackers=a["_trackers"] | b["_trackers"],
              stopped_s=max(a["stopped_s"], b["stopped_s"]),
              **{"class": (a["class"] if a["_n"] >= b["_n"] else b["class"]) or a["class"] or b["class"]})
     a["_n"] += b["_n"]
@@ -190,7 +192,10 @@ def pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
                 share = _together(h, t, metres_per_unit, min_overlap_s=0.0)
                 if share is not None:
                     cost[a, b] = share
-                continue
+                    continue
+                if gap < -TOUCH_S:
+                    continue
+                gap = 0.0  # the tail began as the head ended: where the head ended, give or take the slack
             chord = (t["_p0"] - h["_p1"]) * metres_per_unit
             dist_m = float(np.hypot(*chord))
             reach_m = max(h["_v1"], PAIR_MIN_SPEED_MPS) * gap + PAIR_SLACK_M
@@ -206,13 +211,49 @@ def pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
     for a, b in zip(ra, rb, strict=True):
         if cost[a, b] >= big:
             continue
-        h, t = rows[heads[a]], rows[tails[b]]
-        h.update(destination=t["destination"], destination_by=t["destination_by"], exit_time=t["exit_time"],
-                 stopped_s=h["stopped_s"] + t["stopped_s"], track_ids=f"{h['track_ids']};{t['track_ids']}",
-                 _t1=t["_t1"], _p1=t["_p1"], _v1=t["_v1"], _d1=t["_d1"],
-                 _t=np.concatenate([h["_t"], t["_t"][t["_t"] > h["_t"][-1]]]),
-                 _xy=np.concatenate([h["_xy"], t["_xy"][t["_t"] > h["_t"][-1]]]),
-                 **{"class": (h["class"] if h["_n"] >= t["_n"] else t["class"]) or h["class"] or t["class"]})
-        h["_n"] += t["_n"]
+        _join(rows[heads[a]], rows[tails[b]])
         drop.add(tails[b])
+    return [r for k, r in enumerate(rows) if k not in drop]
+
+
+def _join(h: dict, t: dict) -> None:
+    """Join the later half ``t`` of a vehicle's movement to its head ``h`` (in place): the destination is ``t``'s."""
+    later = t["_t"] > h["_t"][-1]
+    h.update(destination=t["destination"], destination_by=t["destination_by"], exit_time=t["exit_time"],
+             stopped_s=h["stopped_s"] + t["stopped_s"], track_ids=f"{h['track_ids']};{t['track_ids']}",
+             _t1=t["_t1"], _p1=t["_p1"], _v1=t["_v1"], _d1=t["_d1"],
+             _t=np.concatenate([h["_t"], t["_t"][later]]), _xy=np.concatenate([h["_xy"], t["_xy"][later]]),
+             _trackers=h["_trackers"] | t["_trackers"],
+             **{"class": (h["class"] if h["_n"] >= t["_n"] else t["class"]) or h["class"] or t["class"]})
+    h["_n"] += t["_n"]
+
+
+def join_judged_halves(rows: list[dict]) -> list[dict]:
+    """Two movements of one tracked vehicle that each look whole only by their path: the first crossed its origin's
+    gate and its destination is judged by its path, the second's origin is judged by its path and it crossed its
+    destination's gate, and the two agree on both arms. They are one vehicle's halves (its track cut inside the
+    junction where it stopped or started, each half judged whole) when the tracker followed both under one id and the
+    second begins no earlier than the first and within :data:`PAIR_GAP_S` of its end (or while it is still seen: one
+    id's pieces can interleave): joined, the origin's gate of the first and the destination's gate of the second
+    kept. Where several pairs could be made, the shortest gap first."""
+    heads = [i for i, r in enumerate(rows) if r["origin_by"] == "gate" and r["destination_by"] == "path"]
+    tails = [j for j, r in enumerate(rows) if r["origin_by"] == "path" and r["destination_by"] == "gate"]
+    pairs = []
+    for i in heads:
+        h = rows[i]
+        for j in tails:
+            t = rows[j]
+            gap = t["_t0"] - h["_t1"]
+            if (h["origin"], h["destination"]) != (t["origin"], t["destination"]) or gap > PAIR_GAP_S \
+                    or t["_t0"] < h["_t0"] or t["_t1"] < h["_t1"] or not h["_trackers"] & t["_trackers"]:
+                continue
+            pairs.append((abs(gap), i, j))
+    used: set[int] = set()
+    drop = set()
+    for _gap, i, j in sorted(pairs):
+        if i in used or j in used:
+            continue
+        _join(rows[i], rows[j])
+        used |= {i, j}
+        drop.add(j)
     return [r for k, r in enumerate(rows) if k not in drop]

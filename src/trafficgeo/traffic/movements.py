@@ -37,7 +37,7 @@ from trafficgeo.errors import InputError
 from trafficgeo.site.gates import MOVEMENTS, Junction
 from trafficgeo.traffic.counts import MIN_INTERVAL_S, interval_edges, segment_crossings
 from trafficgeo.traffic.measurements import HEAVY_CLASSES
-from trafficgeo.traffic.movement_pieces import merge_doubles, pair_halves
+from trafficgeo.traffic.movement_pieces import join_judged_halves, merge_doubles, pair_halves
 
 APPROACH_SHARE = 0.3  # a first/last position at least this share of the centre-to-gate distance out is on the arm
 # (a vehicle queued at the stop line when the video starts is there: the stop line is where the junction begins)
@@ -168,6 +168,8 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
     if "stationary" in veh.columns:
         veh = veh[~veh["stationary"].astype(bool)]
     classes = dict(zip(veh["track_id"].astype(str), veh["class"].fillna("").astype(str), strict=True))
+    trackers = dict(zip(veh["track_id"].astype(str), (set(str(v).split(";")) for v in veh["tracker_ids"]),
+                        strict=True)) if "tracker_ids" in veh.columns else {}
     pts = points[points["track_id"].astype(str).isin(set(classes))]
     events = gate_crossings(pts, junction)
     by_track = dict(tuple(events.groupby("track_id", sort=False))) if len(events) else {}
@@ -208,10 +210,12 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
                      "_v0": float(np.nan_to_num(speed[0])) if len(speed) else 0.0,
                      "_v1": float(np.nan_to_num(speed[-1])) if len(speed) else 0.0, "_n": len(t),
                      "_d0": _travel_direction(xy, True, metres_per_unit),
-                     "_d1": _travel_direction(xy, False, metres_per_unit), "_t": t, "_xy": xy})
+                     "_d1": _travel_direction(xy, False, metres_per_unit), "_t": t, "_xy": xy,
+                     "_trackers": trackers.get(tid, set())})
         _check_u_turn(rows[-1], arms, junction.centre)
     rows = pair_halves(rows, metres_per_unit)
     rows = pair_halves(merge_doubles(rows, metres_per_unit), metres_per_unit)  # halves that doubles completed
+    rows = join_judged_halves(rows)
     for r in rows:
         o, d, e, x = r["origin"], r["destination"], r["entry_time"], r["exit_time"]
         r["movement"] = junction.movement(o, d) if o and d else ""
