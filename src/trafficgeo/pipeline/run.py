@@ -179,9 +179,9 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
     """
     from trafficgeo.io.run_manifest import check_writable_folder
     from trafficgeo.traffic.outputs import write_traffic
-    from trafficgeo.video.checkpoint import CHECKPOINT_DIR
-    from trafficgeo.video.pipeline import detect_and_track, finish_run, settled_options
-    from trafficgeo.video.reader import VideoReadWarning, video_info
+    from trafficgeo.traffic.tracks import tracks_from_table
+    from trafficgeo.video.pipeline import finish_run, settled_options
+    from trafficgeo.video.reader import video_info
 
     out = Path(out_dir)
     check_writable_folder(out, "out_dir")
@@ -189,57 +189,80 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
         raise InputError(f"annotate {annotate}: write the annotated video as .mp4", parameters=("annotate",))
     video = Path(video)
     site = _check_site(site)
-    how = analysis or AnalysisOptions()
     calls = callbacks or RunCallbacks()
-    cam, surf, lane_set, count_lines = site.camera.camera, site.surface, site.lanes, site.count_lines
     opts = settled_options(options or ProcessOptions(), video_info(video).fps)
     mask = roi
     if roi is not None and not isinstance(roi, np.ndarray):
         from trafficgeo.video.roi import read_roi
 
-        mask = read_roi(Path(roi), cam.image_size)
+        mask = read_roi(Path(roi), site.camera.camera.image_size)
     folder = RunFolder(out)
     with folder.writing("process") as run:  # one run in a folder at a time; readers refuse it until it ends
-        t0 = time.perf_counter()
-        read: dict = {"first": None, "last": None, "frames": 0}
-        detector_doc: dict = {}
-
-        def tick(done: int, total: int, t: float) -> None:
-            read.update(first=read["first"] if read["first"] is not None else t if done == 1 else opts.start_s,
-                        last=t, frames=done)
-            if calls.progress is not None:
-                calls.progress(done, total, t)
-
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", VideoReadWarning)
-            detections, tracks = detect_and_track(video, cam, surf, out, opts, roi=mask, restart=opts.restart,
-                                                  lanes=lane_set, lines=site.tiling_lines, progress=tick,
-                                                  notice=calls.notice, detector_info=detector_doc.update)
-        elapsed = time.perf_counter() - t0
-        read, said = _keep_what_was_read(out / CHECKPOINT_DIR, read, _reader_said(caught))
-        read_doc, short = _what_was_read(video, opts, read, said)
-        if not len(tracks):
-            raise InputError(f"{video}: no vehicle was tracked; check the ROI, the time range and the detector")
-        from trafficgeo.traffic.tracks import tracks_from_table
-
-        result = analyze(tracks_from_table(tracks), site, analysis=how)
-        plan_doc = detector_doc.get("tiling") or {}
-        if plan_doc.get("line_warnings"):  # the counting lines too far for the detector: in summary.json too
-            result = replace(result, warnings=[*plan_doc["line_warnings"], *result.warnings])
+        seen = _detect(video, site, out, opts, mask, calls)  # detections.csv, tracks.csv (resumable)
+        result = analyze(tracks_from_table(seen.tracks), site, analysis=analysis)
+        if seen.line_warnings:  # the counting lines too far for the detector: in summary.json too
+            result = replace(result, warnings=[*seen.line_warnings, *result.warnings])
         run.adopt("detections.csv", "tracks.csv")  # written as the video was read (checked: RunFolder.write_table)
-        write_traffic(run, result, cam)
+        write_traffic(run, result, site.camera.camera)
         if annotate is not None:
             from trafficgeo.video.annotate import annotate_video
 
-            annotate_video(video, annotate, tracks, result.points, camera=cam, lines=count_lines, surface=surf,
-                           start_s=opts.start_s, end_s=opts.end_s, progress=calls.annotate_progress)
-        run.process(run_info(video=str(video), camera=site.camera.source, options=opts, seconds=elapsed,
-                             detections=len(detections), track_rows=len(tracks), read=read_doc,
-                             detector=detector_doc or None))
-        finish_run(out)
-        files = tuple(p.name for p in run.written)
-    return ProcessResult(result, detections, tracks, folder, opts, read_doc, elapsed, short,
-                         detector_doc.get("tiling"), files, detector_doc.get("schedule"))
+            annotate_video(video, annotate, seen.tracks, result.points, camera=site.camera.camera,
+                           lines=site.count_lines, surface=site.surface, start_s=opts.start_s, end_s=opts.end_s,
+                           progress=calls.annotate_progress)
+        run.process(run_info(video=str(video), camera=site.camera.source, options=opts, seconds=seen.seconds,
+                             detections=len(seen.detections), track_rows=len(seen.tracks), read=seen.read,
+                             detector=seen.detector or None))
+        finish_run(out)  # the checkpoint goes once the run is written
+    return ProcessResult(result, seen.detections, seen.tracks, folder, opts, seen.read, seen.seconds, seen.short,
+                         seen.detector.get("tiling"), tuple(p.name for p in run.written), seen.detector.get("schedule"))
+
+
+@dataclass(frozen=True)
+class _Seen:
+    """What detection and tracking of a video gave (:func:`_detect`): the tables, what was read (``read``:
+    process.json's; ``short``: the warning when less was read than asked), the detector's record, the seconds of
+    wall clock, and the counting lines too far for the detector (warnings)."""
+
+    detections: pd.DataFrame
+    tracks: pd.DataFrame
+    read: dict
+    short: str | None
+    detector: dict
+    seconds: float
+    line_warnings: list[str]
+
+
+def _detect(video: Path, site: Site, out: Path, opts: ProcessOptions, mask: np.ndarray | None,
+            calls: RunCallbacks) -> _Seen:
+    """Decode, detect and track ``video`` on ``site`` into the run folder ``out`` (resumably: its checkpoint), as
+    ``opts`` say; what was read is kept with the checkpoint so that a resumed run still says it."""
+    from trafficgeo.video.checkpoint import CHECKPOINT_DIR
+    from trafficgeo.video.pipeline import detect_and_track
+    from trafficgeo.video.reader import VideoReadWarning
+
+    t0 = time.perf_counter()
+    read: dict = {"first": None, "last": None, "frames": 0}
+    detector: dict = {}
+
+    def tick(done: int, total: int, t: float) -> None:
+        read.update(first=read["first"] if read["first"] is not None else t if done == 1 else opts.start_s,
+                    last=t, frames=done)
+        if calls.progress is not None:
+            calls.progress(done, total, t)
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", VideoReadWarning)
+        detections, tracks = detect_and_track(video, site.camera.camera, site.surface, out, opts, roi=mask,
+                                              restart=opts.restart, lanes=site.lanes, lines=site.tiling_lines,
+                                              progress=tick, notice=calls.notice, detector_info=detector.update)
+    elapsed = time.perf_counter() - t0
+    read, said = _keep_what_was_read(out / CHECKPOINT_DIR, read, _reader_said(caught))
+    read_doc, short = _what_was_read(video, opts, read, said)
+    if not len(tracks):
+        raise InputError(f"{video}: no vehicle was tracked; check the ROI, the time range and the detector")
+    plan = detector.get("tiling") or {}
+    return _Seen(detections, tracks, read_doc, short, detector, elapsed, list(plan.get("line_warnings") or []))
 
 
 def _chunk(folder: Path) -> tuple[pd.DataFrame, tuple[float, float], str | None]:
