@@ -21,7 +21,7 @@ import pandas as pd
 
 from trafficgeo.errors import InputError
 from trafficgeo.io.json_text import loads_json
-from trafficgeo.pipeline.stages import analyze
+from trafficgeo.pipeline.stages import analyze, detect_and_track
 from trafficgeo.run.folder import RunFolder
 from trafficgeo.run.records import ProcessRecord
 from trafficgeo.site.site import Site
@@ -238,7 +238,6 @@ def _detect(video: Path, site: Site, out: Path, opts: ProcessOptions, mask: np.n
     """Decode, detect and track ``video`` on ``site`` into the run folder ``out`` (resumably: its checkpoint), as
     ``opts`` say; what was read is kept with the checkpoint so that a resumed run still says it."""
     from trafficgeo.video.checkpoint import CHECKPOINT_DIR
-    from trafficgeo.video.pipeline import detect_and_track
     from trafficgeo.video.reader import VideoReadWarning
 
     t0 = time.perf_counter()
@@ -253,9 +252,8 @@ def _detect(video: Path, site: Site, out: Path, opts: ProcessOptions, mask: np.n
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", VideoReadWarning)
-        detections, tracks = detect_and_track(video, site.camera.camera, site.surface, out, opts, roi=mask,
-                                              restart=opts.restart, lanes=site.lanes, lines=site.tiling_lines,
-                                              progress=tick, notice=calls.notice, detector_info=detector.update)
+        detections, tracks = detect_and_track(video, site, out, opts, roi=mask, restart=opts.restart, progress=tick,
+                                              notice=calls.notice, detector_info=detector.update)
     elapsed = time.perf_counter() - t0
     read, said = _keep_what_was_read(out / CHECKPOINT_DIR, read, _reader_said(caught))
     read_doc, short = _what_was_read(video, opts, read, said)

@@ -1,9 +1,10 @@
 """The stages a run is composed of, public so that :func:`~trafficgeo.pipeline.run.process_video`,
 :func:`~trafficgeo.pipeline.run.stitch`, batch and the demo build on the same calls:
 
-* :func:`detect` - decode a time window of a video and detect the vehicles on the site (resumable, in a work
-  folder; the tracker runs too, for the tile schedule), giving the detections over time
-  (:class:`~trafficgeo.video.detections.DetectionFrames`);
+* :func:`detect_and_track` - decode a time window of a video, detect and track the vehicles on the site
+  (resumable, in a work folder), giving the detections and the tracks (what ``process_video`` runs);
+* :func:`detect` - the same, giving the detections over time (:class:`~trafficgeo.video.detections.DetectionFrames`:
+  what a batch task keeps, to track a whole camera-day at once);
 * :func:`track` - the tracker over stored detections (e.g. the frames of several files of one camera-day);
 * :func:`analyze` - image tracks on the site -> world trajectories, speeds (km/h), lanes and counts.
 
@@ -29,25 +30,38 @@ from trafficgeo.video.detections import DetectionFrames
 from trafficgeo.video.pipeline import ProcessOptions
 from trafficgeo.video.track import TrackerOptions, track_frames
 
-__all__ = ["TRACKED_COLUMNS", "analyze", "detect", "track"]
+__all__ = ["TRACKED_COLUMNS", "analyze", "detect", "detect_and_track", "track"]
 
 BOX = ("x1", "y1", "x2", "y2")
 TRACKED_COLUMNS = ("frame", "time", "track_id", *BOX, "score", "class")
+
+
+def detect_and_track(video: str | os.PathLike, site: Site, work_dir: str | os.PathLike, options: ProcessOptions, *,
+                     roi: np.ndarray | None = None, restart: bool = False,
+                     progress: Callable[[int, int, float], None] | None = None,
+                     notice: Callable[[str], None] | None = None,
+                     detector_info: Callable[[dict], None] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Decode, detect and track the vehicles of ``video`` (the time window and detector of ``options``, settled for
+    the video with :func:`~trafficgeo.video.pipeline.settled_options`) on ``site`` (its camera and surface size the
+    boxes, its lanes, else its counting lines, else its gates, plan the tiles), resumably in ``work_dir``, where
+    ``detections.csv`` and ``tracks.csv`` are written; returns those two tables.
+    ``detector_info(doc)`` gets the detector's record (tile plan, backend, estimate) for ``process.json``."""
+    from trafficgeo.video.pipeline import detect_and_track as run_video
+
+    return run_video(video, site.camera.camera, site.surface, work_dir, options, roi=roi, restart=restart,
+                     lanes=site.lanes, lines=site.tiling_lines, progress=progress, notice=notice,
+                     detector_info=detector_info)
 
 
 def detect(video: str | os.PathLike, site: Site, work_dir: str | os.PathLike, options: ProcessOptions, *,
            roi: np.ndarray | None = None, restart: bool = False,
            progress: Callable[[int, int, float], None] | None = None,
            notice: Callable[[str], None] | None = None) -> DetectionFrames:
-    """Detect the vehicles of ``video`` (the time window and detector of ``options``, settled for the video with
-    :func:`~trafficgeo.video.pipeline.settled_options`) on ``site`` (its camera and surface size the boxes, its lanes,
-    else its counting lines, else its gates, plan the tiles), resumably in ``work_dir``; the detections over time of the
-    window."""
+    """:func:`detect_and_track`, giving the detections over time of the window (a batch task's: its tracks are
+    made again over the whole camera-day by :func:`track`)."""
     from trafficgeo.video.checkpoint import read_detections
-    from trafficgeo.video.pipeline import detect_and_track
 
-    detect_and_track(video, site.camera.camera, site.surface, work_dir, options, roi=roi, restart=restart,
-                     lanes=site.lanes, lines=site.tiling_lines, progress=progress, notice=notice)
+    detect_and_track(video, site, work_dir, options, roi=roi, restart=restart, progress=progress, notice=notice)
     return read_detections(Path(work_dir))
 
 
