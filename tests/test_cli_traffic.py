@@ -344,3 +344,21 @@ def test_a_line_nobody_crossed_is_listed_with_zeros_and_warned_about(scene: dict
     summary = json.loads((out / "summary.json").read_text())
     assert {(c["line"], c["count"]) for c in summary["crossings"] if c["line"] == "aside"} == {("aside", 0)}
     assert any(w.startswith("counting line aside: no vehicle crossed it") for w in summary["warnings"])
+
+
+def test_a_bad_input_leaves_the_finished_run_in_its_folder(scene: dict[str, Path], tmp_path: Path) -> None:
+    """The run folder's manifest is removed only once the new run starts writing: tracks that cannot be read leave
+    the earlier run there, readable."""
+    from trafficgeo.run.folder import RunFolder
+
+    run = tmp_path / "run"
+    code, _stdout, stderr = invoke("analyze", scene["camera"], scene["tracks"], "--fps", FPS, "--surface", Z0,
+                                   "--out", run)
+    assert code == 0, stderr
+    before = {p.name: p.read_bytes() for p in run.iterdir() if p.is_file() and p.name != ".lock"}
+    (tmp_path / "bad.csv").write_text("frame,time,track_id,u\n1,0.0,7,abc\n")
+    code, _stdout, stderr = invoke("analyze", scene["camera"], tmp_path / "bad.csv", "--fps", FPS, "--surface", Z0,
+                                   "--out", run)
+    assert code == 2 and len(stderr.strip().splitlines()) == 1 and "Traceback" not in stderr
+    assert {p.name: p.read_bytes() for p in run.iterdir() if p.is_file() and p.name != ".lock"} == before
+    assert len(RunFolder(run).vehicles()) > 0

@@ -67,6 +67,7 @@ def analyze(
     from rich.progress import Progress
 
     from trafficgeo.cli.report import check_html_path
+    from trafficgeo.io.folder_lock import hold_folder
     from trafficgeo.report.traffic import print_analysis
     from trafficgeo.run.folder import RunFolder
     from trafficgeo.site.surface import check_resolution, load_surface
@@ -87,7 +88,8 @@ def analyze(
     opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
                              max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
     calibrated = camera_argument(camera)  # a bad camera file is named before the tracks are read
-    with RunFolder(out).writing("analyze") as run:  # refused at once while another run writes this folder
+    folder = RunFolder(out)
+    with hold_folder(out):  # refused at once while another run writes this folder; a run there stays until written
         image_tracks = read_tracks(tracks, fps=fps)
         surf = load_surface(surface, calibrated, surface_crs=surface_crs, resolution_m=resolution)
         console.print(f"surface: {surf.describe()}")
@@ -96,7 +98,8 @@ def analyze(
             analysis = analyze_tracks(calibrated, surf, image_tracks, lanes, lines, interval_s=interval,
                                       options=opts, progress=lambda i, n: progress.update(task, completed=i),
                                       journeys=journeys, gates=gates, movement_interval_s=movement_interval)
-        written = write_traffic(run, analysis, calibrated)
+        with folder.writing("analyze") as run:
+            written = write_traffic(run, analysis, calibrated)
     print_analysis(analysis, console)
     console.print(f"wrote {', '.join(p.name for p in written)} in {out}")
     if report_html is not None:

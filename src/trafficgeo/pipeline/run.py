@@ -285,6 +285,7 @@ def stitch(chunks: Sequence[PathLike], site: Site, out_dir: PathLike, *, analysi
     ``end_s``, e.g. on several machines; folders in any order) and analyse them on ``site`` into the run folder
     ``out_dir`` (``trafficgeo stitch``), as ``analysis`` says (the pieces of one vehicle's track are joined across the
     chunks as within one). ``notice(line)`` gets a warning per gap or unequal overlap between chunks."""
+    from trafficgeo.io.folder_lock import hold_folder
     from trafficgeo.io.run_manifest import check_writable_folder
     from trafficgeo.traffic.outputs import write_traffic
     from trafficgeo.video.stitch import plan_chunks, stitch_tracks
@@ -302,7 +303,7 @@ def stitch(chunks: Sequence[PathLike], site: Site, out_dir: PathLike, *, analysi
             raise InputError(f"out_dir {out}: is one of the chunks; write the stitched run to a folder of its own",
                              parameters=("out_dir",))
         seen[key] = folder
-    with RunFolder(out).writing("stitch") as run:  # one run at a time in a folder
+    with hold_folder(out):  # one run at a time in a folder; a run there stays until the new one is written
         read = [_chunk(Path(folder)) for folder in chunks]
         order, problems = plan_chunks([r[1] for r in read], [str(c) for c in chunks], [r[2] for r in read])
         for text in problems:
@@ -313,8 +314,9 @@ def stitch(chunks: Sequence[PathLike], site: Site, out_dir: PathLike, *, analysi
         from trafficgeo.traffic.tracks import tracks_from_table
 
         result = analyze(tracks_from_table(joined), site, analysis=how)
-        write_traffic(run, result, site.camera.camera)
-        run.table("tracks.csv", joined, float_format="%.3f")
+        with RunFolder(out).writing("stitch") as run:
+            write_traffic(run, result, site.camera.camera)
+            run.table("tracks.csv", joined, float_format="%.3f")
     return result
 
 
