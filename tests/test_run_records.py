@@ -141,7 +141,7 @@ DAMAGED = [
     ("simulation", "compare_simulation.json", {"format": "something else"},
      "('format' is not trafficgeo-sumo-validation/1); run 'trafficgeo sumo-validate' again"),
     ("simulation", "compare_simulation.json", {"counts": 4.5}, "'counts' is not a whole number"),
-    ("simulation", "compare_simulation.json", {"unobserved": [1]}, "'unobserved' is not a list of text"),
+    ("simulation", "compare_simulation.json", {"unobserved": [1]}, "'unobserved[0]' is not text"),
     ("simulation", "compare_simulation.json", {"target_met": "yes"}, "'target_met' is not true or false"),
 ]
 

@@ -1,4 +1,4 @@
-"""The JSON files of a run folder as typed records: one dataclass writes and reads each.
+"""The JSON files of a run folder as typed records: one dataclass writes and reads each (read through pydantic).
 
 ============================  ==========================  ===================================================
 ``summary.json``              :class:`RunSummary`         ``analyze`` / ``process`` / ``stitch``
@@ -13,19 +13,24 @@
 :class:`~trafficgeo.run.folder.RunFolder` writes them (``write_summary``, ``write_process``,
 ``write_compare_summary``, ``write_simulation_record``: :meth:`to_dict` through
 :func:`trafficgeo.io.atomic.write_json_atomic`) and reads them back (``summary()``, ``process()``,
-``compare_summary()``, ``simulation_record()``: ``from_dict``, which names the file and the key in an
-:class:`~trafficgeo.errors.InputError` when a file is damaged or foreign). ``to_dict`` gives the document with the
-keys in the order of the fields; a number that is not available is NaN in memory and ``null`` in the file (as the
-writers have always written it). Keys a file has beyond these are ignored; keys that joined a format later (noted
-below) read with their default from a file written before them. Two records are equal when they write the same
+``compare_summary()``, ``simulation_record()``: ``from_dict``, which validates the document against the fields'
+types with pydantic (strict JSON types: :data:`Num`, :data:`Int`, :data:`Text`, :data:`Flag`, :data:`Obj`) and
+names the file and the key in an :class:`~trafficgeo.errors.InputError` when a file is damaged or foreign).
+``to_dict`` gives the document with the keys in the order of the fields; a number that is not available is NaN in
+memory and ``null`` in the file (as the writers have always written it). Keys a file has beyond these are ignored;
+keys that joined a format later (noted below) read with their default from a file written before them. Two records
+are equal when they write the same
 JSON. Units as in the names: seconds (``_s``), km/h (``_kmh``), vehicles per hour (``_veh_h``).
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
-from typing import Any
+from typing import Annotated, Any
+
+from pydantic import BeforeValidator, Strict, TypeAdapter, ValidationError
 
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import to_json_safe
@@ -37,99 +42,74 @@ SIMULATION_RECORD = "compare_simulation.json"  # sumo-validate's record of the s
 SIMULATION_FORMAT = "trafficgeo-sumo-validation/1"
 
 NAN = float("nan")
-_REQUIRED = object()
 
 
-class _Malformed(Exception):
-    """A key of the document is missing or has the wrong type (the message names it)."""
+def _nan_for_null(value: Any) -> Any:
+    return NAN if value is None else value
 
 
-class _Obj:
-    """One JSON object of a document being read: typed values by key, errors naming ``path`` (``counts.rows``)."""
-
-    def __init__(self, doc: Any, path: str = "") -> None:
-        if not isinstance(doc, Mapping):
-            raise _Malformed(f"'{path}' is not an object" if path else "the document is not a JSON object")
-        self.doc, self.path = doc, path
-
-    def name(self, key: str) -> str:
-        return f"{self.path}.{key}" if self.path else key
-
-    def raw(self, key: str, default: Any = _REQUIRED) -> Any:
-        if key in self.doc:
-            return self.doc[key]
-        if default is _REQUIRED:
-            raise _Malformed(f"key '{self.name(key)}' is missing")
-        return default
-
-    def number(self, key: str, default: Any = _REQUIRED, *, null: float | None = NAN) -> float | None:
-        """A number (``null`` for JSON null: NaN, or None where None means "none")."""
-        v = self.raw(key, default)
-        if v is default and default is not _REQUIRED:
-            return v
-        return _number(v, self.name(key), null)
-
-    def integer(self, key: str, default: Any = _REQUIRED, *, nullable: bool = False) -> int | None:
-        v = self.raw(key, default)
-        if (v is default and default is not _REQUIRED) or (v is None and nullable):
-            return v
-        if isinstance(v, int) and not isinstance(v, bool):
-            return v
-        raise _Malformed(f"'{self.name(key)}' is not a whole number")
-
-    def text(self, key: str, default: Any = _REQUIRED, *, nullable: bool = False) -> str | None:
-        v = self.raw(key, default)
-        if (v is default and default is not _REQUIRED) or (v is None and nullable) or isinstance(v, str):
-            return v
-        raise _Malformed(f"'{self.name(key)}' is not text")
-
-    def flag(self, key: str, default: Any = _REQUIRED, *, nullable: bool = False) -> bool | None:
-        v = self.raw(key, default)
-        if (v is default and default is not _REQUIRED) or (v is None and nullable) or isinstance(v, bool):
-            return v
-        raise _Malformed(f"'{self.name(key)}' is not true or false")
-
-    def object(self, key: str, default: Any = _REQUIRED, *, nullable: bool = False) -> dict[str, Any] | None:
-        """A JSON object as a plain dict (its values as they are)."""
-        v = self.raw(key, default)
-        if (v is default and default is not _REQUIRED) or (v is None and nullable):
-            return v
-        if isinstance(v, Mapping):
-            return dict(v)
-        raise _Malformed(f"'{self.name(key)}' is not an object")
-
-    def sub(self, key: str, default: Any = _REQUIRED) -> _Obj | None:
-        """A nested object to read typed (None for JSON null)."""
-        v = self.raw(key, default)
-        if v is None or (v is default and default is not _REQUIRED):
-            return None
-        return _Obj(v, self.name(key))
-
-    def items(self, key: str, default: Any = _REQUIRED) -> list[Any]:
-        v = self.raw(key, default)
-        if isinstance(v, list | tuple):
-            return list(v)
-        raise _Malformed(f"'{self.name(key)}' is not a list")
-
-    def counts(self, key: str, default: Any = _REQUIRED) -> dict[str, int]:
-        """An object of whole numbers (``{"car": 5}``)."""
-        obj = _Obj(self.object(key, default), self.name(key))
-        return {str(k): obj.integer(k) for k in obj.doc}
+def _empty_for_null(value: Any) -> Any:
+    return {} if value is None else value
 
 
-def _number(v: Any, name: str, null: float | None = NAN) -> float | None:
-    if v is None:
-        return null
-    if isinstance(v, int | float) and not isinstance(v, bool):
-        return float(v)
-    raise _Malformed(f"'{name}' is not a number")
+# The JSON types of the records' fields: strict (a whole number is not true, 3.0 or "3"; a number is not text), and
+# a number that is not available is NaN in memory and null in the file.
+Num = Annotated[float, BeforeValidator(_nan_for_null), Strict()]
+Int = Annotated[int, Strict()]
+Text = Annotated[str, Strict()]
+Flag = Annotated[bool, Strict()]
+Obj = Annotated[dict[str, Any], Strict()]
+MaybeNum = Annotated[float | None, Strict()]  # None means "none", not "not available"
+
+_WHAT = {"missing": None, "int_type": "a whole number", "float_type": "a number", "string_type": "text",
+         "bool_type": "true or false", "dict_type": "an object", "model_type": "an object",
+         "dataclass_type": "an object", "tuple_type": "a list", "list_type": "a list"}
+
+
+def _where(loc: tuple) -> str:
+    """A pydantic error location as the key's path in the document (``crossings[0].count``)."""
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif not str(part).startswith(("function-", "tagged-union", "nullable", "float", "int", "str", "bool",
+                                       "dict", "tuple", "list")) or not out:
+            out += f".{part}" if out else str(part)
+    return out
+
+
+def _said(exc: ValidationError) -> str:
+    """The first problem of a validation, in the words of the records' errors."""
+    err = exc.errors(include_url=False)[0]
+    key = _where(tuple(err["loc"]))
+    if err["type"] == "missing" and err["loc"] and isinstance(err["loc"][-1], int):  # a fixed-length list, short
+        n = len(err["input"]) if isinstance(err["input"], list | tuple) else 0
+        return f"'{_where(tuple(err['loc'][:-1]))}' has {n} values, expected more"
+    if err["type"] == "missing":
+        return f"key '{key}' is missing"
+    if err["type"] in ("too_short", "too_long"):
+        n = len(err["input"]) if isinstance(err.get("input"), list | tuple) else "another number of"
+        return f"'{key}' has {n} values, expected {err['ctx'].get('max_length', err['ctx'].get('min_length'))}"
+    what = _WHAT.get(err["type"])
+    if not key:
+        return "the document is not a JSON object"
+    return f"'{key}' is not {what}" if what else f"'{key}': {err['msg']}"
 
 
 def _read(cls: Any, doc: Any, where: str, file: str, hint: str) -> Any:
+    """``doc`` as the record ``cls`` (pydantic validates it against the fields' types); InputError naming ``where``
+    and the key otherwise."""
+    if not isinstance(doc, Mapping):
+        raise InputError(f"{where}: not a {file} written by trafficgeo (the document is not a JSON object); {hint}")
     try:
-        return cls._from(_Obj(doc))
-    except _Malformed as exc:
-        raise InputError(f"{where}: not a {file} written by trafficgeo ({exc}); {hint}") from None
+        return _adapter(cls).validate_python(doc)
+    except ValidationError as exc:
+        raise InputError(f"{where}: not a {file} written by trafficgeo ({_said(exc)}); {hint}") from None
+
+
+@functools.cache
+def _adapter(cls: Any) -> TypeAdapter:
+    return TypeAdapter(cls)
 
 
 class _Record:
@@ -163,14 +143,11 @@ class LineCount(_Record):
     """The vehicles that crossed counting line ``line`` in ``lane`` (``""``: none) in ``direction`` (+1 / -1) over
     the whole run (zeros too)."""
 
-    line: str
-    lane: str
-    direction: int
-    count: int
+    line: Text
+    lane: Text
+    direction: Int
+    count: Int
 
-    @classmethod
-    def _from(cls, o: _Obj) -> LineCount:
-        return cls(o.text("line"), o.text("lane"), o.integer("direction"), o.integer("count"))
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -189,22 +166,22 @@ class RunSummary(_Record):
     0, none, None, None and 0 in a file written before them.
     """
 
-    period_s: tuple[float, float]
-    vehicles: int
-    points: int
-    dropped_points: dict[str, int]
-    outlier_points: int
-    mean_speed_kmh: float | None
-    classes: dict[str, int]
-    lane_changes: int
+    period_s: tuple[Num, Num]
+    vehicles: Int
+    points: Int
+    dropped_points: Annotated[dict[str, Int], Strict()]
+    outlier_points: Int
+    mean_speed_kmh: MaybeNum
+    classes: Annotated[dict[str, Int], Strict()]
+    lane_changes: Int
     crossings: tuple[LineCount, ...]
-    hidden_crossings: int = 0
-    options: dict[str, Any]
-    warnings: tuple[str, ...] = ()
-    crs: str | None = None
-    fragments: int | None = None
-    stationary_vehicles: int = 0
-    junction: dict[str, Any] | None = None
+    hidden_crossings: Int = 0
+    options: Obj
+    warnings: tuple[Text, ...] = ()
+    crs: Text | None = None
+    fragments: Int | None = None
+    stationary_vehicles: Int = 0
+    junction: Obj | None = None
 
     def to_dict(self) -> dict[str, Any]:
         doc = super().to_dict()
@@ -225,27 +202,13 @@ class RunSummary(_Record):
         Raises:
             InputError: ``doc`` is not a summary written by trafficgeo (a missing key or a wrong type).
         """
-        return _read(cls, doc, where, "summary.json", "run 'trafficgeo analyze' or 'process' again to write it")
+        hint = "run 'trafficgeo analyze' or 'process' again to write it"
+        period = doc.get("period_s") if isinstance(doc, Mapping) else None
+        if isinstance(period, list) and len(period) != 2:
+            raise InputError(f"{where}: not a summary.json written by trafficgeo ('period_s' has {len(period)} "
+                             f"values, expected 2 (first and last time)); {hint}")
+        return _read(cls, doc, where, "summary.json", hint)
 
-    @classmethod
-    def _from(cls, o: _Obj) -> RunSummary:
-        period = o.items("period_s")
-        if len(period) != 2:
-            raise _Malformed(f"'period_s' has {len(period)} values, expected 2 (first and last time)")
-        crossings = tuple(LineCount._from(_Obj(c, f"crossings[{k}]")) for k, c in enumerate(o.items("crossings")))
-        warnings = o.items("warnings", [])
-        if not all(isinstance(w, str) for w in warnings):
-            raise _Malformed("'warnings' is not a list of text")
-        return cls(period_s=(_number(period[0], "period_s[0]"), _number(period[1], "period_s[1]")),
-                   vehicles=o.integer("vehicles"), points=o.integer("points"),
-                   dropped_points=o.counts("dropped_points"), outlier_points=o.integer("outlier_points"),
-                   mean_speed_kmh=o.number("mean_speed_kmh", null=None), classes=o.counts("classes"),
-                   lane_changes=o.integer("lane_changes"), crossings=crossings,
-                   hidden_crossings=o.integer("hidden_crossings", 0), options=o.object("options"),
-                   warnings=tuple(warnings), crs=o.text("crs", None, nullable=True),
-                   fragments=o.integer("fragments", None, nullable=True),
-                   stationary_vehicles=o.integer("stationary_vehicles", 0),
-                   junction=o.object("junction", None, nullable=True))
 
 
 # ------------------------------------------------------------------------------------------------ process.json
@@ -256,23 +219,16 @@ class ProcessSettings(_Record):
     ``end_s`` None: to the end), every n-th frame, the tiles and their planning, the runtime and the tile
     schedule. A key a file lacks (written by an older trafficgeo) reads as None."""
 
-    detector: str | None = None
-    detector_format: str | None = None
-    start_s: float | None = None
-    end_s: float | None = None
-    every: int | None = None
-    tiles: bool | None = None
-    tiling: str | None = None
-    backend: str | None = None
-    tile_schedule: str | None = None
+    detector: Text | None = None
+    detector_format: Text | None = None
+    start_s: MaybeNum = None
+    end_s: MaybeNum = None
+    every: Int | None = None
+    tiles: Flag | None = None
+    tiling: Text | None = None
+    backend: Text | None = None
+    tile_schedule: Text | None = None
 
-    @classmethod
-    def _from(cls, o: _Obj) -> ProcessSettings:
-        return cls(o.text("detector", None, nullable=True), o.text("detector_format", None, nullable=True),
-                   o.number("start_s", None, null=None), o.number("end_s", None, null=None),
-                   o.integer("every", None, nullable=True), o.flag("tiles", None, nullable=True),
-                   o.text("tiling", None, nullable=True), o.text("backend", None, nullable=True),
-                   o.text("tile_schedule", None, nullable=True))
 
 
 @dataclass(frozen=True, eq=False)
@@ -281,15 +237,11 @@ class VideoRead(_Record):
     one (s; None when no frame was read), the frames, and ``complete``: False when the video ended before the asked
     end (e.g. a truncated file)."""
 
-    start_s: float | None
-    end_s: float | None
-    frames: int
-    complete: bool
+    start_s: MaybeNum
+    end_s: MaybeNum
+    frames: Int
+    complete: Flag
 
-    @classmethod
-    def _from(cls, o: _Obj) -> VideoRead:
-        return cls(o.number("start_s", null=None), o.number("end_s", null=None), o.integer("frames"),
-                   o.flag("complete"))
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -304,14 +256,14 @@ class ProcessRecord(_Record):
     ``detections`` and ``track_rows`` read as None from a file without them.
     """
 
-    video: str
-    camera: str = ""
-    options: ProcessSettings = field(default_factory=ProcessSettings)
-    detector: dict[str, Any] | None = None
+    video: Text
+    camera: Text = ""
+    options: Annotated[ProcessSettings, BeforeValidator(_empty_for_null)] = field(default_factory=ProcessSettings)
+    detector: Obj | None = None
     read: VideoRead | None = None
-    seconds: float | None = None
-    detections: int | None = None
-    track_rows: int | None = None
+    seconds: MaybeNum = None
+    detections: Int | None = None
+    track_rows: Int | None = None
 
     @property
     def tiling(self) -> dict[str, Any] | None:
@@ -328,16 +280,6 @@ class ProcessRecord(_Record):
         """
         return _read(cls, doc, where, "process.json", "run 'trafficgeo process' again to write it")
 
-    @classmethod
-    def _from(cls, o: _Obj) -> ProcessRecord:
-        options, read = o.sub("options", None), o.sub("read", None)
-        return cls(video=o.text("video"), camera=o.text("camera", ""),
-                   options=ProcessSettings._from(options) if options is not None else ProcessSettings(),
-                   detector=o.object("detector", None, nullable=True),
-                   read=VideoRead._from(read) if read is not None else None,
-                   seconds=o.number("seconds", None, null=None),
-                   detections=o.integer("detections", None, nullable=True),
-                   track_rows=o.integer("track_rows", None, nullable=True))
 
 
 # ------------------------------------------------------------------------------------------------ compare_summary.json
@@ -348,20 +290,14 @@ class CountSummary(_Record):
     observed and simulated, the GEH of the total hourly flows, and ``groups``: one JSON object per line and lane
     (``line``, ``lane``, ``observed``, ``simulated``, ``observed_flow_veh_h``, ``simulated_flow_veh_h``, ``geh``)."""
 
-    rows: int
-    share_geh_below_5: float
-    mean_geh: float
-    total_observed: int
-    total_simulated: int
-    geh_total: float
-    groups: tuple[dict[str, Any], ...] = ()
+    rows: Int
+    share_geh_below_5: Num
+    mean_geh: Num
+    total_observed: Int
+    total_simulated: Int
+    geh_total: Num
+    groups: tuple[Obj, ...] = ()
 
-    @classmethod
-    def _from(cls, o: _Obj) -> CountSummary:
-        head = (o.integer("rows"), o.number("share_geh_below_5"), o.number("mean_geh"), o.integer("total_observed"),
-                o.integer("total_simulated"), o.number("geh_total"))
-        groups = (_Obj(g, f"{o.name('groups')}[{k}]").doc for k, g in enumerate(o.items("groups")))
-        return cls(*head, tuple(dict(g) for g in groups))
 
 
 @dataclass(frozen=True, eq=False)
@@ -370,25 +306,20 @@ class TravelTimeSummary(_Record):
     (:func:`trafficgeo.traffic.compare.compare_travel_times`): vehicles, mean, median and 85th percentile (s), the
     simulated minus observed mean (s), and the two-sample Kolmogorov-Smirnov distance and its p-value."""
 
-    from_line: str
-    to_line: str
-    observed_n: int
-    observed_mean_s: float
-    observed_median_s: float
-    observed_p85_s: float
-    simulated_n: int
-    simulated_mean_s: float
-    simulated_median_s: float
-    simulated_p85_s: float
-    mean_difference_s: float
-    ks_statistic: float
-    ks_pvalue: float
+    from_line: Text
+    to_line: Text
+    observed_n: Int
+    observed_mean_s: Num
+    observed_median_s: Num
+    observed_p85_s: Num
+    simulated_n: Int
+    simulated_mean_s: Num
+    simulated_median_s: Num
+    simulated_p85_s: Num
+    mean_difference_s: Num
+    ks_statistic: Num
+    ks_pvalue: Num
 
-    @classmethod
-    def _from(cls, o: _Obj) -> TravelTimeSummary:
-        kinds = {f.name: f.type for f in fields(cls)}
-        read = {"str": o.text, "int": o.integer, "float": o.number}
-        return cls(**{k: read[t](k) for k, t in kinds.items()})
 
 
 @dataclass(frozen=True, eq=False)
@@ -399,7 +330,7 @@ class CompareSummary(_Record):
 
     counts: CountSummary
     travel_times: TravelTimeSummary | None
-    crs: str
+    crs: Text
     movements: CountSummary | None = None  # sumo-validate at a junction's gates (joined 2027-01); groups per movement
 
     def to_dict(self) -> dict[str, Any]:
@@ -417,16 +348,9 @@ class CompareSummary(_Record):
         """
         return _read(cls, doc, where, "compare_summary.json", "run 'trafficgeo compare-sumo' again to write it")
 
-    @classmethod
-    def _from(cls, o: _Obj) -> CompareSummary:
-        tt = o.sub("travel_times")
-        mv = o.sub("movements", None)
-        return cls(CountSummary._from(o.sub("counts")), TravelTimeSummary._from(tt) if tt is not None else None,
-                   o.text("crs"), CountSummary._from(mv) if mv is not None else None)
 
 
 # ---------------------------------------------------------------------------------------- compare_simulation.json
-_SIMULATION_LATER = ("movements", "movement_share_geh_below_5", "movement_mean_geh")  # keys that joined later
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -445,32 +369,32 @@ class SimulationRecord(_Record):
     and ``movement_mean_geh`` (0 and NaN without a junction).
     """
 
-    format: str = SIMULATION_FORMAT
-    command: str = "sumo-validate"
-    scenario: str
-    net: str
-    net_crs: str | None
-    interval_s: float
-    begin_s: float
-    end_s: float
-    time_offset_s: float
-    step_s: float
-    seed: int
-    vehicles: int
-    build_s: float
-    run_s: float
-    counts: int
-    share_geh_below_5: float
-    mean_geh: float
-    target_share: float
-    target_met: bool
-    max_abs_speed_difference_kmh: float
-    travel_time_difference_s: float
-    unobserved: tuple[str, ...] = ()
-    warnings: tuple[str, ...] = ()
-    movements: int = 0  # interval x movement rows compared at a junction's gates (joined 2027-01)
-    movement_share_geh_below_5: float = NAN
-    movement_mean_geh: float = NAN
+    format: Text = SIMULATION_FORMAT
+    command: Text = "sumo-validate"
+    scenario: Text
+    net: Text
+    net_crs: Text | None = None
+    interval_s: Num
+    begin_s: Num
+    end_s: Num
+    time_offset_s: Num
+    step_s: Num
+    seed: Int
+    vehicles: Int
+    build_s: Num
+    run_s: Num
+    counts: Int
+    share_geh_below_5: Num
+    mean_geh: Num
+    target_share: Num
+    target_met: Flag
+    max_abs_speed_difference_kmh: Num
+    travel_time_difference_s: Num
+    unobserved: tuple[Text, ...] = ()
+    warnings: tuple[Text, ...] = ()
+    movements: Int = 0  # interval x movement rows compared at a junction's gates (joined 2027-01)
+    movement_share_geh_below_5: Num = NAN
+    movement_mean_geh: Num = NAN
 
     @classmethod
     def from_dict(cls, doc: Any, where: str = SIMULATION_RECORD) -> SimulationRecord:
@@ -480,21 +404,9 @@ class SimulationRecord(_Record):
             InputError: ``doc`` is not a record written by ``sumo-validate`` (another format, a missing key or a
                 wrong type).
         """
-        return _read(cls, doc, where, SIMULATION_RECORD, "run 'trafficgeo sumo-validate' again to write it")
+        hint = "run 'trafficgeo sumo-validate' again to write it"
+        if isinstance(doc, Mapping) and doc.get("format") != SIMULATION_FORMAT:
+            raise InputError(f"{where}: not a {SIMULATION_RECORD} written by trafficgeo ('format' is not "
+                             f"{SIMULATION_FORMAT}); {hint}")
+        return _read(cls, doc, where, SIMULATION_RECORD, hint)
 
-    @classmethod
-    def _from(cls, o: _Obj) -> SimulationRecord:
-        if o.raw("format", None) != SIMULATION_FORMAT:
-            raise _Malformed(f"'format' is not {SIMULATION_FORMAT}")
-        read = {"str": o.text, "int": o.integer, "float": o.number, "bool": o.flag}
-        values: dict[str, Any] = {"net_crs": o.text("net_crs", None, nullable=True)}
-        for f in fields(cls):
-            if f.type in read and f.name not in values:
-                later = f.name in _SIMULATION_LATER  # a record written before the key joined reads its default
-                values[f.name] = read[f.type](f.name, *((f.default,) if later else ()))
-        for key in ("unobserved", "warnings"):
-            items = o.items(key, [])
-            if not all(isinstance(v, str) for v in items):
-                raise _Malformed(f"'{key}' is not a list of text")
-            values[key] = tuple(items)
-        return cls(**values)
