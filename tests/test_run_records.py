@@ -76,9 +76,16 @@ def _write_simulation(folder: RunFolder, record: SimulationRecord) -> Path:
     return folder.write_simulation_record(record)
 
 
+def _write_in_run(kind: str):
+    def write(folder: RunFolder, record) -> Path:
+        with folder.writing("test") as run:
+            return getattr(run, kind)(record)
+    return write
+
+
 # how each record is written, published (by which command) and read back
-WRITE = {"summary": (RunFolder.write_summary, "run.json", RunFolder.summary, _summary),
-         "process": (RunFolder.write_process, "run.json", RunFolder.process, _process),
+WRITE = {"summary": (_write_in_run("summary"), "run.json", RunFolder.summary, _summary),
+         "process": (_write_in_run("process"), "run.json", RunFolder.process, _process),
          "compare": (RunFolder.write_compare_summary, COMPARE_MANIFEST, RunFolder.compare_summary, _compare),
          "simulation": (_write_simulation, COMPARE_MANIFEST, RunFolder.simulation_record, _simulation)}
 COMMAND = {"simulation": "sumo-validate"}  # the others: any
@@ -168,10 +175,11 @@ def test_a_summary_without_its_interval_is_refused_by_the_observed_run_reader(tm
     from trafficgeo.traffic.validation import read_observed_run
 
     folder = tmp_path / "run"
-    path = RunFolder(folder).write_summary(replace(_summary(), options={"pixel_sigma": 2.0}))
-    for name in ("counts.csv", "crossings.csv"):
-        (folder / name).write_text("line\n")
-    publish_outputs(folder, [path.name, "counts.csv", "crossings.csv"], command="analyze")
+    with RunFolder(folder).writing("analyze") as run:
+        run.summary(replace(_summary(), options={"pixel_sigma": 2.0}))
+        for name in ("counts.csv", "crossings.csv"):
+            (folder / name).write_text("line\n")
+        run.adopt("counts.csv", "crossings.csv")
     with pytest.raises(InputError, match=r"summary\.json: no options\.interval_s"):
         read_observed_run(folder)
 

@@ -13,25 +13,26 @@ defined once (:data:`SCHEMAS`, :mod:`trafficgeo.run.schema`):
 ``counts.csv``                every line x lane x direction x interval, zeros too: counts, flow, speeds (:data:`COUNTS`)
 ``trajectories.csv``          one row per vehicle and frame, on the ground (:data:`TRAJECTORIES`)
 ``trajectories.gpkg/.parquet``the same as GIS layers (paths, points, lanes, count lines) when the camera has a CRS
-``summary.json``              totals, the options used and the CRS (WKT) (:class:`~.run_records.RunSummary`)
+``summary.json``              totals, the options used and the CRS (WKT) (:class:`~trafficgeo.run.records.RunSummary`)
 ``detections.csv``            ``process``: every detection box (:data:`DETECTIONS`)
 ``tracks.csv``                ``process``/``stitch``: the tracker's boxes (:data:`TRACKS`)
 ``process.json``              ``process``: the video, options, what was read, the detector's tile plan
-                              (:class:`~.run_records.ProcessRecord`)
+                              (:class:`~trafficgeo.run.records.ProcessRecord`)
 ``run.json``                  the manifest (:mod:`trafficgeo.io.run_manifest`): written last, checked by readers
 ``compare_counts.csv``,       ``compare-sumo``/``sumo-validate``: observed against simulated counts (GEH), spot
 ``compare_speeds.csv``,       speeds and the simulated crossings (:data:`COMPARE_TABLES`), under the comparison's
 ``simulated_crossings.csv``   own manifest (``compare_run.json``)
-``compare_summary.json``      the comparison's GEH and travel times (:class:`~.run_records.CompareSummary`)
+``compare_summary.json``      the comparison's GEH and travel times (:class:`~trafficgeo.run.records.CompareSummary`)
 ``compare_simulation.json``   ``sumo-validate``: the scenario simulated and the headline figures
-                              (:class:`~.run_records.SimulationRecord`); its manifest's command is then
+                              (:class:`~trafficgeo.run.records.SimulationRecord`); its manifest's command is then
                               ``sumo-validate``
 ============================  =========================================================================
 
-The JSON files are typed records (:mod:`trafficgeo.run.records`): :class:`RunFolder` writes them
-(:meth:`RunFolder.write_summary`, :meth:`~RunFolder.write_process`, :meth:`~RunFolder.write_comparison`,
-:meth:`~RunFolder.write_simulation_record`) and reads them back (:meth:`RunFolder.summary`,
-:meth:`~RunFolder.process`, :meth:`~RunFolder.compare_summary`, :meth:`~RunFolder.simulation_record`); the
+The JSON files are typed records (:mod:`trafficgeo.run.records`): a run's :class:`RunWriter` writes them
+(:meth:`RunWriter.summary`, :meth:`~RunWriter.process`), as :class:`RunFolder` writes a comparison's
+(:meth:`~RunFolder.write_comparison`, :meth:`~RunFolder.write_simulation_record`); :class:`RunFolder` reads them
+back (:meth:`RunFolder.summary`, :meth:`~RunFolder.process`, :meth:`~RunFolder.compare_summary`,
+:meth:`~RunFolder.simulation_record`); the
 comparison's tables are read by :meth:`RunFolder.comparison_table`.
 
 Units: times in seconds of video (``time``, ``first_time``... from the video's start), speeds in km/h, lengths and
@@ -170,9 +171,8 @@ class RunWriter:
 class RunFolder:
     """The output folder ``path`` of a run: write a run's results into it, or read a finished run's tables and its
     JSON files as typed records (checked against the run's manifest: a folder whose run did not finish, or whose
-    files changed since, is refused). The one writer and reader of a run's files, but for ``detections.csv`` and
-    ``tracks.csv`` of ``process``, which :func:`trafficgeo.video.pipeline.detect_and_track` writes (under
-    :data:`DETECTIONS` and :data:`TRACKS`) as it finishes."""
+    files changed since, is refused). The one writer and reader of a run's files (:meth:`writing`;
+    ``process``'s detections and tracks through :meth:`write_table` as the video is read)."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -215,14 +215,6 @@ class RunFolder:
         write_csv_atomic(self.path / name, table, float_format=float_format)
         return self.path / name
 
-    def write_summary(self, summary: RunSummary) -> Path:
-        """Write ``summary.json`` (atomically); returns its path."""
-        return self._write_json("summary.json", summary.to_dict())
-
-    def write_process(self, record: ProcessRecord) -> Path:
-        """Write ``process.json`` (atomically); returns its path."""
-        return self._write_json("process.json", record.to_dict())
-
     def write_comparison(self, tables: Mapping[str, pd.DataFrame], summary: CompareSummary) -> list[Path]:
         """Write a comparison with a simulation (``compare-sumo``): ``tables`` (:data:`COMPARE_TABLES` by name) as
         CSV, ``compare_summary.json``, then the comparison's manifest (``compare_run.json``); returns the paths
@@ -234,8 +226,7 @@ class RunFolder:
             for name, table in tables.items():
                 run.table(name, table, float_format="%.4f")
             run.adopt(self.write_compare_summary(summary))
-            written = list(run.written)
-        return written
+        return run.written
 
     def write_compare_summary(self, summary: CompareSummary) -> Path:
         """Write ``compare_summary.json`` (atomically); returns its path. The comparison's manifest is the

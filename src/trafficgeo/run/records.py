@@ -10,8 +10,8 @@
                                                           (:func:`trafficgeo.simulation.loop.validate_sumo_scenario`)
 ============================  ==========================  ===================================================
 
-:class:`~trafficgeo.run.folder.RunFolder` writes them (``write_summary``, ``write_process``,
-``write_compare_summary``, ``write_simulation_record``: :meth:`to_dict` through
+A run's :class:`~trafficgeo.run.folder.RunWriter` and :class:`~trafficgeo.run.folder.RunFolder` write them
+(``summary``, ``process``, ``write_compare_summary``, ``write_simulation_record``: :meth:`to_dict` through
 :func:`trafficgeo.io.atomic.write_json_atomic`) and reads them back (``summary()``, ``process()``,
 ``compare_summary()``, ``simulation_record()``: ``from_dict``, which validates the document against the fields'
 types with pydantic (strict JSON types: :data:`Num`, :data:`Int`, :data:`Text`, :data:`Flag`, :data:`Obj`) and
@@ -61,38 +61,19 @@ Flag = Annotated[bool, Strict()]
 Obj = Annotated[dict[str, Any], Strict()]
 MaybeNum = Annotated[float | None, Strict()]  # None means "none", not "not available"
 
-_WHAT = {"missing": None, "int_type": "a whole number", "float_type": "a number", "string_type": "text",
-         "bool_type": "true or false", "dict_type": "an object", "model_type": "an object",
-         "dataclass_type": "an object", "tuple_type": "a list", "list_type": "a list"}
-
-
-def _where(loc: tuple) -> str:
-    """A pydantic error location as the key's path in the document (``crossings[0].count``)."""
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        elif not str(part).startswith(("function-", "tagged-union", "nullable", "float", "int", "str", "bool",
-                                       "dict", "tuple", "list")) or not out:
-            out += f".{part}" if out else str(part)
-    return out
+_WHAT = {"int_type": "a whole number", "float_type": "a number", "string_type": "text", "bool_type": "true or false",
+         "dict_type": "an object", "dataclass_type": "an object", "tuple_type": "a list", "list_type": "a list"}
 
 
 def _said(exc: ValidationError) -> str:
-    """The first problem of a validation, in the words of the records' errors."""
+    """The first problem of a validation, naming the key by its path in the document (``crossings[0].count``)."""
     err = exc.errors(include_url=False)[0]
-    key = _where(tuple(err["loc"]))
-    if err["type"] == "missing" and err["loc"] and isinstance(err["loc"][-1], int):  # a fixed-length list, short
-        n = len(err["input"]) if isinstance(err["input"], list | tuple) else 0
-        return f"'{_where(tuple(err['loc'][:-1]))}' has {n} values, expected more"
+    key = ""
+    for part in err["loc"]:
+        key += f"[{part}]" if isinstance(part, int) else f".{part}" if key else str(part)
     if err["type"] == "missing":
         return f"key '{key}' is missing"
-    if err["type"] in ("too_short", "too_long"):
-        n = len(err["input"]) if isinstance(err.get("input"), list | tuple) else "another number of"
-        return f"'{key}' has {n} values, expected {err['ctx'].get('max_length', err['ctx'].get('min_length'))}"
     what = _WHAT.get(err["type"])
-    if not key:
-        return "the document is not a JSON object"
     return f"'{key}' is not {what}" if what else f"'{key}': {err['msg']}"
 
 
