@@ -12,21 +12,25 @@ its origin and destination, :func:`~trafficgeo.traffic.movements.vehicle_movemen
   arc's chord runs), and their classes are of one family (car or van; truck or bus; or unknown). The pairs are
   chosen all at once by an assignment that prefers the arc whose length best matches what their speeds cover in the
   gap. A tail that begins up to :data:`PAIR_OVERLAP_S` before its head ends is paired only where the two stand
-  together meanwhile (as doubles do). Two halves are never joined into a U-turn: a U-turn is counted only where one
+  together meanwhile (as doubles do), or, beginning at most :data:`TOUCH_S` before, within :data:`PAIR_SLACK_M` of
+  where the head ends. Two halves are never joined into a U-turn: a U-turn is counted only where one
   piece of track shows it.
 * :func:`merge_doubles` - two pieces of track seen at once (for :data:`SAME_MIN_OVERLAP_S` or more: two ids on one
   vehicle, a bus detected in two boxes) are one vehicle when they stand together - the medians over their common
   time of the distance across the travel within :data:`SAME_ACROSS_M` (half a lane) and along it within
   :data:`SAME_ALONG_M` (half the longer vehicle: 6 m if either is a truck or bus) - and their ends agree (the same
   arm, or unknown in one, or judged by the path in one where the other crossed a gate: the gate's is kept).
+* :func:`join_judged_halves` - two movements under one tracker id, each whole only by the end judged from its path
+  (the track cut where the vehicle set off), agreeing on both arms: one vehicle's.
 
-:func:`~trafficgeo.traffic.movements.vehicle_movements` pairs halves, merges doubles, then pairs the halves that
-merging completed. A joined row's ``track_ids`` lists its pieces and its class is that of the piece seen longest.
+:func:`~trafficgeo.traffic.movements.vehicle_movements` pairs halves, merges doubles, pairs the halves that
+merging completed, then joins the halves judged whole. A joined row's ``track_ids`` lists its pieces and its class
+is that of the piece seen longest.
 
 The rows are dicts with the movement columns and private keys (``_t``, ``_xy``: the piece's times and positions;
 ``_t0, _t1, _p0, _p1, _v0, _v1, _d0, _d1``: its first/last time, position, speed (m/s) and unit direction of
-travel (None if unknown); ``_n``: its number of points). Positions in CRS units (``metres_per_unit`` gives metres),
-times in seconds.
+travel (None if unknown); ``_n``: its number of points; ``_trackers``: the tracker ids it came from). Positions
+in CRS units (``metres_per_unit`` gives metres), times in seconds.
 """
 
 from __future__ import annotations
