@@ -90,8 +90,9 @@ def ideal_run(world: Path) -> Path:
 
 def ideal_detector_run(world: Path) -> Path:
     from trafficgeo.camera.calibrated import read_camera_json
+    from trafficgeo.run.tracks import TRACK_COLUMNS
     from trafficgeo.synth.detections import ideal_detections
-    from trafficgeo.video.pipeline import TRACK_COLUMNS, ProcessOptions, settled_options
+    from trafficgeo.video.pipeline import ProcessOptions, settled_options
     from trafficgeo.video.track import VehicleTracker
 
     run = world / "run-ideal-detector"
@@ -104,8 +105,8 @@ def ideal_detector_run(world: Path) -> Path:
         for frame, time_s, dets in ideal_detections(truth, camera.image_size, min_visible=0.5):
             tracked = tracker.update(dets)
             rows += [(frame, time_s, int(i), *b, sc, c) for i, b, sc, c in
-                     zip(tracked.ids, tracked.boxes, tracked.scores, tracked.classes, strict=True)]
-        pd.DataFrame(rows, columns=TRACK_COLUMNS).to_csv(world / "ideal_detector_tracks.csv", index=False)
+                     zip(tracked.track_ids, tracked.boxes, tracked.scores, tracked.classes, strict=True)]
+        pd.DataFrame(rows, columns=list(TRACK_COLUMNS)).to_csv(world / "ideal_detector_tracks.csv", index=False)
         trafficgeo("analyze", world / "camera_truth.json", world / "ideal_detector_tracks.csv", "--surface",
                    world / "dem.tif", "--gates", world / "gates.gpkg", "-o", run)
     return run

@@ -61,6 +61,7 @@ import pandas as pd
 
 from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.pipeline.run import process_video
+from trafficgeo.run.tracks import TRACK_COLUMNS
 from trafficgeo.site.lanes import read_lanes
 from trafficgeo.site.lines import read_count_lines
 from trafficgeo.site.site import Site
@@ -73,7 +74,7 @@ from trafficgeo.traffic.analyze import analyze
 from trafficgeo.traffic.journeys import JourneyOptions
 from trafficgeo.traffic.tracks import tracks_from_table
 from trafficgeo.video.detections import box_iou
-from trafficgeo.video.pipeline import TRACK_COLUMNS, ProcessOptions, settled_options
+from trafficgeo.video.pipeline import ProcessOptions, settled_options
 from trafficgeo.video.reader import iter_frames, video_info
 from trafficgeo.video.track import VehicleTracker
 
@@ -241,7 +242,7 @@ def identity_rows(label: str, run, truth: pd.DataFrame, truth_counts: pd.DataFra
     need = truth[(truth["time"] < end) & (truth["frame"] % step == 0) & (truth["visible_fraction"] >= 0.5)
                  & (truth["y2"] - truth["y1"] >= 12.0)].dropna(subset=["x1", "y1", "x2", "y2"])
     need = need.rename(columns={"vehicle": "id"})[["frame", "id", "x1", "y1", "x2", "y2"]]
-    tracks = run.tracks
+    tracks = run.tracks.to_table()
     t0 = time.perf_counter()
     off = analyze(camera, surface, tracks_from_table(tracks), lanes=lanes, lines=lines,
                   journeys=JourneyOptions(enabled=False))
@@ -305,7 +306,7 @@ def part_world(camera_name: str, wdir: Path, world: WorldOptions, specs: list[st
                             options=replace(options, restart=True))
         detections, result, t_pipe = run.detections, run.traffic, run.seconds  # t_pipe: decode + detect + track
         step = int(run.options.every or 1)  # detection ran on frames 0, step, 2 step, ...: scored there
-        precision, recall, n_true = detection_scores(detections, truth[(truth["time"] < end)
+        precision, recall, n_true = detection_scores(detections.to_table(), truth[(truth["time"] < end)
                                                                        & (truth["frame"] % step == 0)])
         score = count_scores(result.crossings, truth_counts, end_s=end)
         errs = score.speed_errors[np.isfinite(score.speed_errors)]  # tracks seen under 1 s carry no speed
@@ -383,8 +384,8 @@ def part_world(camera_name: str, wdir: Path, world: WorldOptions, specs: list[st
                                                     min_visible=min_visible):
             tracked = tracker.update(dets)
             rows += [(frame, time_s, int(i), *b, s, c) for i, b, s, c in
-                     zip(tracked.ids, tracked.boxes, tracked.scores, tracked.classes, strict=True)]
-        ideal = analyze(camera, surface, tracks_from_table(pd.DataFrame(rows, columns=TRACK_COLUMNS)),
+                     zip(tracked.track_ids, tracked.boxes, tracked.scores, tracked.classes, strict=True)]
+        ideal = analyze(camera, surface, tracks_from_table(pd.DataFrame(rows, columns=list(TRACK_COLUMNS))),
                         lanes=lanes, lines=lines)
         s_ideal = count_scores(ideal.crossings, truth_counts, end_s=end)
         o_ideal, _ = crossing_outcomes(ideal.crossings, truth_counts, truth)

@@ -19,11 +19,11 @@ from hypothesis import strategies as st
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.surface import ConstantSurface
+from trafficgeo.run.tracks import ImageTracks
 from trafficgeo.site.lanes import lanes_from_boundaries
 from trafficgeo.site.lines import CountLine
 from trafficgeo.traffic.analyze import TrafficResult, analyze
 from trafficgeo.traffic.journeys import JourneyOptions, join_fragments
-from trafficgeo.traffic.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import WorldTracks
 
 E0, N0, Z0 = 500000.0, 5000000.0, 100.0

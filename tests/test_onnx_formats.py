@@ -477,7 +477,7 @@ def test_detector_format_reaches_the_run(tmp_path: Path) -> None:
         return run_key(video, camera=None, surface=None, roi=None, options=asdict(o), detector_file=path)
 
     assert key(opts) != key(ProcessOptions(detector=str(path), detector_format="yolov5", checkpoint_s=1.0))
-    dets, _tracks = detect_and_track(video, None, None, tmp_path / "out", opts)
+    dets = detect_and_track(video, None, None, tmp_path / "out", opts)[0].to_table()
     # a 320x180 frame fills the top-left of the 320 px input at scale 1: input px - 0.5
     car, truck = np.array(CAR) + 0.5, np.array(TRUCK) + 0.5
     want = np.array([car / 3 - 0.5, truck / 3 - 0.5])

@@ -11,7 +11,8 @@ import pandas as pd
 import pytest
 
 from trafficgeo.errors import InputError
-from trafficgeo.pipeline.stages import TRACKED_COLUMNS, analyze, detect, track
+from trafficgeo.pipeline.stages import analyze, detect, detect_and_track, track
+from trafficgeo.run.tracks import TRACK_COLUMNS, ImageTracks
 from trafficgeo.site import Site
 from trafficgeo.traffic.analyze import AnalysisOptions
 from trafficgeo.video.checkpoint import read_detections
@@ -29,7 +30,7 @@ def detected(small_world: Path, tmp_path_factory: pytest.TempPathFactory) -> dic
     opts = settled_options(ProcessOptions(detector="background", end_s=5.0, checkpoint_s=2.0), fps)
     work = tmp_path_factory.mktemp("stages")
     frames = detect(w / "video.mp4", site, work, opts)
-    return {"site": site, "fps": fps, "opts": opts, "work": work, "frames": frames}
+    return {"site": site, "fps": fps, "opts": opts, "work": work, "frames": frames, "video": w / "video.mp4"}
 
 
 def test_detect_gives_the_window_frame_by_frame(detected: dict) -> None:
@@ -49,12 +50,15 @@ def test_track_on_stored_detections_gives_the_pass_tracks(detected: dict) -> Non
     frames, opts = detected["frames"], detected["opts"]
     again = read_detections(detected["work"])  # the same detections read back from the work folder
     np.testing.assert_array_equal(again.boxes, frames.boxes)
-    tracks = track(again, detected["fps"] / opts.every, opts.tracker)
-    assert tuple(tracks.columns) == TRACKED_COLUMNS and len(tracks) > 0
+    found = track(again, detected["fps"] / opts.every, opts.tracker)
+    assert isinstance(found, ImageTracks) and len(found) > 0
+    assert set(found.frame) <= set(frames.frame_index)  # the video's frame numbers, not positions
+    tracks = found.to_table()
+    assert tuple(tracks.columns) == TRACK_COLUMNS
     written = pd.read_csv(detected["work"] / "tracks.csv")
     assert len(written) == len(tracks)
-    np.testing.assert_array_equal(written["frame"].to_numpy(), frames.frame_index[tracks["frame"].to_numpy()])
-    np.testing.assert_array_equal(written["track_id"].to_numpy(), tracks["track_id"].to_numpy())
+    np.testing.assert_array_equal(written["frame"].to_numpy(), tracks["frame"].to_numpy())
+    np.testing.assert_array_equal(written["track_id"].astype(str).to_numpy(), tracks["track_id"].to_numpy())
     np.testing.assert_allclose(written[["x1", "y1", "x2", "y2"]].to_numpy(),
                                tracks[["x1", "y1", "x2", "y2"]].to_numpy(dtype=float), atol=5e-4)
     np.testing.assert_allclose(written["time"].to_numpy(), tracks["time"].to_numpy(dtype=float), atol=5e-7)
@@ -81,7 +85,23 @@ def test_track_of_no_detections_is_an_empty_table() -> None:
     none = DetectionFrames(frame_index=np.arange(3), time_s=np.arange(3) / 10.0, row=np.zeros(0, np.int64),
                            boxes=np.zeros((0, 4)), scores=np.zeros(0), classes=np.zeros(0, dtype=object))
     out = track(none, 10.0)
-    assert tuple(out.columns) == TRACKED_COLUMNS and len(out) == 0
+    assert len(out) == 0 and tuple(out.to_table().columns) == TRACK_COLUMNS
+
+
+def test_the_pass_tracks_are_what_its_tracks_csv_reads_back(detected: dict) -> None:
+    """What ``process`` analyses in memory is, to the last bit, what ``analyze`` reads from its tracks.csv; the
+    detections it returns are the stored ones at full precision."""
+    import trafficgeo as tg
+
+    said: list[str] = []
+    frames, tracks = detect_and_track(detected["video"], detected["site"], detected["work"], detected["opts"],
+                                      notice=said.append)
+    assert any("had finished" in line for line in said)  # from the finished checkpoint, not detected again
+    np.testing.assert_array_equal(frames.boxes, detected["frames"].boxes)
+    back = tg.load_tracks(detected["work"] / "tracks.csv")
+    assert len(back) == len(tracks) > 0
+    for name in ("track_id", "frame", "time", "u", "v", "box", "vclass", "score"):
+        np.testing.assert_array_equal(getattr(tracks, name), getattr(back, name), err_msg=name)
 
 
 def test_read_detections_refuses_an_unfinished_or_missing_run(tmp_path: Path) -> None:

@@ -303,9 +303,10 @@ def test_a_table_is_written_only_under_its_schema(reference_run: dict, tmp_path:
 
 
 def test_the_video_room_writes_its_two_tables_under_the_run_schema() -> None:
-    """detections.csv and tracks.csv are written by video.pipeline as it finishes (it sits beside traffic, so it
-    cannot use RunFolder): their columns are the run folder's schema, in order."""
+    """detections.csv and tracks.csv are written by video.pipeline as it finishes (ImageTracks.to_table for the
+    tracks): their columns are the run folder's schema, in order."""
     from trafficgeo.run.folder import DETECTIONS, TRACKS
-    from trafficgeo.video.pipeline import DETECTION_COLUMNS, TRACK_COLUMNS
+    from trafficgeo.run.tracks import TRACK_COLUMNS
+    from trafficgeo.video.pipeline import DETECTION_COLUMNS
 
-    assert DETECTION_COLUMNS == DETECTIONS.names and TRACK_COLUMNS == TRACKS.names
+    assert DETECTION_COLUMNS == DETECTIONS.names and list(TRACK_COLUMNS) == TRACKS.names

@@ -124,7 +124,7 @@ def track_a_car_across(observe: bool, period: int) -> tuple[dict[int, list[float
         out = tracker.update(dets)
         if observe:
             det.schedule.observe_tracks(*tracker.live_boxes())
-        for i, b in zip(out.ids, out.boxes, strict=True):
+        for i, b in zip(out.track_ids, out.boxes, strict=True):
             tracks.setdefault(int(i), []).append(0.5 * (b[0] + b[2]))
     return tracks, base.calls
 

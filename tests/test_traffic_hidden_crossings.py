@@ -13,10 +13,10 @@ import pytest
 import shapely
 
 from trafficgeo.errors import InputError
+from trafficgeo.run.tracks import ImageTracks
 from trafficgeo.site.lanes import lanes_from_boundaries
 from trafficgeo.site.lines import CountLine
 from trafficgeo.traffic.occlusion import HIDDEN_MATCH_S, hidden_crossings, hidden_ends
-from trafficgeo.traffic.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions
 
 E0, N0 = 500000.0, 5000000.0

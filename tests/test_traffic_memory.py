@@ -13,7 +13,7 @@ import trafficgeo.traffic.measurements as measurements
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.cuboids import VEHICLE_DIMENSIONS, cuboid_boxes
 from trafficgeo.geo.surface import PlaneSurface
-from trafficgeo.traffic.tracks import ImageTracks
+from trafficgeo.run.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import world_trajectories
 
 pytestmark = pytest.mark.slow  # measures peak memory in a subprocess

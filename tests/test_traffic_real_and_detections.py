@@ -11,8 +11,8 @@ import pytest
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.surface import ConstantSurface
+from trafficgeo.run.tracks import ImageTracks
 from trafficgeo.synth.detections import DetectionNoise, ideal_detections, noisy_tracks
-from trafficgeo.traffic.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions, world_trajectories
 
 DATA = Path(__file__).parent / "data" / "ngsim-peachtree-subset" / "peachtree_27s_positions.csv"

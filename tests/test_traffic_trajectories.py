@@ -8,7 +8,7 @@ import pytest
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.geo.surface import ConstantSurface
-from trafficgeo.traffic.tracks import ImageTracks
+from trafficgeo.run.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions, ground_covariance, world_trajectories
 
 E0, N0, Z0 = 500000.0, 5000000.0, 100.0

@@ -85,7 +85,7 @@ def test_process_detects_from_the_first_frame(tmp_path: Path, fps: int, detector
     """The pipeline learns the background before the first frame for every background detector name, and the
     detector's warm-up fits in that priming at any frame rate: vehicles are found from the first frames on."""
     video = _write_video(tmp_path / f"cars{fps}.mp4", fps, 12.0 if fps == 3 else 6.0)
-    dets, _tracks = detect_and_track(video, None, None, tmp_path / "out", ProcessOptions(detector=detector))
+    dets = detect_and_track(video, None, None, tmp_path / "out", ProcessOptions(detector=detector))[0].to_table()
     first = dets.groupby("time").size()
     assert first.index.min() < 0.5, f"first detection at {first.index.min()} s"
     assert len(first.loc[first.index < 1.5]) >= (3 if fps == 3 else 30)  # and in (nearly) every frame after
@@ -192,8 +192,8 @@ def test_counts_per_class_add_up_with_unknown_vehicles() -> None:
 def test_unknown_class_points_take_their_tracks_dimensions() -> None:
     """A vehicle of unknown class in some frames (merged with another in the image) is fitted with its track's
     class there, not a car's."""
+    from trafficgeo.run.tracks import ImageTracks
     from trafficgeo.traffic.measurements import known_classes as _known_classes
-    from trafficgeo.traffic.tracks import ImageTracks
 
     n = 6
     tracks = ImageTracks(track_id=np.array(["a", "a", "a", "b", "b", "c"]), frame=np.arange(n),

@@ -243,12 +243,12 @@ def test_checkpoints_are_data_checked_and_never_unpickled(world: Path, tmp_path:
     cam = read_camera_json(world / "camera_truth.json")
     opts = ProcessOptions(detector="background", checkpoint_s=1.0, end_s=2.5)
     good = tmp_path / "good"
-    ref = detect_and_track(world / "video.mp4", cam, None, good, opts)[1]
+    ref = detect_and_track(world / "video.mp4", cam, None, good, opts)[1].to_table()
     flag = tmp_path / "executed"
     out = tmp_path / "out"
     _planted_pickle(out / CHECKPOINT_DIR, flag)
     said: list[str] = []
-    tracks = detect_and_track(world / "video.mp4", cam, None, out, opts, notice=said.append)[1]
+    tracks = detect_and_track(world / "video.mp4", cam, None, out, opts, notice=said.append)[1].to_table()
     assert not flag.exists()
     assert len(said) == 1 and "state.json" in said[0] and "starting again" in said[0]
     pd.testing.assert_frame_equal(tracks, ref)
@@ -291,7 +291,7 @@ def test_checkpoints_are_data_checked_and_never_unpickled(world: Path, tmp_path:
     with pytest.raises(ValueError):  # an object array would need unpickling: refused (and its hash differs)
         read_part(ck, dict(state.parts[0], sha256=_sha(ck / "part00000.npz")))
     said.clear()
-    tracks = detect_and_track(world / "video.mp4", cam, None, ck.parent, opts, notice=said.append)[1]
+    tracks = detect_and_track(world / "video.mp4", cam, None, ck.parent, opts, notice=said.append)[1].to_table()
     assert len(said) == 1 and "part00000.npz has changed" in said[0]
     pd.testing.assert_frame_equal(tracks, ref)
 
@@ -337,15 +337,15 @@ def test_the_tracker_restores_by_replaying_its_detections() -> None:
 
     frames = [frame(k) for k in range(30)]
     solo = VehicleTracker(25.0)
-    alone = [solo.update(f).ids.tolist() for f in frames]
+    alone = [solo.update(f).track_ids.tolist() for f in frames]
     a, b = VehicleTracker(25.0), VehicleTracker(25.0)
     for k, f in enumerate(frames):
         b.update(frames[-1 - k])
-        assert a.update(f).ids.tolist() == alone[k]
+        assert a.update(f).track_ids.tolist() == alone[k]
     resumed = VehicleTracker(25.0)
     for f in frames[:15]:
         resumed.update(f)
-    assert [resumed.update(f).ids.tolist() for f in frames[15:]] == alone[15:]
+    assert [resumed.update(f).track_ids.tolist() for f in frames[15:]] == alone[15:]
 
 
 LOCK = """

@@ -31,7 +31,7 @@ def test_identities_survive_a_short_occlusion_and_classes_are_kept() -> None:
     ids: dict[str, set[int]] = {"car": set(), "truck": set()}
     for k in range(60):
         out = tracker.update(_frame(k, hidden=20 <= k < 35))  # the truck is hidden for 0.6 s
-        for i, c in zip(out.ids, out.classes, strict=True):
+        for i, c in zip(out.track_ids, out.classes, strict=True):
             ids[str(c)].add(int(i))
     assert len(ids["car"]) == 1 and len(ids["truck"]) == 1
     assert ids["car"] != ids["truck"]
@@ -42,7 +42,7 @@ def test_a_long_occlusion_gives_a_new_identity_and_state_pickles() -> None:
     seen = set()
     for k in range(50):
         out = tracker.update(_frame(k, hidden=10 <= k < 30))  # hidden 0.8 s > 0.4 s
-        seen |= {int(i) for i, c in zip(out.ids, out.classes, strict=True) if c == "truck"}
+        seen |= {int(i) for i, c in zip(out.track_ids, out.classes, strict=True) if c == "truck"}
         if k == 25:
             tracker = pickle.loads(pickle.dumps(tracker))  # a checkpoint mid-run changes nothing
     assert len(seen) == 2

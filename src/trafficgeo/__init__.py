@@ -47,7 +47,7 @@ _API: dict[str, str] = {
     "Lanes": "trafficgeo.site.lanes",
     "CountLine": "trafficgeo.site.lines",
     "load_tracks": "trafficgeo.traffic.tracks",
-    "ImageTracks": "trafficgeo.traffic.tracks",
+    "ImageTracks": "trafficgeo.run.tracks",
     # traffic
     "analyze_tracks": "trafficgeo.traffic.analyze",
     "AnalysisOptions": "trafficgeo.traffic.analyze",
@@ -200,6 +200,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.registration.refine import OrthoRefinement, RefineOptions, refine_camera
     from trafficgeo.run.folder import RunFolder, RunWriter
     from trafficgeo.run.schema import SCHEMAS
+    from trafficgeo.run.tracks import ImageTracks
     from trafficgeo.simulation.loop import SumoLoopResult, SumoValidation, close_sumo_loop, validate_sumo_scenario
     from trafficgeo.simulation.network import SumoNet, build_sumo_net
     from trafficgeo.simulation.scenario import SumoScenario, build_sumo_scenario
@@ -209,7 +210,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names come from
     from trafficgeo.site.surface import load_surface
     from trafficgeo.traffic.analyze import AnalysisOptions, TrafficResult, analyze_tracks, write_analysis
     from trafficgeo.traffic.journeys import JourneyOptions, join_fragments
-    from trafficgeo.traffic.tracks import ImageTracks, load_tracks
+    from trafficgeo.traffic.tracks import load_tracks
     from trafficgeo.traffic.trajectories import TrajectoryOptions
     from trafficgeo.traffic.validation import Comparison, compare_with_sumo, export_fcd
     from trafficgeo.video.background_frame import background_frame

@@ -308,7 +308,7 @@ def _video(out: Path, wdir: Path, cam, surf, con: Console) -> dict[str, float]:
     print_analysis(result, con)
     truth = pd.read_csv(wdir / "truth_tracks.csv")
     truth = truth[truth["frame"] % options.every == 0]  # the frames it detected on
-    precision, recall, n_boxes = detection_scores(detections, truth)
+    precision, recall, n_boxes = detection_scores(detections.to_table(), truth)
     score = count_scores(result.crossings, pd.read_csv(wdir / "truth_counts.csv"))
     errs = score.speed_errors[np.isfinite(score.speed_errors)]
     m = {"video_realtime_factor": info.duration_s / elapsed, "detection_precision": precision,

@@ -413,19 +413,19 @@ def _track_segment(frames: pd.DataFrame, dets: pd.DataFrame, rows: np.ndarray, e
     number = np.maximum.accumulate(guess - ramp) + ramp  # strictly increasing; the file's frames for one file
     det_rows = dets["row"].to_numpy()
     lo, hi = np.searchsorted(det_rows, [rows[0], rows[-1] + 1], side="left")  # rows: one contiguous range
-    segment_frames = DetectionFrames(frame_index=file_frame, time_s=seconds, row=det_rows[lo:hi] - rows[0],
+    segment_frames = DetectionFrames(frame_index=number, time_s=seconds, row=det_rows[lo:hi] - rows[0],
                                      boxes=dets[BOX].to_numpy(dtype=np.float64)[lo:hi],
                                      scores=dets["score"].to_numpy(dtype=np.float64)[lo:hi],
                                      classes=dets["class"].fillna("").astype(str).to_numpy(dtype=object)[lo:hi])
-    tracked = track(segment_frames, fps / every, opts.tracker, variable_rate=vfr)
-    if not len(tracked):
+    table = track(segment_frames, fps / every, opts.tracker, variable_rate=vfr).to_table()  # in time order
+    if table.empty:
         return pd.DataFrame()
-    j = tracked["frame"].to_numpy()
+    j = np.searchsorted(number, table["frame"].to_numpy())  # the frames' positions in the segment
     return pd.DataFrame({"frame": number[j], "file_frame": file_frame[j], "time_us": t_us[j],
-                         "track_id": [f"{segment}-{i}" for i in tracked["track_id"]],
-                         **{c: np.round(tracked[c].to_numpy(dtype=np.float64), 3) for c in BOX},
-                         "score": np.round(tracked["score"].to_numpy(dtype=np.float64), 3),
-                         "class": tracked["class"].to_numpy(dtype=object)})
+                         "track_id": [f"{segment}-{i}" for i in table["track_id"]],
+                         **{c: np.round(table[c].to_numpy(dtype=np.float64), 3) for c in BOX},
+                         "score": np.round(table["score"].to_numpy(dtype=np.float64), 3),
+                         "class": table["class"].to_numpy(dtype=object)})
 
 
 def analysis_origin(first: datetime, midnight: datetime, interval_s: float) -> datetime:

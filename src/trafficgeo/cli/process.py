@@ -121,8 +121,8 @@ def process(
     if run.warning:
         console.print(run.warning, markup=False, soft_wrap=True)
     pace = f" ({run.realtime_factor:.2f}x real time)" if run.realtime_factor else ""
-    n_tracks = run.tracks["track_id"].nunique() if len(run.tracks) else 0
-    console.print(f"{len(run.detections)} detections, {n_tracks} tracks in {run.seconds:.1f} s{pace}")
+    n_tracks = run.tracks.track_ids.size
+    console.print(f"{run.detections.scores.size} detections, {n_tracks} tracks in {run.seconds:.1f} s{pace}")
     print_analysis(run.traffic, console)
     if annotate is not None:
         console.print(f"wrote {annotate}")

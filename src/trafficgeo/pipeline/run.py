@@ -24,8 +24,10 @@ from trafficgeo.io.json_text import loads_json
 from trafficgeo.pipeline.stages import analyze, detect_and_track
 from trafficgeo.run.folder import RunFolder
 from trafficgeo.run.records import ProcessRecord
+from trafficgeo.run.tracks import ImageTracks
 from trafficgeo.site.site import Site
 from trafficgeo.traffic.analyze import AnalysisOptions, TrafficResult
+from trafficgeo.video.detections import DetectionFrames
 from trafficgeo.video.pipeline import ProcessOptions
 
 __all__ = ["SITE_WITHOUT_CALIBRATION", "ProcessResult", "RunCallbacks", "process_video", "run_info", "stitch"]
@@ -39,7 +41,8 @@ class ProcessResult:
 
     Attributes:
         traffic: the analysis of the tracks (vehicles, crossings, counts, trajectories).
-        detections, tracks: the tables of ``detections.csv`` and ``tracks.csv``.
+        detections: the detections over time (full precision; written as ``detections.csv``).
+        tracks: the tracks as ``tracks.csv`` holds them (what was analysed).
         folder: the run folder written.
         options: the options as run (``every`` and the tracker settled for the video).
         read: what was decoded: ``start_s``, ``end_s`` (s, the end of the last frame used), ``frames``,
@@ -52,8 +55,8 @@ class ProcessResult:
     """
 
     traffic: TrafficResult
-    detections: pd.DataFrame
-    tracks: pd.DataFrame
+    detections: DetectionFrames
+    tracks: ImageTracks
     folder: RunFolder
     options: ProcessOptions
     read: dict[str, Any]
@@ -179,7 +182,6 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
     """
     from trafficgeo.io.run_manifest import check_writable_folder
     from trafficgeo.traffic.outputs import write_traffic
-    from trafficgeo.traffic.tracks import tracks_from_table
     from trafficgeo.video.pipeline import finish_run, settled_options
     from trafficgeo.video.reader import video_info
 
@@ -199,7 +201,7 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
     folder = RunFolder(out)
     with folder.writing("process") as run:  # one run in a folder at a time; readers refuse it until it ends
         seen = _detect(video, site, out, opts, mask, calls)  # detections.csv, tracks.csv (resumable)
-        result = analyze(tracks_from_table(seen.tracks), site, analysis=analysis)
+        result = analyze(seen.tracks, site, analysis=analysis)
         if seen.line_warnings:  # the counting lines too far for the detector: in summary.json too
             result = replace(result, warnings=[*seen.line_warnings, *result.warnings])
         run.adopt("detections.csv", "tracks.csv")  # written as the video was read (checked: RunFolder.write_table)
@@ -211,7 +213,7 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
                            lines=site.count_lines, surface=site.surface, start_s=opts.start_s, end_s=opts.end_s,
                            progress=calls.annotate_progress)
         run.process(run_info(video=str(video), camera=site.camera.source, options=opts, seconds=seen.seconds,
-                             detections=len(seen.detections), track_rows=len(seen.tracks), read=seen.read,
+                             detections=seen.detections.scores.size, track_rows=len(seen.tracks), read=seen.read,
                              detector=seen.detector or None))
         finish_run(out)  # the checkpoint goes once the run is written
     return ProcessResult(result, seen.detections, seen.tracks, folder, opts, seen.read, seen.seconds, seen.short,
@@ -224,8 +226,8 @@ class _Seen:
     process.json's; ``short``: the warning when less was read than asked), the detector's record, the seconds of
     wall clock, and the counting lines too far for the detector (warnings)."""
 
-    detections: pd.DataFrame
-    tracks: pd.DataFrame
+    detections: DetectionFrames
+    tracks: ImageTracks
     read: dict
     short: str | None
     detector: dict

@@ -8,43 +8,42 @@
 * :func:`track` - the tracker over stored detections (e.g. the frames of several files of one camera-day);
 * :func:`analyze` - image tracks on the site -> world trajectories, speeds (km/h), lanes and counts.
 
-Inputs are a :class:`~trafficgeo.site.site.Site` (loaded once) and plain tables; times in seconds.
+Inputs are a :class:`~trafficgeo.site.site.Site` (loaded once) and the detections and tracks over time
+(:class:`~trafficgeo.video.detections.DetectionFrames`, :class:`~trafficgeo.run.tracks.ImageTracks`); times in seconds.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from trafficgeo.run.tracks import ImageTracks
 from trafficgeo.site.site import Site
 from trafficgeo.traffic.analyze import AnalysisOptions, TrafficResult
 from trafficgeo.traffic.analyze import analyze as analyze_world
 from trafficgeo.traffic.speed import ScaleKnowledge
-from trafficgeo.traffic.tracks import ImageTracks, load_tracks
+from trafficgeo.traffic.tracks import load_tracks
 from trafficgeo.video.detections import DetectionFrames
 from trafficgeo.video.pipeline import ProcessOptions
 from trafficgeo.video.track import TrackerOptions, track_frames
 
-__all__ = ["TRACKED_COLUMNS", "analyze", "detect", "detect_and_track", "track"]
-
-BOX = ("x1", "y1", "x2", "y2")
-TRACKED_COLUMNS = ("frame", "time", "track_id", *BOX, "score", "class")
+__all__ = ["analyze", "detect", "detect_and_track", "track"]
 
 
 def detect_and_track(video: str | os.PathLike, site: Site, work_dir: str | os.PathLike, options: ProcessOptions, *,
                      roi: np.ndarray | None = None, restart: bool = False,
                      progress: Callable[[int, int, float], None] | None = None,
                      notice: Callable[[str], None] | None = None,
-                     detector_info: Callable[[dict], None] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+                     detector_info: Callable[[dict], None] | None = None) -> tuple[DetectionFrames, ImageTracks]:
     """Decode, detect and track the vehicles of ``video`` (the time window and detector of ``options``, settled for
     the video with :func:`~trafficgeo.video.pipeline.settled_options`) on ``site`` (its camera and surface size the
     boxes, its lanes, else its counting lines, else its gates, plan the tiles), resumably in ``work_dir``, where
-    ``detections.csv`` and ``tracks.csv`` are written; returns those two tables.
+    ``detections.csv`` and ``tracks.csv`` are written; returns the detections over time (full precision) and the
+    tracks as ``tracks.csv`` holds them.
     ``detector_info(doc)`` gets the detector's record (tile plan, backend, estimate) for ``process.json``."""
     from trafficgeo.video.pipeline import detect_and_track as run_video
 
@@ -59,25 +58,16 @@ def detect(video: str | os.PathLike, site: Site, work_dir: str | os.PathLike, op
            notice: Callable[[str], None] | None = None) -> DetectionFrames:
     """:func:`detect_and_track`, giving the detections over time of the window (a batch task's: its tracks are
     made again over the whole camera-day by :func:`track`)."""
-    from trafficgeo.video.checkpoint import read_detections
-
-    detect_and_track(video, site, work_dir, options, roi=roi, restart=restart, progress=progress, notice=notice)
-    return read_detections(Path(work_dir))
+    return detect_and_track(video, site, work_dir, options, roi=roi, restart=restart, progress=progress,
+                            notice=notice)[0]
 
 
 def track(frames: DetectionFrames, fps: float, options: TrackerOptions | None = None, *,
-          variable_rate: bool = False) -> pd.DataFrame:
-    """The tracked boxes of ``frames`` (detected at ``fps`` frames per second; ``variable_rate``: the frames' times
-    drive the motion model) as a table of :data:`TRACKED_COLUMNS`: ``frame`` is the position in ``frames``, ``time``
-    its ``time_s``, ``track_id`` the tracker's integer id, boxes in px."""
-    out = track_frames(frames, fps, options, variable_rate=variable_rate)
-    if not out:
-        return pd.DataFrame({c: pd.Series(dtype=object if c == "class" else float) for c in TRACKED_COLUMNS})
-    j = np.concatenate([np.full(len(tr), k) for k, tr in out])
-    return pd.DataFrame({"frame": j, "time": frames.time_s[j], "track_id": np.concatenate([tr.ids for _, tr in out]),
-                         **dict(zip(BOX, np.concatenate([tr.boxes for _, tr in out]).reshape(-1, 4).T, strict=True)),
-                         "score": np.concatenate([tr.scores for _, tr in out]),
-                         "class": np.concatenate([tr.classes for _, tr in out]).astype(object)})
+          variable_rate: bool = False) -> ImageTracks:
+    """The tracks of ``frames`` (detected at ``fps`` frames per second; ``variable_rate``: the frames' times drive
+    the motion model): ``frame`` the frames' ``frame_index``, ``time`` their ``time_s``, ``track_id`` the tracker's
+    integer id as text, boxes in px at full precision."""
+    return track_frames(frames, fps, options, variable_rate=variable_rate)
 
 
 def analyze(tracks: ImageTracks | pd.DataFrame | str | os.PathLike, site: Site, *,

@@ -37,9 +37,9 @@ from trafficgeo.camera.parameters import camera_to_full
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import pixels_to_world
 from trafficgeo.geo.surface import ConstantSurface
+from trafficgeo.run.tracks import ImageTracks
 from trafficgeo.synth.noisy_paths import ar1_noise, point_tracks
 from trafficgeo.traffic.speed import ScaleKnowledge
-from trafficgeo.traffic.tracks import ImageTracks
 
 HEIGHT_M = 12.0
 FOCAL_PX = 1400.0

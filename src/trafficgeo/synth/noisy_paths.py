@@ -20,7 +20,7 @@ import pandas as pd
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
-from trafficgeo.traffic.tracks import ImageTracks
+from trafficgeo.run.tracks import ImageTracks
 
 HEIGHT_M = 300.0  # camera height above the road (m): 0.2 m per pixel, 384 m x 216 m in view
 FOCAL_PX = 1500.0

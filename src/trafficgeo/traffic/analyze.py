@@ -36,6 +36,7 @@ from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.geo.mapping import Surface, camera_crs
+from trafficgeo.run.tracks import ImageTracks
 from trafficgeo.site.gates import Gate, Junction
 from trafficgeo.site.lanes import Lanes
 from trafficgeo.site.lines import CountLine
@@ -45,7 +46,6 @@ from trafficgeo.traffic.lane_changes import lane_visits, main_lane
 from trafficgeo.traffic.movements import MOVEMENT_INTERVAL_S
 from trafficgeo.traffic.occlusion import hidden_crossings
 from trafficgeo.traffic.speed import ScaleKnowledge, SpeedOptions, scale_drift_warning
-from trafficgeo.traffic.tracks import ImageTracks
 from trafficgeo.traffic.trajectories import TrajectoryOptions, WorldTracks, world_trajectories
 
 

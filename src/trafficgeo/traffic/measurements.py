@@ -12,7 +12,7 @@ import numpy as np
 
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.mapping import Surface, pixels_to_world
-from trafficgeo.traffic.tracks import ImageTracks
+from trafficgeo.run.tracks import ImageTracks
 
 BOX_FIT_TOL_PX = 0.02  # the cuboid fit stops when the box's centre and bottom match to this (px): far below noise
 BLOCK_POINTS = 8192  # per-point passes (ground points, covariances, cuboid fits) run over this many points at a time,

@@ -25,10 +25,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from trafficgeo.run.tracks import ImageTracks
 from trafficgeo.site.lanes import Lanes
 from trafficgeo.site.lines import CountLine
 from trafficgeo.traffic.counts import find_crossings
-from trafficgeo.traffic.tracks import ImageTracks
 
 HIDDEN_COVER = 0.3  # fraction of an end's box that a nearer vehicle's box must cover for the end to be hidden
 HIDDEN_MATCH_S = 1.0  # s: a carried-on crossing this close to another of the same line and lane is that vehicle

@@ -9,13 +9,13 @@ frame, with the time of that frame in seconds. Accepted inputs:
 * **MOT Challenge** ``.txt`` (no header): ``frame, id, bb_left, bb_top, bb_width, bb_height, conf, ...`` with
   1-based frames: ``time = (frame - 1) / fps``.
 
-Each (frame, track) pair may appear once. Rows are returned sorted by track, then time.
+Each (frame, track) pair may appear once. Rows are returned sorted by track (in number order when every id is
+a whole number: :func:`~trafficgeo.run.tracks.track_order`), then time.
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,37 +23,10 @@ import pandas as pd
 
 from trafficgeo.errors import InputError
 from trafficgeo.io.mot import read_mot
+from trafficgeo.run.tracks import ImageTracks, track_order
 
 CSV_HINT = ("give a CSV with columns frame,track_id and u,v (ground point, px) or x1,y1,x2,y2 (box, px), optionally "
             "class,score,time, or a MOT Challenge .txt")
-
-
-@dataclass(frozen=True)
-class ImageTracks:
-    """Track points, one row per (track, frame), sorted by track then time.
-
-    Attributes:
-        track_id: (N,) str; frame: (N,) int; time: (N,) s; u, v: (N,) ground contact point (px);
-        box: (N, 4) x1, y1, x2, y2 (px; NaN when the input had only points); vclass: (N,) str ("" if unknown);
-        score: (N,) detection score (NaN if unknown).
-    """
-
-    track_id: np.ndarray
-    frame: np.ndarray
-    time: np.ndarray
-    u: np.ndarray
-    v: np.ndarray
-    box: np.ndarray
-    vclass: np.ndarray
-    score: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.frame.size)
-
-    @property
-    def track_ids(self) -> np.ndarray:
-        """The distinct track ids, in order."""
-        return np.unique(self.track_id)
 
 
 def _numeric(df: pd.DataFrame, col: str, where: str) -> np.ndarray:
@@ -127,7 +100,7 @@ def read_tracks(path: str | Path, *, fps: float | None = None) -> ImageTracks:
     vclass = df["class"].fillna("").astype(str).to_numpy() if "class" in df.columns else np.full(n, "", dtype=object)
     score = pd.to_numeric(df["score"], errors="coerce").to_numpy(dtype=np.float64) if "score" in df.columns \
         else np.full(n, np.nan)
-    order = np.lexsort((time, track))
+    order = track_order(track, time)
     return ImageTracks(track_id=track[order], frame=frame[order], time=time[order], u=u[order], v=v[order],
                        box=box[order], vclass=np.asarray(vclass, dtype=object)[order], score=score[order])
 
@@ -135,16 +108,10 @@ def read_tracks(path: str | Path, *, fps: float | None = None) -> ImageTracks:
 def tracks_from_table(table: pd.DataFrame) -> ImageTracks:
     """Tracks from a table with ``track_id, frame, time, x1, y1, x2, y2`` and optional ``class, score`` (the
     ``tracks.csv`` that ``process`` writes): ground point = box bottom centre, rows sorted by track and time."""
-    df = table.sort_values(["track_id", "time"], kind="stable")
-    box = df[["x1", "y1", "x2", "y2"]].to_numpy(dtype=np.float64)
-    n = len(df)
-    return ImageTracks(track_id=df["track_id"].astype(str).to_numpy(dtype=object),
-                       frame=df["frame"].to_numpy(dtype=np.int64), time=df["time"].to_numpy(dtype=np.float64),
-                       u=0.5 * (box[:, 0] + box[:, 2]), v=box[:, 3], box=box,
-                       vclass=(df["class"].fillna("").astype(str).to_numpy(dtype=object) if "class" in df.columns
-                               else np.full(n, "", dtype=object)),
-                       score=(df["score"].to_numpy(dtype=np.float64) if "score" in df.columns
-                              else np.full(n, np.nan)))
+    return ImageTracks.from_boxes(track_id=table["track_id"].to_numpy(), frame=table["frame"].to_numpy(),
+                                  time=table["time"].to_numpy(), boxes=table[["x1", "y1", "x2", "y2"]].to_numpy(),
+                                  scores=table["score"].to_numpy() if "score" in table.columns else None,
+                                  classes=table["class"].to_numpy() if "class" in table.columns else None)
 
 
 def load_tracks(tracks: ImageTracks | pd.DataFrame | str | os.PathLike, *, fps: float | None = None) -> ImageTracks:

@@ -49,6 +49,7 @@ from trafficgeo.camera.model import Camera
 from trafficgeo.crs import metres_per_unit
 from trafficgeo.errors import InputError
 from trafficgeo.geo.mapping import GroundPoints, Surface, camera_crs, lonlat_of, pixels_to_world
+from trafficgeo.run.tracks import ImageTracks
 from trafficgeo.traffic.measurements import (
     blocks,
     fit_boxes,
@@ -60,7 +61,6 @@ from trafficgeo.traffic.measurements import (
 )
 from trafficgeo.traffic.smoothing import CHI2_2DOF_999, SmoothedTrack, along_track, smooth_track, travel_direction
 from trafficgeo.traffic.speed import ScaleKnowledge, SpeedOptions, cumulative_travel_m, scale_terms, window_speed
-from trafficgeo.traffic.tracks import ImageTracks
 
 MIN_MOVING_SPEED = 1.0  # m/s: below this a smoothed heading is noise
 MIN_SPEED_DURATION_S = 1.0  # a vehicle seen for less than this gets no speeds at all (a glimpse tells too little)

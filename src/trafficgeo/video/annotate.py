@@ -21,12 +21,14 @@ import pandas as pd
 from trafficgeo.camera.model import Camera
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import atomic_path
+from trafficgeo.run.tracks import ImageTracks
 
 _BOX = ("x1", "y1", "x2", "y2")
 
 
-def _label_rows(tracks: pd.DataFrame, points: pd.DataFrame) -> pd.DataFrame:
+def _label_rows(tracks: ImageTracks | pd.DataFrame, points: pd.DataFrame) -> pd.DataFrame:
     """Track boxes with the analysis' lane and speed at the same frame (by the tracker's id)."""
+    tracks = tracks.to_table() if isinstance(tracks, ImageTracks) else tracks
     info = points[["source_track", "frame", "lane", "speed_kmh"]].rename(columns={"source_track": "track_id"})
     t = tracks.assign(track_id=tracks["track_id"].astype(str))
     return t.merge(info.assign(track_id=info["track_id"].astype(str)), on=["track_id", "frame"], how="left")
@@ -39,7 +41,7 @@ def box_label(track_id: str, lane: object, speed_kmh: float) -> str:
     return f"#{track_id}{lane_text}{speed}"
 
 
-def frame_boxes(tracks: pd.DataFrame, points: pd.DataFrame) -> pd.DataFrame:
+def frame_boxes(tracks: ImageTracks | pd.DataFrame, points: pd.DataFrame) -> pd.DataFrame:
     """One row per track and video frame from its first to its last tracked frame.
 
     Columns ``frame``, ``track_id`` (text), ``x1 y1 x2 y2`` (pixels: the tracked box on the tracker's frames,
@@ -74,13 +76,13 @@ def _colour(track_id: str) -> tuple[int, int, int]:
     return tuple(int(c) for c in cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0])
 
 
-def annotate_video(video: str | Path, output: str | Path, tracks: pd.DataFrame, points: pd.DataFrame, *,
+def annotate_video(video: str | Path, output: str | Path, tracks: ImageTracks | pd.DataFrame, points: pd.DataFrame, *,
                    camera: Camera | None = None, lines: list | None = None, surface=None,
                    start_s: float = 0.0, end_s: float | None = None,
                    progress: Callable[[int, int], None] | None = None) -> None:
-    """Draw ``tracks`` (``tracks.csv``) labelled with ``points`` (``trajectories.csv``: lane, km/h) on every frame
-    of ``video`` from ``start_s`` to ``end_s`` (s; default the whole video) into ``output`` (.mp4); see the module
-    docstring. With ``camera`` and ``surface``, the counting ``lines`` are drawn too."""
+    """Draw ``tracks`` (or the ``tracks.csv`` table) labelled with ``points`` (``trajectories.csv``: lane, km/h)
+    on every frame of ``video`` from ``start_s`` to ``end_s`` (s; default the whole video) into ``output`` (.mp4);
+    see the module docstring. With ``camera`` and ``surface``, the counting ``lines`` are drawn too."""
     import av
 
     from trafficgeo.video.reader import iter_frames, video_info

@@ -32,6 +32,7 @@ from trafficgeo.io.atomic import atomic_open, write_json_atomic
 from trafficgeo.io.json_text import loads_json
 
 if TYPE_CHECKING:
+    from trafficgeo.run.tracks import ImageTracks
     from trafficgeo.video.detections import DetectionFrames
 
 CHECKPOINT_DIR = ".checkpoint"
@@ -155,7 +156,7 @@ class PartBuffer:
         if len(dets):
             self.det.append((j, dets.boxes, dets.scores, dets.classes))
         if len(tracked):
-            self.trk.append((j, tracked.ids, tracked.boxes, tracked.scores, tracked.classes))
+            self.trk.append((j, tracked.track_ids, tracked.boxes, tracked.scores, tracked.classes))
 
     def to_part(self) -> Part:
         def cat(items: list, k: int, shape: tuple, dtype: Any) -> np.ndarray:
@@ -335,8 +336,6 @@ def _schedule_entry(entry: object, has_parts: bool) -> bool:
 def read_detections(out_dir: str | os.PathLike[str]) -> DetectionFrames:
     """The detections over time of a finished run in ``out_dir``, read from its checkpoint (a run whose detection
     did not finish, or whose checkpoint was removed when the run completed, is refused)."""
-    from trafficgeo.video.detections import DetectionFrames
-
     ck = Path(out_dir) / CHECKPOINT_DIR
     try:
         state = loads_json((ck / STATE_FILE).read_text(encoding="utf-8"))
@@ -344,13 +343,32 @@ def read_detections(out_dir: str | os.PathLike[str]) -> DetectionFrames:
         state = None
     if not isinstance(state, dict) or not state.get("complete") or not isinstance(state.get("parts"), list):
         raise InputError(f"{ck}: no finished detection run here; run the detection again")
-    parts = [read_part(ck, e).arrays for e in state["parts"]]
-    offsets = np.cumsum([0] + [p["frame_index"].size for p in parts])
+    return joined_parts([read_part(ck, e) for e in state["parts"]])[0]
+
+
+def joined_parts(parts: list[Part]) -> tuple[DetectionFrames, ImageTracks]:
+    """The detections over time and the tracks of ``parts``, in order, at full precision."""
+    from trafficgeo.video.detections import DetectionFrames, Detections
+    from trafficgeo.video.track import tracks_of
+
+    arrays = [p.arrays for p in parts]
+    offsets = np.cumsum([0] + [a["frame_index"].size for a in arrays])
     cat = np.concatenate
-    return DetectionFrames(
-        frame_index=cat([p["frame_index"] for p in parts]).astype(np.int64),
-        time_s=cat([p["frame_time"] for p in parts]).astype(np.float64),
-        row=cat([p["det_frame"] + o for p, o in zip(parts, offsets, strict=False)]).astype(np.int64),
-        boxes=cat([p["det_box"].reshape(-1, 4) for p in parts]).astype(np.float64),
-        scores=cat([p["det_score"] for p in parts]).astype(np.float64),
-        classes=cat([p["det_class"].astype(str) for p in parts]).astype(object))
+
+    def joined(prefix: str) -> tuple[np.ndarray, Detections]:
+        row = cat([np.zeros(0, dtype=np.int64)] + [a[f"{prefix}_frame"] + o for a, o in zip(arrays, offsets,
+                                                                                                  strict=False)])
+        return row.astype(np.int64), Detections(
+            boxes=cat([np.zeros((0, 4))] + [a[f"{prefix}_box"].reshape(-1, 4) for a in arrays]),
+            scores=cat([np.zeros(0)] + [a[f"{prefix}_score"] for a in arrays]),
+            classes=cat([np.zeros(0, dtype=object)] + [a[f"{prefix}_class"].astype(str).astype(object)
+                                                          for a in arrays]),
+            track_ids=cat([np.zeros(0, dtype=np.int64)] + [a["trk_id"] for a in arrays]) if prefix == "trk" else None)
+
+    index = cat([np.zeros(0, dtype=np.int64)] + [a["frame_index"] for a in arrays]).astype(np.int64)
+    times = cat([np.zeros(0)] + [a["frame_time"] for a in arrays]).astype(np.float64)
+    det_row, det = joined("det")
+    trk_row, trk = joined("trk")
+    frames = DetectionFrames(frame_index=index, time_s=times, row=det_row, boxes=det.boxes, scores=det.scores,
+                             classes=det.classes)
+    return frames, tracks_of(index, times, trk_row, trk)

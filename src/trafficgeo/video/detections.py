@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+import pandas as pd
 from numpy.typing import ArrayLike
 
 from trafficgeo.errors import InputError
@@ -25,28 +26,35 @@ COCO_VEHICLES: dict[int, str] = {1: "bicycle", 2: "car", 3: "motorcycle", 5: "bu
 # ---------------------------------------------------------------------------------------------------- Detections
 @dataclass(frozen=True, eq=False)
 class Detections:
-    """Detections in one frame.
+    """Detections in one frame; the tracker (:class:`~trafficgeo.video.track.VehicleTracker`) gives back the ones
+    that belong to its tracks with their ``track_ids`` filled in.
 
     Attributes:
         boxes: (N, 4) float64 ``x1, y1, x2, y2`` in full-frame pixels (pixel-centre convention).
         scores: (N,) float64 confidence in [0, 1].
         classes: (N,) object array of class names (``""`` = unknown).
+        track_ids: (N,) int64 track ids >= 0, or None before tracking.
     """
 
     boxes: np.ndarray
     scores: np.ndarray
     classes: np.ndarray
+    track_ids: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         boxes = np.asarray(self.boxes, dtype=np.float64).reshape(-1, 4)
         scores = np.asarray(self.scores, dtype=np.float64).reshape(-1)
         classes = np.asarray(self.classes, dtype=object).reshape(-1)
-        if not (boxes.shape[0] == scores.shape[0] == classes.shape[0]):
-            raise ValueError(f"Detections: {boxes.shape[0]} boxes, {scores.shape[0]} scores and "
-                             f"{classes.shape[0]} classes; give one of each per detection")
+        ids = None if self.track_ids is None else np.asarray(self.track_ids, dtype=np.int64).reshape(-1)
+        if not (boxes.shape[0] == scores.shape[0] == classes.shape[0] == (boxes.shape[0] if ids is None
+                                                                           else ids.shape[0])):
+            raise ValueError(f"Detections: {boxes.shape[0]} boxes, {scores.shape[0]} scores, "
+                             f"{classes.shape[0]} classes{'' if ids is None else f' and {ids.shape[0]} track ids'}; "
+                             "give one of each per detection")
         object.__setattr__(self, "boxes", boxes)
         object.__setattr__(self, "scores", scores)
         object.__setattr__(self, "classes", classes)
+        object.__setattr__(self, "track_ids", ids)
 
     def __len__(self) -> int:
         return int(self.scores.shape[0])
@@ -62,13 +70,18 @@ class Detections:
         parts = list(parts)
         if not parts:
             return cls.empty()
+        tracked = [p.track_ids is not None for p in parts]
+        if any(tracked) and not all(tracked):
+            raise ValueError("Detections.concatenate: some parts have track ids and some do not")
         return cls(np.concatenate([p.boxes for p in parts]), np.concatenate([p.scores for p in parts]),
-                   np.concatenate([p.classes for p in parts]))
+                   np.concatenate([p.classes for p in parts]),
+                   np.concatenate([p.track_ids for p in parts]) if all(tracked) else None)
 
     def select(self, which: ArrayLike) -> Detections:
         """The detections picked by a boolean mask (N,) or an index array."""
         idx = np.asarray(which)
-        return Detections(self.boxes[idx], self.scores[idx], self.classes[idx])
+        return Detections(self.boxes[idx], self.scores[idx], self.classes[idx],
+                          None if self.track_ids is None else self.track_ids[idx])
 
     @property
     def bottom_centres(self) -> np.ndarray:
@@ -150,6 +163,13 @@ class DetectionFrames:
         b = self.frame_bounds() if bounds is None else bounds
         d = slice(int(b[j]), int(b[j + 1]))
         return Detections(self.boxes[d], self.scores[d], self.classes[d])
+
+    def to_table(self) -> pd.DataFrame:
+        """One row per detection: ``frame`` (the frame number), ``time`` (s), ``x1, y1, x2, y2`` (px), ``score``,
+        ``class`` (the columns of ``detections.csv``)."""
+        return pd.DataFrame({"frame": self.frame_index[self.row], "time": self.time_s[self.row],
+                             **{c: self.boxes[:, k] for k, c in enumerate(("x1", "y1", "x2", "y2"))},
+                             "score": self.scores, "class": self.classes})
 
     def frame_bounds(self) -> np.ndarray:
         """(N + 1,) bounds: frame j's detections are rows ``bounds[j]:bounds[j + 1]``."""

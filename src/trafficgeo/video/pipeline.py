@@ -46,20 +46,21 @@ from trafficgeo.geo.mapping import Surface
 from trafficgeo.io.atomic import remove_stale_temporaries
 from trafficgeo.io.folder_lock import hold_folder
 from trafficgeo.run.folder import RunFolder
+from trafficgeo.run.tracks import ImageTracks
 from trafficgeo.site.lanes import Lanes
 from trafficgeo.site.lines import CountLine
 from trafficgeo.video.checkpoint import (
     CHECKPOINT_DIR,
     Checkpoint,
-    Part,
     PartBuffer,
+    joined_parts,
     load_checkpoint,
     read_part,
     run_key,
     save_checkpoint,
     write_part,
 )
-from trafficgeo.video.detections import Detections
+from trafficgeo.video.detections import DetectionFrames, Detections
 from trafficgeo.video.detectors.factory import check_detector
 from trafficgeo.video.track import TrackerOptions, VehicleTracker
 
@@ -70,7 +71,6 @@ __all__ = ["CHECKPOINT_DIR", "PRIME_S", "ProcessOptions", "detect_and_track", "f
            ]
 
 DETECTION_COLUMNS = ["frame", "time", "x1", "y1", "x2", "y2", "score", "class"]
-TRACK_COLUMNS = ["frame", "time", "track_id", "x1", "y1", "x2", "y2", "score", "class"]
 PRIME_S = 10.0  # s of video a background model learns on before a segment (see the module docstring)
 LEARNED_DETECT_HZ = 10.0  # detections a second of a learned detector when --every is auto (see bench_video)
 REALTIME_FOR_ALL_TILES = 1.0  # tile_schedule="auto": every tile when the estimate is at least this x real time
@@ -221,38 +221,27 @@ def _replay(folder: Path, state: Checkpoint, tracker: VehicleTracker, variable_r
             time_s = float(a["frame_time"][j])
             out = tracker.update(Detections(a["det_box"][d], a["det_score"][d], a["det_class"][d].astype(object)),
                                  time_s if variable_rate else None)
-            if not (np.array_equal(out.ids, a["trk_id"][t]) and np.array_equal(out.boxes, a["trk_box"][t])):
+            if not (np.array_equal(out.track_ids, a["trk_id"][t]) and np.array_equal(out.boxes, a["trk_box"][t])):
                 raise ValueError(f"its tracks at {time_s:.2f} s differ from those its detections give now")
 
 
-def _tables(part: Part) -> tuple[pd.DataFrame, pd.DataFrame]:
-    a = part.arrays
-    out = []
-    for p, columns in (("det", DETECTION_COLUMNS), ("trk", TRACK_COLUMNS)):
-        rows = a[f"{p}_frame"]
-        doc = {"frame": a["frame_index"][rows], "time": np.round(a["frame_time"][rows], 6)}
-        if p == "trk":
-            doc["track_id"] = a["trk_id"]
-        doc.update(dict(zip(("x1", "y1", "x2", "y2"), a[f"{p}_box"].T, strict=True)))
-        doc.update({"score": a[f"{p}_score"], "class": a[f"{p}_class"].astype(object)})
-        out.append(pd.DataFrame(doc, columns=columns))
-    return out[0], out[1]
-
-
-def _write_tables(folder: Path, state: Checkpoint, out: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+def _write_tables(folder: Path, state: Checkpoint, out: Path) -> tuple[DetectionFrames, ImageTracks]:
     """``detections.csv`` and ``tracks.csv`` from the parts, each checked against its schema
-    (:meth:`~trafficgeo.run.folder.RunFolder.write_table`); returns them as written (3 decimals) and read back."""
-    tables = [_tables(read_part(folder, e)) for e in state.parts]
+    (:meth:`~trafficgeo.run.folder.RunFolder.write_table`); returns the detections over time (full precision) and the
+    tracks as ``tracks.csv`` holds them (:meth:`~trafficgeo.run.tracks.ImageTracks.as_written`), so that ``analyze``
+    on the file repeats the run's analysis. Times are the video's to the microsecond before they are written."""
+    frames, tracks = joined_parts([read_part(folder, e) for e in state.parts])
+    tracks = replace(tracks, time=np.round(tracks.time, 6)).as_written()
     run = RunFolder(out)
-    result = []
-    for k, (name, columns) in enumerate((("detections.csv", DETECTION_COLUMNS), ("tracks.csv", TRACK_COLUMNS))):
-        parts = [t[k] for t in tables if len(t[k])]
-        table = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=columns)
-        back = pd.read_csv(run.write_table(name, table, float_format="%.3f"), dtype={"class": str},
-                           keep_default_na=False, na_values=[""])
-        back["class"] = back["class"].fillna("")
-        result.append(back)
-    return result[0], result[1]
+    run.write_table("detections.csv", _detection_table(frames), float_format="%.3f")
+    run.write_table("tracks.csv", tracks.to_table(), float_format="%.3f")
+    return frames, tracks
+
+
+def _detection_table(frames: DetectionFrames) -> pd.DataFrame:
+    """The ``detections.csv`` table of ``frames`` (:data:`DETECTION_COLUMNS`), times to the microsecond."""
+    table = frames.to_table()
+    return table.assign(time=np.round(table["time"].to_numpy(), 6))[DETECTION_COLUMNS]
 
 
 def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface | None, out_dir: str | Path,
@@ -260,18 +249,18 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
                      restart: bool = False, lanes: Lanes | None = None, lines: list[CountLine] | None = None,
                      progress: Callable[[int, int, float], None] | None = None,
                      notice: Callable[[str], None] | None = None,
-                     detector_info: Callable[[dict], None] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Decode, detect and track (with checkpoints); returns the detections and track tables (also written as
-    ``detections.csv`` and ``tracks.csv`` in ``out_dir``). ``progress(frames_done, frames_total, video_time_s)``
-    is called per frame; ``notice(text)`` with one line when a checkpoint is resumed ("resuming from 8.0 s") or
-    ignored (and why), with the built-in learned detector's tile plan (:mod:`trafficgeo.video.detectors.tiling`:
-    the tiles over the counted road, ``lanes`` else ``roi`` else a band around each of the counting ``lines``, the
-    road too far for it, and the counting lines where vehicles stay too small for it), and with a learned
-    detector's backend and the run's estimated cost (:mod:`trafficgeo.video.cost`); ``detector_info(doc)`` once
-    with the plan (``tiling``), the backend choice (``backend``) and the estimate (``estimate``) as plain data
-    (for ``process.json``). Without a ``camera`` (and ``surface``) the detector has no size filter or class in
-    metres and no tiles. Holds the lock on ``out_dir`` while it runs (:class:`InputError` if another process
-    holds it)."""
+                     detector_info: Callable[[dict], None] | None = None) -> tuple[DetectionFrames, ImageTracks]:
+    """Decode, detect and track (with checkpoints); returns the detections over time and the tracks (also written as
+    ``detections.csv`` and ``tracks.csv`` in ``out_dir``; the tracks as written there). ``progress(frames_done,
+    frames_total, video_time_s)`` is called per frame; ``notice(text)`` with one line when a checkpoint is resumed
+    ("resuming from 8.0 s") or ignored (and why), with the built-in learned detector's tile plan
+    (:mod:`trafficgeo.video.detectors.tiling`: the tiles over the counted road, ``lanes`` else ``roi`` else a band
+    around each of the counting ``lines``, the road too far for it, and the counting lines where vehicles stay too small
+    for it), and with a learned detector's backend and the run's estimated cost (:mod:`trafficgeo.video.cost`);
+    ``detector_info(doc)`` once with the plan (``tiling``), the backend choice (``backend``) and the estimate
+    (``estimate``) as plain data (for ``process.json``). Without a ``camera`` (and ``surface``) the detector has no size
+    filter or class in metres and no tiles. Holds the lock on ``out_dir`` while it runs (:class:`InputError` if another
+    process holds it)."""
     from trafficgeo.video.detectors.background import BackgroundDetector
     from trafficgeo.video.detectors.factory import make_detector
     from trafficgeo.video.detectors.learned import detector_plan, tiled_detector

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trafficgeo.errors import InputError
+from trafficgeo.run.tracks import ImageTracks
 from trafficgeo.video.detections import DetectionFrames, Detections
 
 
@@ -35,20 +36,6 @@ class TrackerOptions:
               and self.min_consecutive_frames >= 1 and 0 <= self.min_iou < 1)
         if not ok:
             raise InputError(f"tracker options out of range: {self}; times > 0, scores and IoU in [0, 1]")
-
-
-@dataclass(frozen=True)
-class TrackedBoxes:
-    """The tracked vehicles of one frame: ``ids`` (N,) int >= 0, ``boxes`` (N, 4) px, ``scores`` (N,),
-    ``classes`` (N,) str."""
-
-    ids: np.ndarray
-    boxes: np.ndarray
-    scores: np.ndarray
-    classes: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.ids.size)
 
 
 class VehicleTracker:
@@ -85,8 +72,9 @@ class VehicleTracker:
         boxes = np.array([np.asarray(t.get_state_bbox(), dtype=np.float64).reshape(4) for t in tracks])
         return boxes, np.array([t.tracker_id == -1 for t in tracks], dtype=bool)
 
-    def update(self, detections: Detections, time_s: float | None = None) -> TrackedBoxes:
-        """Feed one frame's detections; returns the detections that belong to confirmed tracks, with their ids.
+    def update(self, detections: Detections, time_s: float | None = None) -> Detections:
+        """Feed one frame's detections; returns the detections that belong to confirmed tracks, with their
+        ``track_ids``.
         ``time_s`` (the frame's timestamp) lets variable-frame-rate video keep the motion model right."""
         import supervision as sv
 
@@ -97,22 +85,38 @@ class VehicleTracker:
         keep = np.asarray(out.tracker_id) >= 0
         names = np.asarray(self._classes + [""], dtype=object)
         cls = np.asarray(out.class_id if out.class_id is not None else np.full(len(out), -1))[keep]
-        return TrackedBoxes(ids=np.asarray(out.tracker_id)[keep].astype(np.int64), boxes=out.xyxy[keep],
-                            scores=(np.asarray(out.confidence)[keep] if out.confidence is not None
-                                    else np.ones(int(keep.sum()))),
-                            classes=names[np.where(cls >= 0, cls, len(self._classes))])
+        return Detections(boxes=out.xyxy[keep],
+                          scores=(np.asarray(out.confidence)[keep] if out.confidence is not None
+                                  else np.ones(int(keep.sum()))),
+                          classes=names[np.where(cls >= 0, cls, len(self._classes))],
+                          track_ids=np.asarray(out.tracker_id)[keep].astype(np.int64))
 
 
 def track_frames(frames: DetectionFrames, fps: float, options: TrackerOptions | None = None, *,
-                 variable_rate: bool = False) -> list[tuple[int, TrackedBoxes]]:
+                 variable_rate: bool = False) -> ImageTracks:
     """Track stored detections over time with a fresh tracker, frame by frame as the pipeline does: ``fps`` is the
     rate of the frames given (the video's fps / its frame step); with ``variable_rate`` the frames' ``time_s``
-    drive the motion model. Returns (frame position, tracked boxes) of every frame with confirmed tracks."""
+    drive the motion model. Returns the tracked boxes, ``frame`` the frames' ``frame_index``, ``time`` their
+    ``time_s``, at full precision."""
     tracker = VehicleTracker(fps, options)
     bounds = frames.frame_bounds()
-    out = []
+    rows, tracked = [], []
     for j in range(len(frames)):
-        tracked = tracker.update(frames.on_frame(j, bounds), float(frames.time_s[j]) if variable_rate else None)
-        if len(tracked):
-            out.append((j, tracked))
-    return out
+        out = tracker.update(frames.on_frame(j, bounds), float(frames.time_s[j]) if variable_rate else None)
+        if len(out):
+            rows.append(np.full(len(out), j))
+            tracked.append(out)
+    return tracks_of(frames.frame_index, frames.time_s, np.concatenate(rows) if rows else np.zeros(0, dtype=int),
+                     Detections.concatenate(tracked) if tracked else Detections.empty())
+
+
+def tracks_of(frame_index: np.ndarray, time_s: np.ndarray, row: np.ndarray, tracked: Detections) -> ImageTracks:
+    """:class:`~trafficgeo.run.tracks.ImageTracks` of tracked detections: ``row`` (N,) the position of each
+    detection's frame in ``frame_index`` (frame numbers) and ``time_s`` (s)."""
+    row = np.asarray(row, dtype=np.int64)
+    ids = tracked.track_ids if tracked.track_ids is not None else np.zeros(0, dtype=np.int64)
+    if ids.size != len(tracked):
+        raise ValueError("tracks_of: the detections have no track ids; track them first")
+    return ImageTracks.from_boxes(track_id=ids, frame=np.asarray(frame_index, dtype=np.int64)[row],
+                                  time=np.asarray(time_s, dtype=np.float64)[row], boxes=tracked.boxes,
+                                  scores=tracked.scores, classes=tracked.classes)
