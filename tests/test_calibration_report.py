@@ -18,14 +18,14 @@ from cli_support import invoke
 from reference_values import FIT, assert_json_close, assert_text_close
 from trafficgeo.calibration import (
     CalibrationReport,
-    GCPResidual,
     build_report,
     calibrate,
     read_calibration_report,
     read_gcps,
     run_calibration,
 )
-from trafficgeo.calibration.report import REPORT_FORMAT, CheckStats, DistanceRatios, PoseConsistency
+from trafficgeo.calibration.report import REPORT_FORMAT, CheckStats, DistanceRatios, PoseConsistency, gcp_row
+from trafficgeo.camera.calibrated import CameraGCP
 from trafficgeo.camera.orientation import Orientation
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import to_json_safe
@@ -81,7 +81,8 @@ def test_a_report_file_reads_back_typed_and_writes_the_same_bytes(name: str) -> 
     assert CalibrationReport.from_dict(rep.to_dict()) == rep
     doc = json.loads(path.read_text(encoding="utf-8"))
     assert rep.summary == doc["summary"] and rep.image_size == tuple(doc["image_size"]) and rep.crs == doc["crs"]
-    assert all(isinstance(r, GCPResidual) for r in rep.gcps) and isinstance(rep.camera.orientation, Orientation)
+    assert all(isinstance(r, CameraGCP) for r in rep.gcps) and isinstance(rep.camera.orientation, Orientation)
+    assert [(r.du, r.dv, r.status) for r in rep.gcps] == [(r["du"], r["dv"], r["status"]) for r in doc["gcps"]]
     assert [r.id for r in rep.gcps] == [r["id"] for r in doc["gcps"]]
     assert rep.stats.rmse_px == doc["stats"]["rmse_px"] and rep.check.n == doc["check"]["n"]
     assert rep.uncertainty.orientation_std_deg.tilt == doc["uncertainty"]["orientation_std_deg"]["tilt"]
@@ -136,6 +137,9 @@ def _broken(tmp_path: Path, change) -> Path:
     ("missing_block", "key 'uncertainty' is missing"),
     ("wrong_type", "'gcps' is not a list"),
     ("wrong_row", "'gcps[2].u' is not a number"),
+    ("text_angle", "'camera.orientation.tilt_deg' is not a number"),
+    ("flag_count", "'stats.n_control' is not a whole number"),
+    ("short_position", "key 'camera.position[2]' is missing"),
     ("not_json", "not readable JSON"),
     ("missing_file", "file not found"),
 ])
@@ -147,6 +151,9 @@ def test_a_file_that_is_not_a_report_is_refused_in_one_line(case: str, expect: s
         "missing_block": lambda d: d.pop("uncertainty"),
         "wrong_type": lambda d: d.update(gcps="G01"),
         "wrong_row": lambda d: d["gcps"][2].update(u="12"),
+        "text_angle": lambda d: d["camera"]["orientation"].update(tilt_deg="12"),
+        "flag_count": lambda d: d["stats"].update(n_control=True),
+        "short_position": lambda d: d["camera"].update(position=d["camera"]["position"][:2]),
     }
     if case == "camera_json":
         path = REF / "local_camera.json"
@@ -187,3 +194,24 @@ def test_the_terminal_report_prints_the_typed_report() -> None:
     assert text == (REF / "blunders_terminal.txt").read_text(encoding="utf-8")  # the report read from disk, too
     assert [line.split(":")[0] for line in text.splitlines() if line.startswith("outlier ")] == \
         [f"outlier {o.id}" for o in rep.outliers] == ["outlier G04", "outlier G09", "outlier G11"]
+
+
+def test_the_camera_json_keeps_what_the_report_knows_of_each_gcp(tmp_path: Path) -> None:
+    """One GCP record (CameraGCP) in the report and the camera JSON: the sigma_px a GCP file gave reaches the camera
+    JSON, which ``refine`` reads the user's points from (it was dropped: refine judged with 1 px); the report's
+    records are the camera's."""
+    from trafficgeo.camera.calibrated import CalibratedCamera
+    from trafficgeo.registration.run import user_gcps
+
+    gcps, size = _gcps("local")
+    sigma = np.linspace(0.5, 3.0, gcps.n)
+    cal = calibrate(dataclasses.replace(gcps, sigma_px=sigma), size)
+    rep = build_report(cal)
+    camera = cal.calibrated_camera()
+    assert _json_text([gcp_row(g) for g in camera.gcps]) == _json_text([gcp_row(g) for g in rep.gcps])
+    np.testing.assert_allclose([g.sigma_px for g in rep.gcps], sigma)
+    camera.write(tmp_path / "camera.json")
+    table, _ = user_gcps(CalibratedCamera.read(tmp_path / "camera.json"))
+    np.testing.assert_allclose(table.sigma_px, sigma)
+    assert all(np.isfinite(g.ground_error_m) for g in rep.gcps)
+    assert [g.status for g in rep.gcps] == ["inlier" if g.inlier else "outlier" for g in rep.gcps]

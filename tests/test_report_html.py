@@ -22,7 +22,7 @@ from trafficgeo.camera.calibrated import read_camera_json
 from trafficgeo.camera.model import Camera
 from trafficgeo.geo.cuboids import cuboid_boxes
 from trafficgeo.geo.raster import write_geotiff
-from trafficgeo.io.run_manifest import COMPARE_MANIFEST, MANIFEST, publish_outputs
+from trafficgeo.io.run_manifest import MANIFEST, publish_outputs
 from trafficgeo.report import figures as F
 from trafficgeo.report.html import build_page, build_report
 
@@ -516,18 +516,16 @@ def test_compare_sumo_results_are_shown(feet_run: tuple[Path, dict[str, pd.DataF
 
     run = tmp_path / "run"
     shutil.copytree(feet_run[0], run)
-    pd.DataFrame({"line": ["A", "A"], "lane": ["1", "2"], "direction": [1, 1], "interval_start": [0.0, 0.0],
-                  "interval_end": [60.0, 60.0], "observed": [10, 12], "simulated": [11, 30],
-                  "observed_flow_veh_h": [600.0, 720.0], "simulated_flow_veh_h": [660.0, 1800.0],
-                  "geh": [2.4, 30.4], "geh_ok": [True, False]}).to_csv(run / "compare_counts.csv", index=False)
+    counts = pd.DataFrame({"line": ["A", "A"], "lane": ["1", "2"], "direction": [1, 1], "interval_start": [0.0, 0.0],
+                           "interval_end": [60.0, 60.0], "observed": [10, 12], "simulated": [11, 30],
+                           "observed_flow_veh_h": [600.0, 720.0], "simulated_flow_veh_h": [660.0, 1800.0],
+                           "geh": [2.4, 30.4], "geh_ok": [True, False]})
     from trafficgeo.run.folder import RunFolder
     from trafficgeo.run.records import CompareSummary, CountSummary
 
-    RunFolder(run).write_compare_summary(CompareSummary(CountSummary(
+    RunFolder(run).write_comparison({"compare_counts.csv": counts}, CompareSummary(CountSummary(
         rows=2, share_geh_below_5=0.5, mean_geh=16.4, total_observed=22, total_simulated=41, geh_total=8.3),
         travel_times=None, crs="EPSG:2994"))
-    publish_outputs(run, ["compare_counts.csv", "compare_summary.json"], command="compare-sumo",
-                    name=COMPARE_MANIFEST)
     page = build_page(run, dpi=40)
     assert "Observed vs simulated (compare-sumo)" in page.html and "50.0 % with GEH &lt; 5" in page.html
     assert page.html.count('<tr class="outlier">') == 1

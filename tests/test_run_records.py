@@ -21,6 +21,7 @@ from trafficgeo.io.atomic import to_json_safe
 from trafficgeo.io.run_manifest import COMPARE_MANIFEST, publish_outputs
 from trafficgeo.run.folder import RunFolder
 from trafficgeo.run.records import (
+    SIMULATION_RECORD,
     CompareSummary,
     CountSummary,
     LineCount,
@@ -71,11 +72,6 @@ def _simulation() -> SimulationRecord:
                             warnings=("a warning",))
 
 
-def _write_simulation(folder: RunFolder, record: SimulationRecord) -> Path:
-    publish_outputs(folder.path, [], command="compare-sumo", name=COMPARE_MANIFEST)  # the comparison it goes beside
-    return folder.write_simulation_record(record)
-
-
 def _write_in_run(kind: str):
     def write(folder: RunFolder, record) -> Path:
         with folder.writing("test") as run:
@@ -86,8 +82,8 @@ def _write_in_run(kind: str):
 # how each record is written, published (by which command) and read back
 WRITE = {"summary": (_write_in_run("summary"), "run.json", RunFolder.summary, _summary),
          "process": (_write_in_run("process"), "run.json", RunFolder.process, _process),
-         "compare": (RunFolder.write_compare_summary, COMPARE_MANIFEST, RunFolder.compare_summary, _compare),
-         "simulation": (_write_simulation, COMPARE_MANIFEST, RunFolder.simulation_record, _simulation)}
+         "compare": (_write_in_run("compare_summary"), COMPARE_MANIFEST, RunFolder.compare_summary, _compare),
+         "simulation": (_write_in_run("simulation"), COMPARE_MANIFEST, RunFolder.simulation_record, _simulation)}
 COMMAND = {"simulation": "sumo-validate"}  # the others: any
 
 
@@ -254,9 +250,11 @@ def test_a_simulation_record_joins_the_comparison_and_a_new_comparison_drops_it(
     comparison = compare_with_simulation(observed, RunFolder(folder).trajectories(), lines=[reference_run["line"]])
     written = write_comparison(folder, comparison, observed.crs)
     assert RunFolder(folder).comparison_table("compare_speeds.csv") is not None
-    path = RunFolder(folder).write_simulation_record(_simulation())
+    assert RunFolder(folder).comparison.command == "compare-sumo"
+    with_record = write_comparison(folder, comparison, observed.crs, simulation=_simulation())
+    path = folder / SIMULATION_RECORD
     run = RunFolder(folder)
-    assert run.comparison.command == "sumo-validate"
+    assert run.comparison.command == "sumo-validate" and path in with_record
     assert set(run.comparison.files) == {p.name for p in written} | {path.name}
     assert run.simulation_record() == _simulation() and run.compare_summary() is not None
     assert json.loads(path.read_text())["build_s"] is None  # NaN in memory: null in the file

@@ -4,7 +4,7 @@ from trafficgeo.calibration.gcp_checks import validate_gcps
 from trafficgeo.calibration.gcp_read import read_gcps
 from trafficgeo.calibration.gcp_table import GCPTable
 from trafficgeo.calibration.pipeline import Calibration, CalibrationOptions, Finding, calibrate
-from trafficgeo.calibration.report import CalibrationReport, GCPResidual, read_calibration_report
+from trafficgeo.calibration.report import CalibrationReport, read_calibration_report
 from trafficgeo.calibration.run import CalibrationRun, run_calibration
 from trafficgeo.calibration.validation import build_report
 
@@ -14,7 +14,6 @@ __all__ = [
     "CalibrationReport",
     "CalibrationRun",
     "Finding",
-    "GCPResidual",
     "GCPTable",
     "build_report",
     "calibrate",

@@ -15,7 +15,6 @@ from trafficgeo.calibration.validation import build_report
 from trafficgeo.camera.calibrated import (
     CalibratedCamera,
     CameraCovariance,
-    CameraGCP,
     FitModel,
     FitStats,
     PoseUncertainty,
@@ -59,10 +58,8 @@ def calibrated_camera(cal: Calibration, report: CalibrationReport | None = None)
     statistics, model and uncertainty of ``report`` (built from ``cal`` when not given) and the covariance."""
     report = report or build_report(cal)
     unc, s, o = report.uncertainty, report.stats, report.uncertainty.orientation_std_deg
-    gcps = tuple(CameraGCP(id=r.id, role=r.role, x=r.x, y=r.y, z=r.z, u=r.u, v=r.v, u_proj=r.u_proj, v_proj=r.v_proj,
-                           error_px=r.error_px, inlier=r.inlier, loo_error_px=r.loo_error_px) for r in report.gcps)
     return CalibratedCamera(
-        cal.camera, gcps=gcps,
+        cal.camera, gcps=report.gcps,
         stats=FitStats(s.n_control, s.n_inliers, s.mean_px, s.rmse_px, s.loo_rmse_px),
         model=FitModel(tuple(report.model.free_parameters), tuple(report.model.reasons)),
         uncertainty=PoseUncertainty(tuple(unc.position_std_m), (o.heading, o.tilt, o.roll), unc.focal_std_px),

@@ -15,191 +15,85 @@ then, and write only their count (and ``available``) to the file, as the format 
 from __future__ import annotations
 
 import json
-import types
-import typing
 from collections.abc import Mapping
-from dataclasses import MISSING, dataclass, field, fields, is_dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from trafficgeo.camera.calibrated import CameraGCP
 from trafficgeo.camera.orientation import Orientation
 from trafficgeo.errors import InputError
-from trafficgeo.io.atomic import to_json_safe
 from trafficgeo.io.json_text import loads_json
+from trafficgeo.io.records import NAN, Flag, Int, MaybeNum, Num, Record, RecordError, Text, read_record
 
 REPORT_FORMAT = "trafficgeo.calibration-report/1"
-NAN = float("nan")
 
 
-class _Malformed(Exception):
-    """A key of the document is missing or has the wrong type (the message names it)."""
+GCP_KEYS = ("id", "role", "x", "y", "z", "u", "v", "u_proj", "v_proj", "du", "dv", "error_px", "inlier",
+            "loo_error_px", "ground_error_m", "loo_ground_error_m", "sigma_px", "sigma_eff_px", "status", "reason")
 
 
-def _plain(value: Any) -> Any:
-    """``value`` as JSON-ready data: records and orientations as dicts, tuples as lists, mappings as dicts."""
-    if isinstance(value, _Record | Orientation):
-        return value.to_dict()
-    if isinstance(value, tuple | list):
-        return [_plain(v) for v in value]
-    if isinstance(value, Mapping):
-        return {k: _plain(v) for k, v in value.items()}
-    return value
-
-
-def _convert(tp: Any, value: Any, key: str) -> Any:
-    """``value`` read from JSON as the type ``tp`` (a field's annotation); raises :class:`_Malformed`."""
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin in (types.UnionType, typing.Union):
-        if value is None and type(None) in args:
-            return None
-        return _convert(next(a for a in args if a is not type(None)), value, key)
-    if tp is float:
-        if value is None:  # NaN is written as null
-            return NAN
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            return float(value)
-        raise _Malformed(f"'{key}' is not a number")
-    if tp is int:
-        if isinstance(value, int) and not isinstance(value, bool):
-            return value
-        raise _Malformed(f"'{key}' is not an integer")
-    if tp in (bool, str):
-        if isinstance(value, tp):
-            return value
-        raise _Malformed(f"'{key}' is not {'true or false' if tp is bool else 'text'}")
-    if origin is tuple:
-        if not isinstance(value, list | tuple):
-            raise _Malformed(f"'{key}' is not a list")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_convert(args[0], v, f"{key}[{k}]") for k, v in enumerate(value))
-        if len(value) != len(args):
-            raise _Malformed(f"'{key}' has {len(value)} values, expected {len(args)}")
-        return tuple(_convert(a, v, f"{key}[{k}]") for k, (a, v) in enumerate(zip(args, value, strict=True)))
-    if origin is Mapping:
-        if not isinstance(value, Mapping):
-            raise _Malformed(f"'{key}' is not an object")
-        return types.MappingProxyType({k: _convert(args[1], v, f"{key}.{k}") for k, v in value.items()})
-    if isinstance(tp, type) and is_dataclass(tp):
-        return _read_fields(tp, value, key)
-    raise TypeError(f"no reader for {tp!r} ({key})")  # a programming error: a field of an unsupported type
-
-
-def _read_fields(cls: type[Any], doc: Any, where: str) -> Any:
-    """An instance of the dataclass ``cls`` from the JSON object ``doc``; fields with defaults may be absent."""
-    if not isinstance(doc, Mapping):
-        raise _Malformed(f"'{where}' is not an object" if where else "the document is not a JSON object")
-    hints = typing.get_type_hints(cls)
-    kwargs = {}
-    for f in fields(cls):
-        key = f"{where}.{f.name}" if where else f.name
-        if f.name not in doc:
-            if f.default is MISSING and f.default_factory is MISSING:
-                raise _Malformed(f"key '{key}' is missing")
-            continue
-        kwargs[f.name] = _convert(hints[f.name], doc[f.name], key)
-    return cls(**kwargs)
-
-
-class _Record:
-    """Base of the report's dataclasses: ``to_dict`` in field order; equal when they write the same JSON (so NaN,
-    "not available", equals NaN)."""
-
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON-ready record (keys = field names, in order)."""
-        return {f.name: _plain(getattr(self, f.name)) for f in fields(self)}  # type: ignore[arg-type]
-
-    def __eq__(self, other: object) -> bool:
-        if type(other) is not type(self):
-            return NotImplemented
-        return to_json_safe(self.to_dict()) == to_json_safe(other.to_dict())  # type: ignore[attr-defined]
-
-    __hash__ = None  # type: ignore[assignment]  (equal by JSON value, which a hash of the fields would not follow)
+def gcp_row(gcp: CameraGCP) -> dict[str, Any]:
+    """One GCP of the report as report.json writes it (:data:`GCP_KEYS`: the residual ``du, dv`` = projected -
+    clicked, px, and the ``status`` check / inlier / outlier with them; NaN where the file has null)."""
+    return {k: getattr(gcp, k) for k in GCP_KEYS}
 
 
 @dataclass(frozen=True, eq=False)
-class GCPResidual(_Record):
-    """One GCP of the report: its survey point (x, y, z; CRS units), clicked pixel (u, v) and projection
-    (u_proj, v_proj; px), the residual du, dv = projected - clicked (px), the fit and leave-one-out errors in the
-    image (px) and on the ground (m), its sigmas (px), ``status`` inlier / outlier / check and the outlier's
-    ``reason`` ("" otherwise)."""
-
-    id: str
-    role: str
-    x: float
-    y: float
-    z: float
-    u: float
-    v: float
-    u_proj: float
-    v_proj: float
-    du: float
-    dv: float
-    error_px: float
-    inlier: bool
-    loo_error_px: float
-    ground_error_m: float
-    loo_ground_error_m: float
-    sigma_px: float
-    sigma_eff_px: float
-    status: str
-    reason: str
-
-
-@dataclass(frozen=True, eq=False)
-class FitStats(_Record):
+class FitStats(Record):
     """Fit statistics over the inlier control points: residuals (px), leave-one-out errors (px, and m on the
     ground), redundancy (observations - parameters) and sigma0 (1 = residuals match the stated noise)."""
 
-    n_control: int
-    n_check: int
-    n_inliers: int
-    n_outliers: int
-    mean_px: float
-    rmse_px: float
-    max_px: float
-    std_px: float
-    loo_rmse_px: float
-    loo_ground_rmse_m: float
-    loo_ground_median_m: float
-    ground_rmse_m: float
-    redundancy: int
-    n_parameters: int
-    sigma0: float
+    n_control: Int
+    n_check: Int
+    n_inliers: Int
+    n_outliers: Int
+    mean_px: Num
+    rmse_px: Num
+    max_px: Num
+    std_px: Num
+    loo_rmse_px: Num
+    loo_ground_rmse_m: Num
+    loo_ground_median_m: Num
+    ground_rmse_m: Num
+    redundancy: Int
+    n_parameters: Int
+    sigma0: Num
 
 
 @dataclass(frozen=True, eq=False)
-class CheckStats(_Record):
+class CheckStats(Record):
     """Errors at the check points (never used in the fit), px and m; NaN (and only ``n`` in the file) without any."""
 
-    n: int
-    rmse_px: float = NAN
-    mean_px: float = NAN
-    max_px: float = NAN
-    ground_rmse_m: float = NAN
-    ground_max_m: float = NAN
+    n: Int
+    rmse_px: Num = NAN
+    mean_px: Num = NAN
+    max_px: Num = NAN
+    ground_rmse_m: Num = NAN
+    ground_max_m: Num = NAN
 
     def to_dict(self) -> dict[str, Any]:
         return super().to_dict() if self.n else {"n": self.n}
 
 
 @dataclass(frozen=True, eq=False)
-class PairError(_Record):
+class PairError(Record):
     """The distance ratio error of one pair of GCPs (percent)."""
 
-    a: str
-    b: str
-    error_pct: float
+    a: Text
+    b: Text
+    error_pct: Num
 
 
 @dataclass(frozen=True, eq=False)
-class DistanceRatios(_Record):
+class DistanceRatios(Record):
     """Paper eq. 15 over all pairs of points: |d_world - d_image| / d_world (percent), and the 5 worst pairs;
     NaN (and only ``n_pairs`` in the file) without any pair."""
 
-    n_pairs: int
-    mean_pct: float = NAN
-    median_pct: float = NAN
-    max_pct: float = NAN
+    n_pairs: Int
+    mean_pct: Num = NAN
+    median_pct: Num = NAN
+    max_pct: Num = NAN
     worst_pairs: tuple[PairError, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
@@ -207,98 +101,98 @@ class DistanceRatios(_Record):
 
 
 @dataclass(frozen=True, eq=False)
-class CameraSummary(_Record):
+class CameraSummary(Record):
     """The calibrated camera: focal length(s) and principal point (px), distortion (OpenCV k1, k2, p1, p2, k3),
     field of view (deg, horizontal and vertical), position (CRS units) and orientation."""
 
-    focal_px: float
-    fx: float
-    fy: float
-    principal_point: tuple[float, float]
-    dist: tuple[float, ...]
-    fov_deg: tuple[float, float]
-    position: tuple[float, float, float]
+    focal_px: Num
+    fx: Num
+    fy: Num
+    principal_point: tuple[Num, Num]
+    dist: tuple[Num, ...]
+    fov_deg: tuple[Num, Num]
+    position: tuple[Num, Num, Num]
     orientation: Orientation
 
 
 @dataclass(frozen=True, eq=False)
-class FitStart(_Record):
+class FitStart(Record):
     """One start of the robust fit: how it was found, the focal length it converged to (px) and its robust cost."""
 
-    method: str
-    focal_px: float
-    robust_cost: float
+    method: Text
+    focal_px: Num
+    robust_cost: Num
 
 
 @dataclass(frozen=True, eq=False)
-class ModelSummary(_Record):
+class ModelSummary(Record):
     """The parameter model the fit chose (its free parameters, in words, and why), the robust loss, the routes
     to a starting camera and the starts tried, the planarity of the GCPs (singular value ratio) and where the
     consensus came from (None where the calibration did not note it)."""
 
-    free_parameters: tuple[str, ...]
-    description: str
-    reasons: tuple[str, ...]
-    loss: str | None
-    initialization: tuple[str, ...] | None
+    free_parameters: tuple[Text, ...]
+    description: Text
+    reasons: tuple[Text, ...]
+    loss: Text | None
+    initialization: tuple[Text, ...] | None
     starts: tuple[FitStart, ...] | None
-    planarity_ratio: float | None
-    consensus: str | None
+    planarity_ratio: MaybeNum
+    consensus: Text | None
 
 
 @dataclass(frozen=True, eq=False)
-class ParameterStd(_Record):
+class ParameterStd(Record):
     """A free parameter's value and 1-sigma (rotation vector rad; translation CRS units; focal px)."""
 
-    value: float
-    std: float
+    value: Num
+    std: Num
 
 
 @dataclass(frozen=True, eq=False)
-class Correlation(_Record):
+class Correlation(Record):
     """Two parameters the GCPs cannot separate, and their correlation coefficient."""
 
-    a: str
-    b: str
-    correlation: float
+    a: Text
+    b: Text
+    correlation: Num
 
 
 @dataclass(frozen=True, eq=False)
-class AnglesDeg(_Record):
+class AnglesDeg(Record):
     """Heading, tilt and roll (deg)."""
 
-    heading: float
-    tilt: float
-    roll: float
+    heading: Num
+    tilt: Num
+    roll: Num
 
 
 @dataclass(frozen=True, eq=False)
-class Uncertainty(_Record):
+class Uncertainty(Record):
     """1-sigma of the free parameters and of position (m), angles (deg) and focal length (px), from the fit
     covariance (scaled by sigma0^2), and the pairs of parameters correlated above 0.98."""
 
-    scaled_by_variance_factor: bool
+    scaled_by_variance_factor: Flag
     parameters: Mapping[str, ParameterStd]
-    position_std_m: tuple[float, float, float]
+    position_std_m: tuple[Num, Num, Num]
     orientation_std_deg: AnglesDeg
-    focal_std_px: float
+    focal_std_px: Num
     high_correlations: tuple[Correlation, ...]
 
 
 @dataclass(frozen=True, eq=False)
-class PoseConsistency(_Record):
+class PoseConsistency(Record):
     """Jackknife spread of the camera over the leave-one-out refits: position (m), angles (deg), focal (px), the
     largest shift (m) and the point whose removal causes it; NaN and empty (only ``method``, ``n_fits`` and
     ``available`` in the file) with fewer than 3 refits."""
 
-    method: str
-    n_fits: int
-    available: bool
-    position_spread_m: tuple[float, ...] = ()
-    max_position_deviation_m: float = NAN
-    most_influential_gcp: str = ""
+    method: Text
+    n_fits: Int
+    available: Flag
+    position_spread_m: tuple[Num, ...] = ()
+    max_position_deviation_m: Num = NAN
+    most_influential_gcp: Text = ""
     angle_spread_deg: AnglesDeg = field(default_factory=lambda: AnglesDeg(NAN, NAN, NAN))
-    focal_spread_px: float = NAN
+    focal_spread_px: Num = NAN
 
     def to_dict(self) -> dict[str, Any]:
         if self.available:
@@ -307,15 +201,15 @@ class PoseConsistency(_Record):
 
 
 @dataclass(frozen=True, eq=False)
-class Outlier(_Record):
+class Outlier(Record):
     """A control point left out of the fit, and why in plain words."""
 
-    id: str
-    reason: str
+    id: Text
+    reason: Text
 
 
 @dataclass(frozen=True, eq=False)
-class CalibrationReport(_Record):
+class CalibrationReport(Record):
     """How far a calibration can be trusted (see :mod:`trafficgeo.calibration.validation` for how each number is
     computed): the summary line, the camera, the model, fit and check-point statistics, per-GCP residuals, distance
     ratios, parameter uncertainty, pose consistency, outliers, warnings and recommendations.
@@ -324,26 +218,26 @@ class CalibrationReport(_Record):
     metres; ``image_size`` is (width, height) px. Two reports are equal when they write the same JSON.
     """
 
-    summary: str
-    image_size: tuple[int, int]
-    crs: str | None
-    metres_per_crs_unit: float
+    summary: Text
+    image_size: tuple[Int, Int]
+    crs: Text | None
+    metres_per_crs_unit: Num
     camera: CameraSummary
     model: ModelSummary
     stats: FitStats
     check: CheckStats
-    gcps: tuple[GCPResidual, ...]
+    gcps: tuple[CameraGCP, ...]
     distance_ratios: DistanceRatios
     distance_ratios_check: DistanceRatios
     uncertainty: Uncertainty
     pose_consistency: PoseConsistency
     outliers: tuple[Outlier, ...]
-    warnings: tuple[str, ...]
-    recommendations: tuple[str, ...]
+    warnings: tuple[Text, ...]
+    recommendations: tuple[Text, ...]
 
     def to_dict(self) -> dict[str, Any]:
         """The report.json document (format :data:`REPORT_FORMAT`; NaN where the file has null)."""
-        return {"format": REPORT_FORMAT, **super().to_dict()}
+        return {"format": REPORT_FORMAT, **super().to_dict(), "gcps": [gcp_row(g) for g in self.gcps]}
 
     @classmethod
     def from_dict(cls, doc: Any, where: str = "calibration report") -> CalibrationReport:
@@ -358,8 +252,8 @@ class CalibrationReport(_Record):
             raise InputError(f"{where}: not a calibration report ({got}, expected {REPORT_FORMAT}); give the "
                              "--report JSON of 'trafficgeo calibrate'")
         try:
-            return _read_fields(cls, doc, "")
-        except _Malformed as exc:
+            return read_record(cls, doc)
+        except RecordError as exc:
             raise InputError(f"{where}: not a complete calibration report ({exc}); write it again with "
                              "'trafficgeo calibrate --report'") from None
 

@@ -27,7 +27,6 @@ from trafficgeo.calibration.report import (
     DistanceRatios,
     FitStart,
     FitStats,
-    GCPResidual,
     ModelSummary,
     Outlier,
     PairError,
@@ -35,6 +34,7 @@ from trafficgeo.calibration.report import (
     PoseConsistency,
     Uncertainty,
 )
+from trafficgeo.camera.calibrated import CameraGCP
 from trafficgeo.camera.model import Camera
 from trafficgeo.camera.parameters import full_to_camera
 from trafficgeo.crs import metres_per_unit
@@ -244,15 +244,14 @@ def build_report(cal: Calibration) -> CalibrationReport:
 
     rows = []
     for i in range(g.n):
-        status = "check" if g.roles[i] == "check" else ("inlier" if cal.inlier[i] else "outlier")
-        rows.append(GCPResidual(
+        rows.append(CameraGCP(
             id=g.ids[i], role=g.roles[i], x=float(g.world[i, 0]), y=float(g.world[i, 1]), z=float(g.world[i, 2]),
             u=float(g.pixels[i, 0]), v=float(g.pixels[i, 1]), u_proj=float(proj[i, 0]), v_proj=float(proj[i, 1]),
-            du=float(resid[i, 0]), dv=float(resid[i, 1]), error_px=float(err[i]), inlier=bool(cal.inlier[i]),
-            loo_error_px=float(loo_err[i]), ground_error_m=float(ground_err[i]),
-            loo_ground_error_m=float(loo_ground[i]), sigma_px=float(g.sigma_px[i]),
+            error_px=float(err[i]), inlier=bool(cal.inlier[i]), loo_error_px=float(loo_err[i]),
+            sigma_px=float(g.sigma_px[i]), ground_error_m=float(ground_err[i]),
+            loo_ground_error_m=float(loo_ground[i]),
             sigma_eff_px=float(cal.sigma_eff_px[i]) if cal.sigma_eff_px.size else float("nan"),
-            status=status, reason=reasons.get(i, ""),
+            reason=reasons.get(i, ""),
         ))
 
     e_in = err[inl]

@@ -27,6 +27,7 @@ from trafficgeo.camera.parameters import FULL_NAMES, camera_to_full, full_to_cam
 from trafficgeo.errors import InputError
 from trafficgeo.io.atomic import write_json_atomic
 from trafficgeo.io.json_text import loads_json
+from trafficgeo.io.records import Flag, Num, Text
 
 CAMERA_KEYS = frozenset(("format", "image_size", "K", "dist", "R", "position", "crs", "orientation", "rvec", "tvec"))
 TYPED_KEYS = ("gcps", "stats", "model", "uncertainty", "covariance", "refinement")
@@ -50,26 +51,47 @@ def _json_float(value: float) -> float | None:
 
 @dataclass(frozen=True)
 class CameraGCP:
-    """One GCP as the calibration used it: world ``x, y, z`` (CRS units), clicked pixel ``u, v``, its projection
-    ``u_proj, v_proj`` and reprojection ``error_px`` under the camera, ``inlier`` (control points kept by the fit;
-    None for check points when not stated) and the leave-one-out error ``loo_error_px`` (NaN where unknown);
-    ``source`` is "auto" for a correspondence found by matching the orthophoto (``trafficgeo calibrate-ortho``),
-    "" for a user's point."""
+    """One GCP as the calibration used it, the one record of a GCP's outcome (the camera JSON's ``gcps`` and the
+    calibration report's): world ``x, y, z`` (CRS units), clicked pixel ``u, v`` and its ``sigma_px``, its
+    projection ``u_proj, v_proj`` and reprojection ``error_px`` under the camera, ``inlier`` (control points kept by
+    the fit; None for check points when not stated), the leave-one-out error ``loo_error_px``; the report's ground
+    errors ``ground_error_m``, ``loo_ground_error_m`` (m), the weight's ``sigma_eff_px`` and an outlier's ``reason``
+    (NaN / "" where unknown, as in a camera JSON, which does not store them); ``source`` is "auto" for a
+    correspondence found by matching the orthophoto (``trafficgeo calibrate-ortho``), "" for a user's point."""
 
-    id: str
-    role: str
-    x: float
-    y: float
-    z: float
-    u: float
-    v: float
-    u_proj: float = math.nan
-    v_proj: float = math.nan
-    error_px: float = math.nan
-    inlier: bool | None = True
-    loo_error_px: float = math.nan
-    sigma_px: float = math.nan
-    source: str = ""
+    id: Text
+    role: Text
+    x: Num
+    y: Num
+    z: Num
+    u: Num
+    v: Num
+    u_proj: Num = math.nan
+    v_proj: Num = math.nan
+    error_px: Num = math.nan
+    inlier: Flag | None = True
+    loo_error_px: Num = math.nan
+    sigma_px: Num = math.nan
+    source: Text = ""
+    ground_error_m: Num = math.nan
+    loo_ground_error_m: Num = math.nan
+    sigma_eff_px: Num = math.nan
+    reason: Text = ""
+
+    @property
+    def du(self) -> float:
+        """Residual along the image columns, projected - clicked (px)."""
+        return self.u_proj - self.u
+
+    @property
+    def dv(self) -> float:
+        """Residual along the image rows, projected - clicked (px)."""
+        return self.v_proj - self.v
+
+    @property
+    def status(self) -> str:
+        """``check``, or for a control point ``inlier`` / ``outlier`` (kept by the fit or not; not stated: kept)."""
+        return "check" if self.role == "check" else ("outlier" if self.inlier is False else "inlier")
 
     @classmethod
     def from_dict(cls, row: Any) -> CameraGCP:

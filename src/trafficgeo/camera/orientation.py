@@ -20,14 +20,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from trafficgeo.io.records import Num
+
 
 @dataclass(frozen=True)
 class Orientation:
     """Heading (deg, clockwise from grid north), tilt (deg below horizon) and roll (deg) of a camera."""
 
-    heading_deg: float
-    tilt_deg: float
-    roll_deg: float
+    heading_deg: Num
+    tilt_deg: Num
+    roll_deg: Num
 
     def to_dict(self) -> dict[str, float]:
         return {"heading_deg": self.heading_deg, "tilt_deg": self.tilt_deg, "roll_deg": self.roll_deg}

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from trafficgeo.calibration.report import CalibrationReport, read_calibration_report
+from trafficgeo.calibration.report import CalibrationReport, gcp_row, read_calibration_report
 from trafficgeo.camera.calibrated import CalibratedCamera
 from trafficgeo.errors import InputError
 from trafficgeo.report import figures as F
@@ -190,28 +190,14 @@ def _reference_xy(b: ReportContext) -> tuple[float, float] | None:
 
 
 def _gcp_table(b: ReportContext) -> pd.DataFrame | None:
-    """Per-GCP rows from the report (or, lacking it, the camera JSON) with status, du/dv (px) and, with a camera,
-    the ground residual vector gdx/gdy (CRS units) and ground error (m)."""
-    if b.report is not None and b.report.gcps:
-        g = pd.DataFrame([r.to_dict() for r in b.report.gcps])
-    else:
-        rows = (b.calibrated.gcps if b.calibrated is not None else None) or ()
-        if not rows:
-            return None
-        g = pd.DataFrame([r.to_dict() for r in rows])
-    for col in ("x", "y", "z", "u", "v", "u_proj", "v_proj", "error_px", "loo_error_px", "ground_error_m",
-                "loo_ground_error_m"):
-        g[col] = pd.to_numeric(g[col], errors="coerce") if col in g.columns else np.nan
-    g["id"] = g["id"].astype(str) if "id" in g.columns else [f"#{k + 1}" for k in range(len(g))]
-    g["role"] = g["role"].fillna("control").astype(str) if "role" in g.columns else "control"
-    if "status" not in g.columns:
-        inl = g["inlier"].fillna(True).astype(bool) if "inlier" in g.columns else True
-        g["status"] = np.where(g["role"] == "check", "check", np.where(inl, "inlier", "outlier"))
-    if "reason" not in g.columns:
-        g["reason"] = ""
-    g["reason"] = g["reason"].fillna("").astype(str)
-    g["du"] = g["u_proj"] - g["u"]
-    g["dv"] = g["v_proj"] - g["v"]
+    """Per-GCP rows (report.json's layout, :func:`~trafficgeo.calibration.report.gcp_row`) from the report (or,
+    lacking it, the camera JSON) and, with a camera, the ground residual vector gdx/gdy (CRS units) and the ground
+    error (m) where the file has none."""
+    rows = b.report.gcps if b.report is not None and b.report.gcps else \
+        (b.calibrated.gcps if b.calibrated is not None else None) or ()
+    if not rows:
+        return None
+    g = pd.DataFrame([gcp_row(r) for r in rows])  # one record of a GCP, from either file
     if b.camera is not None:
         hit = b.camera.intersect_horizontal_plane(g[["u", "v"]].to_numpy(float), g["z"].to_numpy(float))
         g["gdx"] = hit[:, 0] - g["x"].to_numpy(float)

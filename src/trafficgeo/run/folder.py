@@ -29,9 +29,9 @@ defined once (:data:`SCHEMAS`, :mod:`trafficgeo.run.schema`):
 ============================  =========================================================================
 
 The JSON files are typed records (:mod:`trafficgeo.run.records`): a run's :class:`RunWriter` writes them
-(:meth:`RunWriter.summary`, :meth:`~RunWriter.process`), as :class:`RunFolder` writes a comparison's
-(:meth:`~RunFolder.write_comparison`, :meth:`~RunFolder.write_simulation_record`); :class:`RunFolder` reads them
-back (:meth:`RunFolder.summary`, :meth:`~RunFolder.process`, :meth:`~RunFolder.compare_summary`,
+(:meth:`RunWriter.summary`, :meth:`~RunWriter.process`, :meth:`~RunWriter.compare_summary`,
+:meth:`~RunWriter.simulation`; a comparison in one block: :meth:`~RunFolder.write_comparison`); :class:`RunFolder`
+reads them back (:meth:`RunFolder.summary`, :meth:`~RunFolder.process`, :meth:`~RunFolder.compare_summary`,
 :meth:`~RunFolder.simulation_record`); the
 comparison's tables are read by :meth:`RunFolder.comparison_table`.
 
@@ -153,6 +153,14 @@ class RunWriter:
         """Write ``process.json``; returns its path."""
         return self._json("process.json", record.to_dict())
 
+    def compare_summary(self, summary: CompareSummary) -> Path:
+        """Write ``compare_summary.json``; returns its path."""
+        return self._json("compare_summary.json", summary.to_dict())
+
+    def simulation(self, record: SimulationRecord) -> Path:
+        """Write ``compare_simulation.json`` (``sumo-validate``'s record of the scenario); returns its path."""
+        return self._json(SIMULATION_RECORD, record.to_dict())
+
     def remove(self, names: Iterable[str]) -> None:
         """Remove the files ``names`` that this run did not write (left by an earlier run into the folder)."""
         keep = {p.name for p in self.written}
@@ -215,45 +223,24 @@ class RunFolder:
         write_csv_atomic(self.path / name, table, float_format=float_format)
         return self.path / name
 
-    def write_comparison(self, tables: Mapping[str, pd.DataFrame], summary: CompareSummary) -> list[Path]:
-        """Write a comparison with a simulation (``compare-sumo``): ``tables`` (:data:`COMPARE_TABLES` by name) as
-        CSV, ``compare_summary.json``, then the comparison's manifest (``compare_run.json``); returns the paths
-        written. Until the manifest is written, readers refuse the comparison."""
+    def write_comparison(self, tables: Mapping[str, pd.DataFrame], summary: CompareSummary,
+                         simulation: SimulationRecord | None = None) -> list[Path]:
+        """Write a comparison with a simulation in one :meth:`writing` block: ``tables`` (:data:`COMPARE_TABLES` by
+        name) as CSV, ``compare_summary.json`` and, from ``sumo-validate``, the ``simulation`` record of its
+        scenario (``compare_simulation.json``), then the comparison's manifest (``compare_run.json``, command
+        ``sumo-validate`` with a record, else ``compare-sumo``); returns the paths written. Until the manifest is
+        written, readers refuse the comparison."""
         unknown = sorted(set(tables) - set(COMPARE_TABLES))
         if unknown:
             raise ValueError(f"{unknown}: not tables of a comparison; one of {', '.join(COMPARE_TABLES)}")
-        with self.writing("compare-sumo", manifest=COMPARE_MANIFEST) as run:
+        command = "sumo-validate" if simulation is not None else "compare-sumo"
+        with self.writing(command, manifest=COMPARE_MANIFEST) as run:
             for name, table in tables.items():
                 run.table(name, table, float_format="%.4f")
-            run.adopt(self.write_compare_summary(summary))
+            run.compare_summary(summary)
+            if simulation is not None:
+                run.simulation(simulation)
         return run.written
-
-    def write_compare_summary(self, summary: CompareSummary) -> Path:
-        """Write ``compare_summary.json`` (atomically); returns its path. The comparison's manifest is the
-        caller's (:meth:`write_comparison` writes it)."""
-        return self._write_json("compare_summary.json", summary.to_dict())
-
-    def write_simulation_record(self, record: SimulationRecord) -> Path:
-        """Write ``compare_simulation.json`` beside the comparison written last (:meth:`write_comparison`) and
-        publish the comparison's manifest again with it, its command ``sumo-validate``; returns the record's path.
-        """
-        from trafficgeo.io.folder_lock import hold_folder
-        from trafficgeo.io.run_manifest import publish_outputs
-
-        with hold_folder(self.path):
-            files = list(verify_outputs(self.path, name=COMPARE_MANIFEST).files)
-            self._comparison = None
-            path = self._write_json(SIMULATION_RECORD, record.to_dict())
-            publish_outputs(self.path, [*(f for f in files if f != SIMULATION_RECORD), SIMULATION_RECORD],
-                            command="sumo-validate", name=COMPARE_MANIFEST)
-        return path
-
-    def _write_json(self, name: str, doc: dict[str, Any]) -> Path:
-        from trafficgeo.io.atomic import write_json_atomic
-
-        self.path.mkdir(parents=True, exist_ok=True)
-        write_json_atomic(self.path / name, doc)
-        return self.path / name
 
     # ------------------------------------------------------------------------------------------------ reading
     @property

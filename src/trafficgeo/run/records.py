@@ -10,8 +10,8 @@
                                                           (:func:`trafficgeo.simulation.loop.validate_sumo_scenario`)
 ============================  ==========================  ===================================================
 
-A run's :class:`~trafficgeo.run.folder.RunWriter` and :class:`~trafficgeo.run.folder.RunFolder` write them
-(``summary``, ``process``, ``write_compare_summary``, ``write_simulation_record``: :meth:`to_dict` through
+A run's :class:`~trafficgeo.run.folder.RunWriter` writes them (``summary``, ``process``, ``compare_summary``,
+``simulation``: :meth:`to_dict` through
 :func:`trafficgeo.io.atomic.write_json_atomic`) and reads them back (``summary()``, ``process()``,
 ``compare_summary()``, ``simulation_record()``: ``from_dict``, which validates the document against the fields'
 types with pydantic (strict JSON types: :data:`Num`, :data:`Int`, :data:`Text`, :data:`Flag`, :data:`Obj`) and
@@ -25,15 +25,14 @@ JSON. Units as in the names: seconds (``_s``), km/h (``_kmh``), vehicles per hou
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Annotated, Any
 
-from pydantic import BeforeValidator, Strict, TypeAdapter, ValidationError
+from pydantic import BeforeValidator, Strict
 
 from trafficgeo.errors import InputError
-from trafficgeo.io.atomic import to_json_safe
+from trafficgeo.io.records import NAN, Flag, Int, MaybeNum, Num, Obj, Record, RecordError, Text, read_record
 
 __all__ = ["SIMULATION_FORMAT", "SIMULATION_RECORD", "CompareSummary", "CountSummary", "LineCount", "ProcessRecord",
            "ProcessSettings", "RunSummary", "SimulationRecord", "TravelTimeSummary", "VideoRead"]
@@ -41,86 +40,22 @@ __all__ = ["SIMULATION_FORMAT", "SIMULATION_RECORD", "CompareSummary", "CountSum
 SIMULATION_RECORD = "compare_simulation.json"  # sumo-validate's record of the scenario beside the comparison
 SIMULATION_FORMAT = "trafficgeo-sumo-validation/1"
 
-NAN = float("nan")
-
-
-def _nan_for_null(value: Any) -> Any:
-    return NAN if value is None else value
-
-
 def _empty_for_null(value: Any) -> Any:
     return {} if value is None else value
 
 
-# The JSON types of the records' fields: strict (a whole number is not true, 3.0 or "3"; a number is not text), and
-# a number that is not available is NaN in memory and null in the file.
-Num = Annotated[float, BeforeValidator(_nan_for_null), Strict()]
-Int = Annotated[int, Strict()]
-Text = Annotated[str, Strict()]
-Flag = Annotated[bool, Strict()]
-Obj = Annotated[dict[str, Any], Strict()]
-MaybeNum = Annotated[float | None, Strict()]  # None means "none", not "not available"
-
-_WHAT = {"int_type": "a whole number", "float_type": "a number", "string_type": "text", "bool_type": "true or false",
-         "dict_type": "an object", "dataclass_type": "an object", "tuple_type": "a list", "list_type": "a list"}
-
-
-def _said(exc: ValidationError) -> str:
-    """The first problem of a validation, naming the key by its path in the document (``crossings[0].count``)."""
-    err = exc.errors(include_url=False)[0]
-    key = ""
-    for part in err["loc"]:
-        key += f"[{part}]" if isinstance(part, int) else f".{part}" if key else str(part)
-    if err["type"] == "missing":
-        return f"key '{key}' is missing"
-    what = _WHAT.get(err["type"])
-    return f"'{key}' is not {what}" if what else f"'{key}': {err['msg']}"
-
-
 def _read(cls: Any, doc: Any, where: str, file: str, hint: str) -> Any:
-    """``doc`` as the record ``cls`` (pydantic validates it against the fields' types); InputError naming ``where``
-    and the key otherwise."""
-    if not isinstance(doc, Mapping):
-        raise InputError(f"{where}: not a {file} written by trafficgeo (the document is not a JSON object); {hint}")
+    """``doc`` as the record ``cls`` (:func:`~trafficgeo.io.records.read_record`); InputError naming ``where`` and
+    the key otherwise."""
     try:
-        return _adapter(cls).validate_python(doc)
-    except ValidationError as exc:
-        raise InputError(f"{where}: not a {file} written by trafficgeo ({_said(exc)}); {hint}") from None
-
-
-@functools.cache
-def _adapter(cls: Any) -> TypeAdapter:
-    return TypeAdapter(cls)
-
-
-class _Record:
-    """Base of the records: ``to_dict`` in field order (records and tuples as JSON objects and lists); equal when
-    they write the same JSON (NaN, "not available", equals NaN)."""
-
-    def to_dict(self) -> dict[str, Any]:
-        return {f.name: _plain(getattr(self, f.name)) for f in fields(self)}
-
-    def __eq__(self, other: object) -> bool:
-        if type(other) is not type(self):
-            return NotImplemented
-        return to_json_safe(self.to_dict()) == to_json_safe(other.to_dict())
-
-    __hash__ = None  # type: ignore[assignment]  (equal by JSON value, which a hash of the fields would not follow)
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, _Record):
-        return value.to_dict()
-    if isinstance(value, tuple | list):
-        return [_plain(v) for v in value]
-    if isinstance(value, Mapping):
-        return {k: _plain(v) for k, v in value.items()}
-    return value
+        return read_record(cls, doc)
+    except RecordError as exc:
+        raise InputError(f"{where}: not a {file} written by trafficgeo ({exc}); {hint}") from None
 
 
 # ------------------------------------------------------------------------------------------------ summary.json
 @dataclass(frozen=True, eq=False)
-class LineCount(_Record):
+class LineCount(Record):
     """The vehicles that crossed counting line ``line`` in ``lane`` (``""``: none) in ``direction`` (+1 / -1) over
     the whole run (zeros too)."""
 
@@ -132,7 +67,7 @@ class LineCount(_Record):
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
-class RunSummary(_Record):
+class RunSummary(Record):
     """``summary.json``: the totals of an analysis, the options used and the CRS.
 
     ``period_s``: first and last time in the input tracks (s); ``vehicles``, ``points`` (trajectory points kept),
@@ -194,7 +129,7 @@ class RunSummary(_Record):
 
 # ------------------------------------------------------------------------------------------------ process.json
 @dataclass(frozen=True, eq=False)
-class ProcessSettings(_Record):
+class ProcessSettings(Record):
     """What ``process`` was asked for (``options`` of ``process.json``; :class:`trafficgeo.video.pipeline.
     ProcessOptions`): the detector (a name or a model's path) and its model layout, the time range (s of video;
     ``end_s`` None: to the end), every n-th frame, the tiles and their planning, the runtime and the tile
@@ -213,7 +148,7 @@ class ProcessSettings(_Record):
 
 
 @dataclass(frozen=True, eq=False)
-class VideoRead(_Record):
+class VideoRead(Record):
     """What ``process`` decoded (``read`` of ``process.json``): the time of the first frame and the end of the last
     one (s; None when no frame was read), the frames, and ``complete``: False when the video ended before the asked
     end (e.g. a truncated file)."""
@@ -226,7 +161,7 @@ class VideoRead(_Record):
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
-class ProcessRecord(_Record):
+class ProcessRecord(Record):
     """``process.json``: what a ``process`` run processed and how.
 
     ``video``, ``camera``: the paths as given (relative ones from the folder ``process`` ran in; ``camera`` ``""``
@@ -265,7 +200,7 @@ class ProcessRecord(_Record):
 
 # ------------------------------------------------------------------------------------------------ compare_summary.json
 @dataclass(frozen=True, eq=False)
-class CountSummary(_Record):
+class CountSummary(Record):
     """The GEH of the observed against the simulated counts (:func:`trafficgeo.traffic.compare.count_summary`):
     ``rows`` (line x lane x direction x interval), the share of them with GEH < 5, the mean GEH, the vehicles
     observed and simulated, the GEH of the total hourly flows, and ``groups``: one JSON object per line and lane
@@ -282,7 +217,7 @@ class CountSummary(_Record):
 
 
 @dataclass(frozen=True, eq=False)
-class TravelTimeSummary(_Record):
+class TravelTimeSummary(Record):
     """Travel times from the first to the last counting line, observed and simulated
     (:func:`trafficgeo.traffic.compare.compare_travel_times`): vehicles, mean, median and 85th percentile (s), the
     simulated minus observed mean (s), and the two-sample Kolmogorov-Smirnov distance and its p-value."""
@@ -304,7 +239,7 @@ class TravelTimeSummary(_Record):
 
 
 @dataclass(frozen=True, eq=False)
-class CompareSummary(_Record):
+class CompareSummary(Record):
     """``compare_summary.json``: observed against simulated traffic (``compare-sumo``, ``sumo-validate``): the
     counts' :class:`CountSummary`, the :class:`TravelTimeSummary` (None with fewer than two counting lines) and the
     CRS of the comparison (its label, :func:`trafficgeo.crs.crs_label`)."""
@@ -335,7 +270,7 @@ class CompareSummary(_Record):
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
-class SimulationRecord(_Record):
+class SimulationRecord(Record):
     """``compare_simulation.json``: the SUMO scenario ``sumo-validate`` simulated and its headline figures, beside
     the comparison tables of the run it was built from.
 

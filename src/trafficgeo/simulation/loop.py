@@ -22,9 +22,9 @@ A run without counting lines has an empty line comparison.
 
 Beside the comparison tables ``sumo-validate`` writes ``compare_simulation.json``
 (:class:`~trafficgeo.run.records.SimulationRecord`: the scenario simulated and the headline figures,
-through :meth:`~trafficgeo.run.folder.RunFolder.write_simulation_record`) and lists it in the comparison's
-manifest, whose command is then ``sumo-validate``: what tells the HTML report that the comparison is of a
-trafficgeo scenario (a plain ``compare-sumo`` writes neither).
+written with the comparison in one block: :meth:`~trafficgeo.run.folder.RunFolder.write_comparison`) and lists it
+in the comparison's manifest, whose command is then ``sumo-validate``: what tells the HTML report that the
+comparison is of a trafficgeo scenario (a plain ``compare-sumo`` writes neither).
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from trafficgeo.errors import InputError
+from trafficgeo.run.records import SimulationRecord
 from trafficgeo.simulation.scenario import (
     SimulationOutputs,
     SumoScenario,
@@ -185,7 +186,6 @@ def validate_sumo_scenario(scenario: SumoScenario | str | os.PathLike[str],
     comparison, unobserved = _compare_where_observed(obs, points)
     if sc.junction is not None:
         comparison = _compare_movements(sc, observed, points, comparison)
-    written = write_comparison(out, comparison, observed.crs)
     table = comparison.counts
     share = float((table["geh"] < GEH_LIMIT).mean()) if len(table) else float("nan")
     speeds = comparison.speeds
@@ -196,20 +196,17 @@ def validate_sumo_scenario(scenario: SumoScenario | str | os.PathLike[str],
     val = SumoValidation(sc, comparison, share, float(table["geh"].mean()) if len(table) else float("nan"), len(table),
                          bool(shares) and all(v >= GEH_TARGET_SHARE for v in shares),
                          float(np.abs(both["mean_difference_kmh"]).max())
-                         if len(both) else float("nan"), float(tt.get("mean_difference_s", np.nan)), sim, written,
+                         if len(both) else float("nan"), float(tt.get("mean_difference_s", np.nan)), sim, [],
                          unobserved, comparison.movements, float(ms.get("share_geh_below_5", np.nan)),
                          float(ms.get("mean_geh", np.nan)))
-    return replace(val, written=_record_simulation(out, val))
+    written = write_comparison(out, comparison, observed.crs, simulation=_simulation_record(val))
+    return replace(val, written=written)
 
 
-def _record_simulation(out: Path, val: SumoValidation) -> list[Path]:
-    """Write ``compare_simulation.json`` into ``out`` beside the comparison (which then has ``sumo-validate`` as
-    its command); returns all the files written."""
-    from trafficgeo.run.folder import RunFolder
-    from trafficgeo.run.records import SimulationRecord
-
+def _simulation_record(val: SumoValidation) -> SimulationRecord:
+    """``compare_simulation.json``'s record of ``val``: the scenario simulated and the headline figures."""
     sc = val.scenario
-    record = SimulationRecord(
+    return SimulationRecord(
         scenario=str(sc.folder.resolve()), net=str(sc.net), net_crs=sc.net_crs, interval_s=sc.interval_s,
         begin_s=sc.begin_s, end_s=sc.end_s, time_offset_s=sc.time_offset_s, step_s=sc.step_s, seed=sc.seed,
         vehicles=sc.vehicles, build_s=sc.build_s if sc.build_s > 0 else float("nan"),  # 0: read from its folder
@@ -219,7 +216,6 @@ def _record_simulation(out: Path, val: SumoValidation) -> list[Path]:
         travel_time_difference_s=val.travel_time_difference_s, unobserved=tuple(val.unobserved),
         warnings=tuple(sc.warnings), movements=len(val.movements) if val.movements is not None else 0,
         movement_share_geh_below_5=val.movement_share_geh_below_5, movement_mean_geh=val.movement_mean_geh)
-    return [*val.written, RunFolder(out).write_simulation_record(record)]
 
 
 def close_sumo_loop(run: str | os.PathLike[str], net: str | os.PathLike[str], out_dir: str | os.PathLike[str], *,

@@ -22,6 +22,7 @@ import pyproj
 from trafficgeo.crs import crs_label
 from trafficgeo.errors import InputError
 from trafficgeo.io.run_manifest import verify_outputs
+from trafficgeo.run.records import SimulationRecord
 from trafficgeo.site.lanes import Lanes, lanes_from_polygons
 from trafficgeo.site.lines import CountLine
 from trafficgeo.traffic.compare import (
@@ -151,11 +152,12 @@ def compare_with_simulation(observed: ObservedRun, simulated: pd.DataFrame, *,
     return Comparison(table, count_summary(table), speeds, tt, sim_cross)
 
 
-def write_comparison(out_dir: str | Path, comparison: Comparison, crs: pyproj.CRS | None) -> list[Path]:
+def write_comparison(out_dir: str | Path, comparison: Comparison, crs: pyproj.CRS | None, *,
+                     simulation: SimulationRecord | None = None) -> list[Path]:
     """``compare_counts.csv``, ``compare_speeds.csv``, ``simulated_crossings.csv`` (at a junction also
-    ``compare_movements.csv`` and ``simulated_movements.csv``) and ``compare_summary.json`` into ``out_dir``,
-    under the comparison's manifest (:meth:`~trafficgeo.run.folder.RunFolder.write_comparison`); returns the
-    paths written."""
+    ``compare_movements.csv`` and ``simulated_movements.csv``), ``compare_summary.json`` and ``sumo-validate``'s
+    ``simulation`` record into ``out_dir``, under the comparison's manifest
+    (:meth:`~trafficgeo.run.folder.RunFolder.write_comparison`); returns the paths written."""
     from trafficgeo.run.folder import RunFolder
     from trafficgeo.run.records import CompareSummary
 
@@ -167,7 +169,7 @@ def write_comparison(out_dir: str | Path, comparison: Comparison, crs: pyproj.CR
         tables["compare_movements.csv"] = comparison.movements
     if comparison.simulated_movements is not None:
         tables["simulated_movements.csv"] = comparison.simulated_movements
-    return RunFolder(out_dir).write_comparison(tables, CompareSummary.from_dict(doc, "the comparison"))
+    return RunFolder(out_dir).write_comparison(tables, CompareSummary.from_dict(doc, "the comparison"), simulation)
 
 
 def compare_with_sumo(run: ObservedRun | str | Path, fcd: str | Path, *, net: str | Path | None = None,
