@@ -137,11 +137,16 @@ def _last_digit(number: str) -> float:
     return 10.0 ** (exponent - _decimals(number))
 
 
-def assert_csv_close(new_path: object, old_path: object, name: str, tol: Tol = LAST_BITS) -> None:
+def assert_csv_close(new_path: object, old_path: object, name: str, tol: Tol = LAST_BITS, *,
+                     sort_by: tuple[str, ...] = ()) -> None:
     """Two CSV files hold the same table: the same header and rows, text and integer cells equal, and each real within
     ``tol`` or one unit in the last digit the reference printed, whichever is larger (a value rounded to 4 decimals
-    on a rounding boundary may print either way on another CPU)."""
+    on a rounding boundary may print either way on another CPU). ``sort_by``: numeric columns that identify a row,
+    for a table whose row order beyond them means nothing (rows compared in their order)."""
     new, old = (pd.read_csv(p, dtype=str, keep_default_na=False) for p in (new_path, old_path))
+    if sort_by:
+        new, old = (t.iloc[np.lexsort([pd.to_numeric(t[c]).to_numpy() for c in reversed(sort_by)])]
+                    .reset_index(drop=True) for t in (new, old))
     assert list(new.columns) == list(old.columns), f"{name}: columns {list(new.columns)} != {list(old.columns)}"
     assert len(new) == len(old), f"{name}: {len(new)} rows != {len(old)}"
     for col in old.columns:

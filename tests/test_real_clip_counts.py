@@ -104,3 +104,39 @@ def test_a_detector_object_of_ones_own_runs_the_clip(tmp_path: Path) -> None:
         assert (got.direction == sign).sum() == (truth.direction == name).sum(), got
     with pytest.raises(InputError, match="not a detector"):
         ProcessOptions(detector=object())
+
+
+def test_a_detector_object_that_learns_gets_an_untrained_copy_per_segment(tmp_path: Path) -> None:
+    """A detector object that can give an untrained copy of itself (``fresh()``, as background subtraction does)
+    learns anew for each segment of a run, as the named detector does (so a resumed run detects as an uninterrupted
+    one): the same tracks as ``detector="background"``, with a copy per segment and one per segment learning ahead.
+    """
+    from trafficgeo.geo.surface import ConstantSurface
+    from trafficgeo.video.detectors.factory import make_detector
+
+    camera = nominal_camera()
+    made: list[object] = []
+
+    class Learning:
+        name = "learning-background"
+        learns_background = True
+
+        def __init__(self, inner) -> None:
+            self.inner, self.warmup_s = inner, inner.warmup_s
+            made.append(self)
+
+        def detect(self, image, time_s):
+            return self.inner.detect(image, time_s)
+
+        def fresh(self) -> Learning:
+            return Learning(self.inner.fresh())
+
+    site = Site.load(camera, 100.0)
+    window = {"end_s": 6.0, "checkpoint_s": 2.0}  # three segments
+    with pytest.warns(UserWarning, match="loaded from a bare Camera"):
+        named = process_video(INTEL, site, tmp_path / "named", options=ProcessOptions(detector="background", **window))
+        mine = process_video(INTEL, site, tmp_path / "mine", options=ProcessOptions(
+            detector=Learning(make_detector("background", camera=camera, surface=ConstantSurface(100.0))), **window))
+    assert len(made) >= 1 + 3  # the one given, then one per segment (and those learning the next ahead)
+    assert len(mine.tracks) > 0
+    pd.testing.assert_frame_equal(mine.tracks.to_table(), named.tracks.to_table())

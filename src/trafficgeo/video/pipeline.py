@@ -84,7 +84,9 @@ class ProcessOptions:
     # a name of detectors.names.DETECTOR_NAMES, the path of an ONNX model, or a detector object: anything with
     # ``detect(image, time_s) -> Detections`` (BGR image, s), run on every detection frame of the whole video; its
     # ``name`` (else its class's) is what the run records and resumes by, ``learns_background`` (default False)
-    # whether it learns from every frame (then every frame is a detection frame)
+    # whether it learns from every frame (then every frame is a detection frame), ``fresh()`` (optional) an untrained
+    # copy of itself for each segment to learn anew (as background subtraction does), ``warmup_s`` (optional) the
+    # seconds of video it learns before it detects
     detector: str | object = "nanodet"
     detector_format: str = "auto"  # an ONNX model's layout (onnx_formats.LAYOUTS), or "auto": from the model
     start_s: float = 0.0
@@ -261,7 +263,6 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
     (``estimate``) as plain data (for ``process.json``). Without a ``camera`` (and ``surface``) the detector has no size
     filter or class in metres and no tiles. Holds the lock on ``out_dir`` while it runs (:class:`InputError` if another
     process holds it)."""
-    from trafficgeo.video.detectors.background import BackgroundDetector
     from trafficgeo.video.detectors.factory import make_detector
     from trafficgeo.video.detectors.learned import detector_plan, tiled_detector
     from trafficgeo.video.reader import video_info
@@ -280,15 +281,15 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
                          parameters=("start_s",))
     cam = camera if surface is not None else None
 
-    def new_detector():
-        if not isinstance(opts.detector, str):
-            return opts.detector  # the caller's: one for the whole run
-        return make_detector(opts.detector, camera=cam, surface=surface, roi=roi,
-                             detector_format=opts.detector_format, road=lanes, tiles=opts.tiles,
-                             tiling=opts.tiling, lines=lines, backend=opts.backend)
-
-    detector = new_detector()  # before anything is written: a bad --detector leaves nothing behind
-    learns = isinstance(detector, BackgroundDetector)
+    # before anything is written: a bad --detector leaves nothing behind; a detector object is the caller's, one for
+    # the whole run
+    detector = opts.detector if not isinstance(opts.detector, str) else make_detector(
+        opts.detector, camera=cam, surface=surface, roi=roi, detector_format=opts.detector_format, road=lanes,
+        tiles=opts.tiles, tiling=opts.tiling, lines=lines, backend=opts.backend)
+    # a detector that learns the scene and can give an untrained copy of itself (``fresh()``: background
+    # subtraction) learns anew for each segment (the module docstring); any other runs as one for the whole run
+    fresh = getattr(detector, "fresh", None)
+    learns = callable(fresh)
     plan = detector_plan(detector)
     if plan is not None:
         for line in plan.summary_lines():
@@ -349,7 +350,7 @@ def detect_and_track(video: str | Path, camera: Camera | None, surface: Surface 
         if sparse is not None:
             tiled_detector(detector).schedule = schedule  # after the cost's trial detection
         _run_segments(video, info, end_s, opts, ck, state, tracker, detector if not learns else None,
-                      new_detector, _prime_seconds(detector), progress, schedule)
+                      fresh, _prime_seconds(detector), progress, schedule)
         if schedule is not None and detector_info is not None:
             detector_info({"schedule": schedule.to_dict()})
         return _write_tables(ck, state, out)

@@ -118,6 +118,13 @@ class BackgroundDetector:
     times (s, increasing): the warm-up is counted in them.
     """
 
+    learns_background = True  # it learns the scene from every frame (process then detects on every frame)
+
+    def fresh(self) -> BackgroundDetector:
+        """A detector with the same options that has learnt nothing yet: ``process`` gives each segment of video
+        its own, learnt on the video before it, so that a resumed run detects as an uninterrupted one."""
+        return BackgroundDetector(**self._settings)
+
     def __init__(self, *, method: str = "mog2", scale: float = 0.5, warmup_s: float = WARMUP_S,
                  learning_rate: float | None = None, history: int = 500, threshold: float | None = None,
                  shadow_threshold: float = 0.5, camera: Camera | None = None,
@@ -125,7 +132,7 @@ class BackgroundDetector:
                  open_px: float | None = None, close_px: float | None = None, merge: bool = True,
                  split: bool = True, rules: SizeRules | None = None, compensate_gain: bool = True,
                  keep_merged: bool = True) -> None:
-        """Options (pixels are full-frame pixels):
+        """Options (pixels are full-frame pixels; :meth:`fresh` gives an untrained detector with the same ones):
 
         Args:
             method: "mog2" or "knn" (OpenCV background subtractors).
@@ -154,6 +161,11 @@ class BackgroundDetector:
             keep_merged: keep blobs too long or too wide for one vehicle that could not be split (step 7): fewer
                 boxes match one vehicle, more vehicles are counted.
         """
+        self._settings = dict(method=method, scale=scale, warmup_s=warmup_s, learning_rate=learning_rate,
+                              history=history, threshold=threshold, shadow_threshold=shadow_threshold, camera=camera,
+                              surface=surface, roi=roi, min_area_px=min_area_px, open_px=open_px, close_px=close_px,
+                              merge=merge, split=split, rules=rules, compensate_gain=compensate_gain,
+                              keep_merged=keep_merged)
         method = method.lower().strip()
         if method not in ("mog2", "knn"):
             raise InputError(f"BackgroundDetector: unknown method {method!r}; use 'mog2' or 'knn'")
