@@ -222,9 +222,9 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
 
 @dataclass(frozen=True)
 class _Seen:
-    """What detection and tracking of a video gave (:func:`_detect`): the tables, what was read (``read``:
-    process.json's; ``short``: the warning when less was read than asked), the detector's record, the seconds of
-    wall clock, and the counting lines too far for the detector (warnings)."""
+    """What detection and tracking of a video gave (:func:`_detect`): the detections and tracks, what was read
+    (``read``: process.json's; ``short``: the warning when less was read than asked), the detector's record, the
+    seconds of wall clock, and the counting lines too far for the detector (warnings)."""
 
     detections: DetectionFrames
     tracks: ImageTracks
