@@ -319,3 +319,36 @@ def test_a_tail_that_begins_as_its_head_ends_is_joined_to_it() -> None:
     # begun 1 s before the first ends (10 m back along it), it is another vehicle
     early = whole.iloc[k - 10:].assign(track_id="b", x=lambda p: p["x"] + 3.0 * ahead[0])
     assert not _with_trackers([first, early], {"a": "1", "b": "2"}, j)["complete"].any()
+
+
+def _straight(points: list[tuple[float, float]], speed_mps: float = 8.0, dt: float = 0.1) -> np.ndarray:
+    """Positions every ``dt`` s along the polyline ``points`` at ``speed_mps``."""
+    xy = np.asarray(points, dtype=float)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+    d = np.arange(0.0, s[-1], speed_mps * dt)
+    return np.column_stack([np.interp(d, s, xy[:, 0]), np.interp(d, s, xy[:, 1])])
+
+
+def test_a_track_that_turns_back_along_its_own_way_or_only_by_a_join_is_no_u_turn() -> None:
+    """Two ways a run shows a U-turn that no vehicle made, on the S arm (x > 0: the lanes into the junction,
+    x < 0: out of it): a tracker's identity passed from a car queued at the stop line to a car leaving by the same
+    arm just beside it comes back along its own way (0.5 m to the side): no U-turn, one end dropped (a half). A
+    way in and a way out on the other side of the road that are two pieces of track joined at the turn (a
+    vehicle's way in, another's way out): no piece of track turns round, so no U-turn.
+    The same way in and out as one piece of track is a U-turn."""
+    j = junction()
+    back = _straight([(1.75, -40.0), (1.75, -7.0), (1.25, -7.5), (1.25, -40.0)])
+    reversed_ = pd.DataFrame({"track_id": "r", "time": np.arange(len(back)) * 0.1, "x": back[:, 0],
+                              "y": back[:, 1], "speed_kmh": 28.8, "class": "car"})
+    way = _straight([(1.75, -40.0), (1.75, -6.0), (0.0, -4.0), (-1.75, -6.0), (-1.75, -40.0)])
+    whole = pd.DataFrame({"track_id": "u", "time": np.arange(len(way)) * 0.1, "x": way[:, 0], "y": way[:, 1],
+                          "speed_kmh": 28.8, "class": "car"})
+    turn = int(np.argmin(np.hypot(*way.T)))
+    joined = whole.assign(track_id="p", fragment=np.where(np.arange(len(way)) <= turn, "p.1", "p.2"),
+                          time=whole["time"] + 100.0)  # one after the other: never seen together
+    one = whole.assign(fragment="u.1", time=whole["time"] + 200.0)
+    rows = run([reversed_, joined, one], j).set_index("track_id")
+    assert sorted([rows.at["r", "origin"], rows.at["r", "destination"]]) == ["", "S"]
+    assert not rows.at["r", "complete"]
+    assert not (rows.at["p", "origin"] == rows.at["p", "destination"] == "S")
+    assert (rows.at["u", "origin"], rows.at["u", "destination"], rows.at["u", "movement"]) == ("S", "S", "U")
