@@ -14,6 +14,7 @@ from cli_support import invoke
 from trafficgeo.run.folder import RunFolder
 from trafficgeo.synth.junction_sumo import JunctionOptions
 from trafficgeo.synth.junction_world import build_junction_world
+from trafficgeo.traffic.trajectories import JUNCTION_PIXEL_SIGMA, TrajectoryOptions
 
 pytest.importorskip("sumolib")
 pytestmark = pytest.mark.slow
@@ -70,6 +71,15 @@ def test_analyze_with_gates_counts_every_movement_of_the_vehicles_that_crossed_t
     assert junction["complete"] == len(done) and junction["incomplete"] == int((~moves["complete"]).sum())
     assert junction["arms"]["S"]["approach"] == "NB" or junction["arms"]["S"]["approach"] in ("NEB", "NWB")
     assert junction["peak_hour"] is None  # 100 s: no hour to find a peak in
+    # with gates, the tracks were smoothed with the junction's pixel noise
+    options = json.loads((run / "summary.json").read_text())["options"]
+    assert options["pixel_sigma"] == JUNCTION_PIXEL_SIGMA and options["accel_sigma"] == TrajectoryOptions().accel_sigma
+
+
+def test_junction_smoothing_defaults_give_way_to_what_is_asked() -> None:
+    at = TrajectoryOptions.at_junction(pixel_sigma=5.0, accel_sigma=3.0)
+    assert (at.pixel_sigma, at.accel_sigma) == (5.0, 3.0)
+    assert TrajectoryOptions.at_junction().pixel_sigma == JUNCTION_PIXEL_SIGMA != TrajectoryOptions().pixel_sigma
 
 
 def test_a_gates_file_without_arms_or_with_one_gate_is_refused(world, tmp_path) -> None:

@@ -47,9 +47,10 @@ def analyze(
     gates: GatesOpt = None,
     interval: IntervalOpt = 60.0,
     movement_interval: MovementIntervalOpt = 900.0,
-    pixel_sigma: Annotated[float, typer.Option(help="noise of a track's ground point in the image (px)")] = 2.0,
-    accel_sigma: Annotated[float, typer.Option(help="how hard vehicles may accelerate/turn in the smoother "
-                                               "(m/s^2)")] = 1.5,
+    pixel_sigma: Annotated[float | None, typer.Option(help="noise of a track's ground point in the image (px); "
+                                                      "default 2, 3 with --gates")] = None,
+    accel_sigma: Annotated[float | None, typer.Option(help="how hard vehicles may accelerate/turn in the smoother "
+                                                      "(m/s^2); default 1.5")] = None,
     box_correction: Annotated[bool, typer.Option(help="fit a vehicle cuboid to each box for its footprint "
                                                  "centre")] = True,
     max_metres_per_px: Annotated[float, typer.Option(help="points farther away, where one pixel spans more road "
@@ -85,8 +86,9 @@ def analyze(
     check_movement_interval(movement_interval)
     check_resolution(resolution)
     journeys = JourneyOptions.with_gap(join_gap)  # before any work
-    opts = TrajectoryOptions(pixel_sigma=pixel_sigma, accel_sigma=accel_sigma, box_correction=box_correction,
-                             max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
+    given = {k: v for k, v in (("pixel_sigma", pixel_sigma), ("accel_sigma", accel_sigma)) if v is not None}
+    opts = (TrajectoryOptions.at_junction if gates is not None else TrajectoryOptions)(
+        **given, box_correction=box_correction, max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
     calibrated = camera_argument(camera)  # a bad camera file is named before the tracks are read
     folder = RunFolder(out)
     with hold_folder(out):  # refused at once while another run writes this folder; a run there stays until written

@@ -81,7 +81,8 @@ Analysis = TrafficResult  # the former name
 @dataclass(frozen=True)
 class AnalysisOptions:
     """How image tracks become traffic data (:func:`analyze`): counts per ``interval_s`` s, a junction's turning
-    movements per ``movement_interval_s`` s, the smoother's options (``trajectory``; None: the defaults) and how the
+    movements per ``movement_interval_s`` s, the smoother's options (``trajectory``; None: the defaults, at a
+    junction :meth:`~trafficgeo.traffic.trajectories.TrajectoryOptions.at_junction`) and how the
     pieces of one vehicle's track are joined (``journeys``, :mod:`trafficgeo.traffic.journeys`; None: the defaults).
     Checked when made: a bad interval fails before any work."""
 
@@ -219,16 +220,17 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
     calibration knows of its ground scale (:meth:`ScaleKnowledge.from_camera` of the calibrated camera; None for
     a camera made by hand), which places each vehicle's headline speed (:mod:`trafficgeo.traffic.speed`);
     ``journeys``: how the fragments of one vehicle are joined (:mod:`trafficgeo.traffic.journeys`); ``gates``: a
-    junction's gates, for turning movements counted per ``movement_interval_s`` s."""
+    junction's gates, for turning movements counted per ``movement_interval_s`` s (``options`` then default to
+    :meth:`TrajectoryOptions.at_junction`)."""
     from trafficgeo.site.checks import check_camera_above_surface
     from trafficgeo.traffic.counts import interval_edges
     from trafficgeo.traffic.plausibility import lanes_warning
 
     check_camera_above_surface(camera, surface)
-    opts = options or TrajectoryOptions()
     period = (float(tracks.time.min()), float(tracks.time.max())) if len(tracks) else (0.0, 0.0)
     interval_edges(*period, interval_s)  # checks the interval before the work
     junction = Junction.from_gates(gates) if gates else None
+    opts = options or (TrajectoryOptions.at_junction() if junction is not None else TrajectoryOptions())
     if junction is not None:
         from trafficgeo.traffic.movements import check_movement_interval
 

@@ -68,6 +68,10 @@ EDGE_SIGMAS = 2.0  # points within this many pixel sigmas of the end of the surf
 
 
 MAX_COAST_HIDDEN_S = 30.0  # s, the longest a vehicle hidden behind another is carried on
+# At a junction (a site with gates) the tracks are smoothed with more pixel noise by default: queued vehicles hide
+# one another, and the boxes of the half-hidden ones jitter more than on an open road (benchmarks/README.md,
+# junction benchmark, fourth pass)
+JUNCTION_PIXEL_SIGMA = 3.0
 
 
 @dataclass(frozen=True)
@@ -89,6 +93,12 @@ class TrajectoryOptions:
     top_edge_clipped: bool = True  # boxes cut off by the bottom of the frame are fitted to their top edge instead
     max_metres_per_px: float = 1.5  # farther points, where one pixel spans more of the road (m), are not used
     coast_hidden_s: float = 3.0  # s a track that vanishes behind a nearer vehicle is carried on to count lines; 0: off
+
+    @classmethod
+    def at_junction(cls, **changes: object) -> TrajectoryOptions:
+        """The defaults for a junction's turning movements (``pixel_sigma`` :data:`JUNCTION_PIXEL_SIGMA`), with
+        ``changes``."""
+        return cls(**{"pixel_sigma": JUNCTION_PIXEL_SIGMA, **changes})
 
     def __post_init__(self) -> None:
         numbers = {k: v for k, v in asdict(self).items() if isinstance(v, float | int) and not isinstance(v, bool)}
