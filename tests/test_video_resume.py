@@ -173,8 +173,12 @@ def test_a_run_whose_runtime_changed_starts_again(world: Path, tmp_path: Path,
             raise KeyboardInterrupt
         add(self, index, time_s, *rest)
 
-    with monkeypatch.context() as m:  # the first attempt: the probe chose (say) the INT8 model, then Ctrl-C
-        m.setattr(learned, "detector_backend", lambda d: replace(real(d), backend="onnxruntime-int8"))
+    def another_runtime(detector):  # what the probe would not choose on this machine (it chooses by speed)
+        chosen = real(detector)
+        return replace(chosen, backend="onnxruntime" if chosen.backend == "onnxruntime-int8" else "onnxruntime-int8")
+
+    with monkeypatch.context() as m:  # the first attempt: the probe chose another runtime, then Ctrl-C
+        m.setattr(learned, "detector_backend", another_runtime)
         m.setattr(PartBuffer, "add", stop_at_2)
         with pytest.raises(KeyboardInterrupt):
             detect_and_track(world / "video.mp4", cam, surface, out, opts, lanes=lanes)
