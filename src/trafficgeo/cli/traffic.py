@@ -87,8 +87,9 @@ def analyze(
     check_resolution(resolution)
     journeys = JourneyOptions.with_gap(join_gap)  # before any work
     given = {k: v for k, v in (("pixel_sigma", pixel_sigma), ("accel_sigma", accel_sigma)) if v is not None}
-    opts = (TrajectoryOptions.at_junction if gates is not None else TrajectoryOptions)(
-        **given, box_correction=box_correction, max_metres_per_px=max_metres_per_px, coast_hidden_s=coast_hidden)
+    smoother = TrajectoryOptions.at_junction if gates is not None else TrajectoryOptions  # its defaults
+    opts = smoother(**given, box_correction=box_correction, max_metres_per_px=max_metres_per_px,
+                    coast_hidden_s=coast_hidden)
     calibrated = camera_argument(camera)  # a bad camera file is named before the tracks are read
     folder = RunFolder(out)
     with hold_folder(out):  # refused at once while another run writes this folder; a run there stays until written

@@ -185,7 +185,8 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
         t = g["time"].to_numpy(dtype=np.float64)
         ok = np.all(np.isfinite(xy), axis=1)
         xy, t = xy[ok], t[ok]
-        pieces = g["fragment"].astype(str).to_numpy()[ok] if "fragment" in g.columns else np.full(len(t), tid)
+        pieces = (g["fragment"].fillna(tid).astype(str).to_numpy(dtype=object)[ok] if "fragment" in g.columns
+                  else np.full(len(t), tid, dtype=object))  # each point's world fragment
         if len(xy) == 0:
             continue
         ev = by_track.get(tid)
@@ -215,9 +216,9 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
                      "_v0": float(np.nan_to_num(speed[0])) if len(speed) else 0.0,
                      "_v1": float(np.nan_to_num(speed[-1])) if len(speed) else 0.0, "_n": len(t),
                      "_d0": _travel_direction(xy, True, metres_per_unit),
-                     "_d1": _travel_direction(xy, False, metres_per_unit), "_t": t, "_xy": xy, "_pieces": pieces,
+                     "_d1": _travel_direction(xy, False, metres_per_unit), "_t": t, "_xy": xy,
                      "_trackers": trackers.get(tid, set())})
-        _check_u_turn(rows[-1], arms, junction.centre, metres_per_unit)
+        _check_u_turn(rows[-1], pieces, arms, junction.centre, metres_per_unit)
     rows = pair_halves(rows, metres_per_unit)
     rows = pair_halves(merge_doubles(rows, metres_per_unit), metres_per_unit)  # halves that doubles completed
     rows = join_judged_halves(rows)
@@ -231,13 +232,13 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
     return table.sort_values(["entry_time", "track_id"], kind="stable", na_position="last").reset_index(drop=True)
 
 
-def _swing_m(xy: np.ndarray, centre: np.ndarray, out: np.ndarray, metres_per_unit: float) -> float:
+def _swing_m(xy: np.ndarray, k: int, centre: np.ndarray, out: np.ndarray, metres_per_unit: float) -> float:
     """How far (m) a path that goes in along an arm (unit vector ``out`` from the centre) and back out again comes
-    back to the side of the way it went in: the median sideways distance between its two halves (split where it
-    comes nearest the centre) at the same distances along the arm; inf where the halves share no such distance."""
+    back to the side of the way it went in: the median sideways distance between its two halves (split at point
+    ``k``, where it comes nearest the centre) at the same distances along the arm; inf where the halves share no
+    such distance."""
     rel = xy - centre
     along, side = rel @ out, rel @ np.array([-out[1], out[0]])
-    k = int(np.argmin(np.hypot(*rel.T)))
     (a_in, s_in), (a_out, s_out) = (along[: k + 1], side[: k + 1]), (along[k:], side[k:])
     lo, hi = max(a_in.min(), a_out.min()), min(a_in.max(), a_out.max())
     if a_in.size < 2 or a_out.size < 2 or not hi > lo:
@@ -248,37 +249,39 @@ def _swing_m(xy: np.ndarray, centre: np.ndarray, out: np.ndarray, metres_per_uni
     return float(np.median(np.abs(gap))) * metres_per_unit
 
 
-def _one_piece_turns(row: dict, centre: np.ndarray, metres_per_unit: float) -> bool:
-    """Whether the piece of track (world fragment, ``row["_pieces"]``) that comes nearest the centre turns round by
-    itself (its own first and last travel :data:`U_TURN_MIN_DEG` or more apart): a U-turn made only by joining
-    pieces of track (a vehicle's way in and another's way out) is not shown by any of them."""
-    xy, pieces = row["_xy"], row.get("_pieces")
-    if pieces is None or len(set(pieces)) < 2:
-        return True
-    mine = xy[pieces == pieces[int(np.argmin(np.hypot(*(xy - centre).T)))]]
+def _one_piece_turns(xy: np.ndarray, pieces: np.ndarray, k: int, metres_per_unit: float) -> bool:
+    """Whether the piece of track (``pieces``: each point's world fragment) holding point ``k``, where the path
+    comes nearest the centre, turns round by itself (its own first and last travel :data:`U_TURN_MIN_DEG` or more
+    apart): a U-turn made only by joining pieces of track (a vehicle's way in and another's way out) is not shown by
+    any of them."""
+    mine = xy[pieces == pieces[k]]
+    if len(mine) == len(xy):
+        return True  # one piece: its turn is the whole path's (checked by the caller)
     d0, d1 = _travel_direction(mine, True, metres_per_unit), _travel_direction(mine, False, metres_per_unit)
     return d0 is not None and d1 is not None and float(d0 @ d1) <= np.cos(np.radians(U_TURN_MIN_DEG))
 
 
-def _check_u_turn(row: dict, arms: _Arms, centre: np.ndarray, metres_per_unit: float = 1.0) -> None:
+def _check_u_turn(row: dict, pieces: np.ndarray, arms: _Arms, centre: np.ndarray, metres_per_unit: float) -> None:
     """A vehicle that leaves by the arm it came from made a U-turn only if it went well into the junction (within
     :data:`U_TURN_REACH_SHARE` of the gate's distance from the centre), turned round (its first and last travel
-    :data:`U_TURN_MIN_DEG` or more apart, where both are known) within one piece of track (:func:`_one_piece_turns`)
-    and came back on the other side of the road (at least :data:`U_TURN_MIN_SWING_M` to the side of the way in:
-    :func:`_swing_m`). Otherwise the piece of track
-    crossed its gate twice without turning (a box jittering at the gate, the two ends of a bus) or went back along
-    its own way (the tracker's identity passed from a queued vehicle to one leaving by the same arm): the end that
-    goes against its motion along the arm is dropped, leaving a half for
+    :data:`U_TURN_MIN_DEG` or more apart, where both are known) within one piece of track (``pieces``: each point's
+    world fragment; :func:`_one_piece_turns`) and came back on the other side of the road (at least
+    :data:`U_TURN_MIN_SWING_M` to the side of the way in: :func:`_swing_m`). Otherwise the piece of track crossed
+    its gate twice without turning (a box jittering at the gate, the two ends of a bus) or went back along its own
+    way (the tracker's identity passed from a queued vehicle to one leaving by the same arm): the end that goes
+    against its motion along the arm is dropped, leaving a half for
     :func:`~trafficgeo.traffic.movement_pieces.pair_halves` (in place)."""
     if not row["origin"] or row["origin"] != row["destination"]:
         return
     i = arms.names.index(row["origin"])
     along = (row["_xy"] - centre) @ arms.out[i]
-    deep = float(np.min(np.hypot(*(row["_xy"] - centre).T))) <= U_TURN_REACH_SHARE * arms.reach[i]
+    reach = np.hypot(*(row["_xy"] - centre).T)
+    k = int(np.argmin(reach))  # where it comes nearest the centre
+    deep = float(reach[k]) <= U_TURN_REACH_SHARE * arms.reach[i]
     d0, d1 = row["_d0"], row["_d1"]
     turned = d0 is None or d1 is None or float(d0 @ d1) <= np.cos(np.radians(U_TURN_MIN_DEG))
-    if deep and turned and _one_piece_turns(row, centre, metres_per_unit) \
-            and _swing_m(row["_xy"], centre, arms.out[i], metres_per_unit) >= U_TURN_MIN_SWING_M:
+    if deep and turned and _one_piece_turns(row["_xy"], pieces, k, metres_per_unit) \
+            and _swing_m(row["_xy"], k, centre, arms.out[i], metres_per_unit) >= U_TURN_MIN_SWING_M:
         return
     if along[-1] > along[0]:  # moving out along the arm: it left by it, it did not come from it
         row.update(origin="", origin_by="", entry_time=np.nan)
