@@ -194,11 +194,27 @@ def run_demo(out: Path, *, seed: int = 7, console: Console | None = None, world:
     return cmp
 
 
+def true_line_counts(rows: pd.DataFrame, truth: pd.DataFrame, mapping: pd.DataFrame) -> np.ndarray:
+    """The true count of each count row (``line, lane, direction, interval_start, interval_end``; lanes named as
+    :func:`~trafficgeo.synth.world.truth_lane_name`) from the world's ``truth_counts.csv`` rows. A lane's true
+    vehicles cross a line one way, the way its SUMO lane runs (``mapping``: the scenario's ``mapping.csv``, mapped
+    rows with an empty ``problem``); a row counted the other way (a crossing seen against the traffic) has none."""
+    from trafficgeo.synth.world import truth_lane_name
+
+    lane = truth_lane_name(truth["direction"], truth["lane"])
+    line = truth["line"].astype(str).to_numpy()
+    time = truth["time"].to_numpy(float)
+    with_traffic = {(str(r.line), str(r.lane), int(r.direction)) for r in mapping.itertuples() if r.problem == ""}
+    return np.array([int(((line == str(r.line)) & (lane == r.lane) & (time >= r.interval_start)
+                          & (time < r.interval_end)).sum())
+                     if (str(r.line), str(r.lane), int(r.direction)) in with_traffic else 0
+                     for r in rows.itertuples()], dtype=int)
+
+
 def _simulation(out: Path, wdir: Path, opts: WorldOptions, con: Console) -> dict[str, float]:
     """Step 7: the loop closed - the video's counts -> SUMO demand on the world's network -> SUMO run -> the
     simulated counts against the video's and against the truth; the scenario stays in OUT/sumo for sumo-gui."""
     from trafficgeo.simulation.loop import close_sumo_loop
-    from trafficgeo.synth.world import truth_lane_name
     from trafficgeo.traffic.compare import geh
 
     net, scenario, interval_s = wdir / "sumo" / "road.net.xml", out / "sumo", 60.0
@@ -209,21 +225,18 @@ def _simulation(out: Path, wdir: Path, opts: WorldOptions, con: Console) -> dict
                            comparison_dir=out / "video")
     val = loop.validation
     rows = val.comparison.counts
-    truth = pd.read_csv(wdir / "truth_counts.csv")
-    truth["lane_name"] = truth_lane_name(truth["direction"], truth["lane"])
-    true_n = [int(((truth["line"].astype(str) == str(r.line)) & (truth["lane_name"] == r.lane)
-                   & (truth["time"] >= r.interval_start) & (truth["time"] < r.interval_end)).sum())
-              for r in rows.itertuples()]
+    true_n = true_line_counts(rows, pd.read_csv(wdir / "truth_counts.csv"),
+                              pd.read_csv(scenario / "mapping.csv", keep_default_na=False, dtype={"line": str}))
     per_hour = 3600.0 / (rows["interval_end"] - rows["interval_start"]).to_numpy(float)  # GEH is on hourly flows
     geh_truth = np.asarray(geh(rows["simulated_flow_veh_h"].to_numpy(float), np.asarray(true_n, float) * per_hour),
                            dtype=float)
     t = Table(title=f"The loop closed: SUMO demand fitted to the video's counts ({interval_s:g} s intervals), "
                     "simulated against the video and the truth")
-    for col in ("line", "lane", "interval (s)", "truth", "video", "simulated", "GEH vs video", "GEH vs truth"):
+    for col in ("line", "lane", "dir", "interval (s)", "truth", "video", "simulated", "GEH vs video", "GEH vs truth"):
         t.add_column(col, justify="left" if col in ("line", "lane") else "right")
     for r, n, g in zip(rows.itertuples(), true_n, geh_truth, strict=True):
-        t.add_row(str(r.line), str(r.lane), f"{r.interval_start:.0f}-{r.interval_end:.0f}", str(n),
-                  str(int(r.observed)), str(int(r.simulated)), f"{r.geh:.2f}", f"{g:.2f}")
+        t.add_row(str(r.line), str(r.lane), f"{int(r.direction):+d}", f"{r.interval_start:.0f}-{r.interval_end:.0f}",
+                  str(n), str(int(r.observed)), str(int(r.simulated)), f"{r.geh:.2f}", f"{g:.2f}")
     con.print(t)
     m = {"sumo_share_geh_below_5": float(val.share_geh_below_5),
          "sumo_share_geh_below_5_vs_truth": float(np.mean(geh_truth < 5.0)) if geh_truth.size else float("nan"),
