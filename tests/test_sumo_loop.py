@@ -42,11 +42,11 @@ def world(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return {"base": base, "net": sumo.net, "run": base / "run", "run_utm": base / "run_utm"}
 
 
-def _check_fit(loop: tg.SumoLoopResult) -> None:
+def _check_fit(loop: tg.SumoLoopResult, min_share: float = 1.0) -> None:
     table = loop.validation.comparison.counts
     assert len(table) == 2 * 4 * 2  # 2 lines x 4 lanes (2 per direction) x 2 intervals
-    assert (table["geh"] < 5).all(), table
-    assert loop.share_geh_below_5 == 1.0 and loop.validation.target_met
+    assert (table["geh"] < 5).mean() >= min_share, table
+    assert loop.share_geh_below_5 >= min_share and loop.validation.target_met
     # every observed vehicle is simulated within a few percent (routeSampler meets the edge counts)
     obs, sim = int(table["observed"].sum()), int(table["simulated"].sum())
     assert obs > 700 and abs(sim - obs) <= 0.05 * obs, (obs, sim)
@@ -54,6 +54,23 @@ def _check_fit(loop: tg.SumoLoopResult) -> None:
     speeds = loop.validation.comparison.speeds
     assert len(speeds) == 8 and (speeds["mean_difference_kmh"].abs() <= 2.5).all(), speeds
     assert abs(loop.validation.travel_time_difference_s) < 1.0
+
+
+def test_the_simulated_vehicles_cross_the_fitted_lines_when_the_observed_ones_did(world: dict[str, Path],
+                                                                                  tmp_path: Path) -> None:
+    """Each simulated vehicle takes an observed vehicle's time at the first line along its edge: the demand replays
+    the arrivals, not only their number per interval (routeSampler alone spreads them at random over it)."""
+    loop = tg.close_sumo_loop(world["run"], world["net"], tmp_path / "scenario", interval_s=INTERVAL_S, seed=0)
+    obs = pd.read_csv(world["run"] / "crossings.csv", dtype={"line": str})
+    sim = loop.validation.comparison.simulated_crossings.astype({"line": str})
+    for line, direction in (("s-100", -1), ("s100", 1)):  # the first line along d1 and along d2
+        t_obs = np.sort(obs.loc[(obs["line"] == line) & (obs["direction"] == direction), "time"].to_numpy(float))
+        t_sim = np.sort(sim.loc[(sim["line"] == line) & (sim["direction"] == direction), "time"].to_numpy(float))
+        assert len(t_obs) > 150 and len(t_sim) == len(t_obs)
+        gaps = np.abs(t_sim - t_obs)
+        # measured: median 0.0002 s, 95th percentile 0.0007 s; routeSampler's own departures gave a median of
+        # 27.6 s and a 95th percentile of 63 s (and before the departures were put on SUMO's steps, 0.47 / 0.79 s)
+        assert np.median(gaps) < 0.1 and np.quantile(gaps, 0.95) < 0.5, (np.median(gaps), np.quantile(gaps, 0.95))
 
 
 def test_round_trip_reproduces_the_observed_counts(world: dict[str, Path], tmp_path: Path) -> None:
@@ -200,7 +217,14 @@ def test_a_network_of_several_edges_with_a_side_road(world: dict[str, Path], tmp
     routes = (loop.scenario.folder / "demand.rou.xml").read_text()
     through = routes.count('edges="a1 b1"') + routes.count('edges="b2 a2"')
     assert through >= 0.9 * loop.scenario.vehicles  # measured: 199 of 204
-    _check_fit(loop)
+    # Downstream of the junction SUMO's own lane changing spreads the vehicles over the two lanes: one count in 16
+    # may miss GEH 5 (measured on world seeds 1-4: 93.8-100 % of the counts below 5; before the observed times
+    # were replayed, 87.5-100 %), while every count at the lines the demand is fitted to is met.
+    _check_fit(loop, min_share=0.9)
+    table = loop.validation.comparison.counts
+    fitted = ((table["line"] == "s-100") & (table["direction"] == -1)) | ((table["line"] == "s100")
+                                                                        & (table["direction"] == 1))
+    assert (table.loc[fitted, "geh"] < 1.0).all(), table
 
 
 def test_a_line_over_two_parallel_edges_without_lanes_is_ambiguous(world: dict[str, Path], tmp_path: Path) -> None:
@@ -299,8 +323,11 @@ def test_departure_lanes_and_speeds_come_from_observed_vehicles(world: dict[str,
     depart = np.array([float(v.get("depart")) for v in veh])
     assert np.all(np.diff(depart) >= 0) and depart.min() >= 0  # sorted, after the start of the simulation
     assert {v.get("departLane") for v in veh} <= {"0", "1"}  # every route starts on an observed edge
-    # inserted 30 m before the first line along their edge (at 140 m on both edges)
-    assert {v.get("departPos") for v in veh} == {"110.00"}
+    # inserted 30 m before the first line along their edge (at 140 m on both edges), a little farther back when the
+    # departure was moved to the SUMO step before it: by what the vehicle drives in under one 0.5 s step
+    pos = np.array([float(v.get("departPos")) for v in veh])
+    assert np.all((pos <= 110.0) & (pos > 110.0 - 0.5 * 2.0 * ROAD.speed_limit_kmh / 3.6)), pos
+    assert np.allclose(np.round(depart / 0.5) * 0.5, depart, atol=0.006)  # written to 0.01 s
 
 
 def test_user_routes_and_the_run_a_scenario_belongs_to(world: dict[str, Path], tmp_path: Path) -> None:

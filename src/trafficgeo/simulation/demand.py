@@ -6,10 +6,12 @@ line x lane x direction count goes to the SUMO edge it maps to (:mod:`trafficgeo
 an edge are summed and, when several lines observe one edge, the first line along it gives its count
 (routeSampler wants one ``entered`` count per edge and interval; the others are reproduced by the simulation, or
 not, between the lines). ``routeSampler.py --optimize full`` picks vehicles on candidate routes
-(``randomTrips.py`` on the network, or the user's routes) so that the counts per edge and interval are met, with
-departure times spread over each interval *of the observation*. Each vehicle's departure is then moved earlier by
-its expected travel time from the start of its route to the first observed line on it (distance / the observed
-mean speed on that edge), so that it crosses the line in the interval it was counted in. A vehicle whose route
+(``randomTrips.py`` on the network, or the user's routes) so that the counts per edge and interval are met (it
+spreads their departures at random over each interval). Each vehicle then takes the time at which an observed
+vehicle crossed the first observed line on its route (:func:`place_departures`: an observed vehicle seen there
+first, of that interval) and departs its travel time earlier (distance / that vehicle's spot speed), so that the
+demand replays the observed arrivals, not only their number per interval; a vehicle left without an observed time
+keeps routeSampler's, moved earlier by its travel time at the observed mean speed on that edge. A vehicle whose route
 starts on the edge of that line enters :data:`ENTRY_M` before the line (not at the start of the edge), so that it
 reaches the line on the lane and at the speed it was given. Demand starts :func:`warmup_s` before the observation,
 at the rate of its first interval, so that the vehicles already on the road when it begins are simulated too.
@@ -277,29 +279,51 @@ def sample_routes(routes: Path, counts: DemandCounts, work: Path, *, seed: int) 
 def _observed_pools(observed: ObservedRun, mapping: LaneMapping, counts: DemandCounts
                     ) -> dict[tuple[str, float], pd.DataFrame]:
     """The observed vehicles at the first line of each mapped edge, per (edge, interval start): lane index, class,
-    speed factor (spot speed / the lane's speed limit)."""
+    speed factor (spot speed / the lane's speed limit), spot speed (m/s) and the time to replay (s, in the order
+    of the times; NaN where the vehicle was seen at a mapped line before: it is in the demand by that line). The
+    warm-up's pool: the vehicles on the road when the observation begins (first seen downstream of the first line
+    of their edge), timed back to that line at their spot speed, then the first interval's vehicles without a time
+    (their class, lane and speed only)."""
     cr = _mapped_crossings(observed, mapping, counts.begin_s, counts.end_s)
-    cr = cr[cr["line"] == cr["sumo_edge"].map(first_lines(mapping))]
+    t = cr["time"].to_numpy(np.float64)
+    seen_first = t <= cr.groupby("track_id")["time"].transform("min").to_numpy(np.float64) + 1e-9
+    first_pos = cr["sumo_edge"].map(mapping.mapped.groupby("sumo_edge")["pos_m"].min()).to_numpy(np.float64)
+    at_first = (cr["line"] == cr["sumo_edge"].map(first_lines(mapping))).to_numpy()
+    speed = cr["speed_kmh"].to_numpy(np.float64) / 3.6
+    back = t - (cr["pos_m"].to_numpy(np.float64) - first_pos) / np.where(speed > 0.5, speed, np.nan)
+    on_road = seen_first & ~at_first & (back < counts.begin_s)  # NaN (no speed) compares False
     limit = {c.lane: c.speed_limit_mps for c in mapping.crossings}
     starts = np.sort(counts.edges["interval_start"].unique())
-    k = np.clip(np.searchsorted(starts, cr["time"].to_numpy(np.float64), side="right") - 1, 0, None)
-    factor = cr["speed_kmh"].to_numpy(np.float64) / 3.6 / cr["sumo_lane"].map(limit).to_numpy(np.float64)
-    table = pd.DataFrame({"edge": cr["sumo_edge"].astype(str).to_numpy(), "start": starts[k] if len(starts) else [],
+    k = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, None)
+    factor = speed / cr["sumo_lane"].map(limit).to_numpy(np.float64)
+    warm = counts.begin_s - counts.warmup_s
+    table = pd.DataFrame({"edge": cr["sumo_edge"].astype(str).to_numpy(),
+                          "start": np.where(on_road, warm, starts[k] if len(starts) else np.nan),
                           "lane": cr["sumo_lane"].astype(str).str.rpartition("_")[2].to_numpy(),
                           "vclass": cr["class"].fillna("").astype(str).str.lower().replace("", "car").to_numpy(),
-                          "speed_factor": np.clip(factor, 0.2, 2.0)})
-    pools = {(str(e), float(t)): g.reset_index(drop=True) for (e, t), g in table.groupby(["edge", "start"])}
-    for edge in {e for e, _ in pools}:  # the warm-up draws from the first interval's vehicles
-        first = min(t for e, t in pools if e == edge)
-        pools[(edge, counts.begin_s - counts.warmup_s)] = pools[(edge, first)]
+                          "speed_factor": np.clip(factor, 0.2, 2.0),
+                          "time": np.where(on_road, back, np.where(seen_first, t, np.nan)),
+                          "speed_mps": speed})[at_first | on_road]
+    pools = {(str(e), float(s)): g.sort_values("time").reset_index(drop=True)
+             for (e, s), g in table.groupby(["edge", "start"]) if s != warm}
+    for edge in {e for e, _ in pools}:
+        first = min(s for e, s in pools if e == edge)
+        on = table[(table["edge"] == edge) & (table["start"] == warm)]
+        pools[(edge, warm)] = pd.concat([on.sort_values("time"), pools[(edge, first)].assign(time=np.nan)],
+                                        ignore_index=True)
     return pools
 
 
 def place_departures(sampled: list[Path], net_lengths: dict[str, float], observed: ObservedRun, mapping: LaneMapping,
-                     counts: DemandCounts, *, seed: int) -> SampledDemand:
-    """Read routeSampler's vehicles; move each departure earlier by its travel time to the first observed line on
-    its route; give it the class, speed factor and (when its route starts on that edge) lane of an observed
-    vehicle of that line and interval (drawn without replacement while there are enough)."""
+                     counts: DemandCounts, *, seed: int, step_s: float = 0.5) -> SampledDemand:
+    """Read routeSampler's vehicles; give each the class, speed factor, time at the line and (when its route
+    starts on that edge) lane of an observed vehicle of the first observed line on its route and its interval
+    (drawn without replacement while there are enough, their times in the order of routeSampler's departures); make
+    each depart its travel time to that line before the observed vehicle crossed it (routeSampler's own departure
+    time where no observed vehicle was left to draw). In the warm-up the vehicles on the road when the observation
+    begins are replayed; the others pass the last line on their edge before it begins. Times are those of the
+    footprint's centre, as the comparison's (:func:`~trafficgeo.traffic.validation.simulated_points`); a vehicle
+    entering on the edge of its line departs on a simulation step (``step_s``, s), a little farther back."""
     vehicles = []
     for path in sampled:
         try:
@@ -311,7 +335,7 @@ def place_departures(sampled: list[Path], net_lengths: dict[str, float], observe
              if np.isfinite(v) and v > 0.5}
     first_pos = mapping.mapped.groupby("sumo_edge")["pos_m"].min().to_dict()
     starts = np.sort(counts.edges["interval_start"].unique())
-    depart, edges_of, lag, key_of, at_start, depart_pos = [], [], [], [], [], []
+    depart, edges_of, dist_of, key_of, at_start, depart_pos = [], [], [], [], [], []
     for veh in vehicles:
         route = veh.find("route")
         edges = (route.get("edges", "") if route is not None else "").split()
@@ -326,45 +350,97 @@ def place_departures(sampled: list[Path], net_lengths: dict[str, float], observe
                 break
             dist += net_lengths.get(e, 0.0)
         entry = max(0.0, float(first_pos[edges[0]]) - ENTRY_M) if k_first == 0 else np.nan
-        v = speed.get(edges[k_first], 13.9) if k_first is not None else 13.9
-        lag.append((dist - (entry if k_first == 0 else 0.0)) / v if k_first is not None else 0.0)
+        dist_of.append((dist - (entry if k_first == 0 else 0.0)) if k_first is not None else 0.0)
         depart_pos.append(entry)
         depart.append(t)
         edges_of.append(edges)
         start = float(starts[max(0, np.searchsorted(starts, t, side="right") - 1)]) if len(starts) else np.nan
         key_of.append((edges[k_first], start) if k_first is not None else None)
         at_start.append(k_first == 0)
-    vclass, lanes, factor = _draw_observed(key_of, at_start, _observed_pools(observed, mapping, counts),
-                                           np.random.default_rng(seed))
-    lag_a = np.asarray(lag, dtype=np.float64)
+    drawn = _draw_observed(key_of, at_start, np.asarray(depart, dtype=np.float64),
+                           _observed_pools(observed, mapping, counts), np.random.default_rng(seed))
+    edge_speed = np.array([speed.get(k[0], 13.9) if k is not None else 13.9 for k in key_of], dtype=np.float64)
+    own = np.isfinite(drawn.speed_mps) & (drawn.speed_mps > 0.5)
+    v = np.where(own, drawn.speed_mps, edge_speed)
+    half_length = dimensions_for(drawn.vclass)[:, 0] / 2.0 if key_of else np.zeros(0)
+    lag_a = (np.asarray(dist_of, dtype=np.float64) + np.where([k is not None for k in key_of], half_length, 0.0)) / v
+    at_line = np.where(np.isfinite(drawn.time_s), drawn.time_s, np.asarray(depart, dtype=np.float64))
+    # the warm-up's vehicles without an observed time pass the last line on their edge before the observation begins
+    warm, w = counts.begin_s - counts.warmup_s, counts.warmup_s
+    span = mapping.mapped.groupby("sumo_edge")["pos_m"].agg(lambda p: float(p.max() - p.min()))
+    for i, k in enumerate(key_of):
+        if k is not None and k[1] == warm and not np.isfinite(drawn.time_s[i]):
+            clear = min(w, float(span.get(k[0], 0.0)) / edge_speed[i] + 2.0)
+            at_line[i] = warm + (at_line[i] - warm) * (w - clear) / w
     max_lag = float(lag_a.max()) if lag_a.size else 0.0
-    offset = 10.0 * math.ceil(max(0.0, max_lag + 10.0 - (counts.begin_s - counts.warmup_s)) / 10.0)
-    return SampledDemand(np.asarray(depart, dtype=np.float64) + offset - lag_a, edges_of, vclass, lanes, factor,
-                         np.asarray(depart_pos, dtype=np.float64), offset, max_lag)
+    first = min(counts.begin_s - counts.warmup_s, float(at_line.min()) if at_line.size else 0.0)
+    offset = 10.0 * math.ceil(max(0.0, max_lag + 10.0 - first) / 10.0)
+    depart_s, pos = at_line + offset - lag_a, np.asarray(depart_pos, dtype=np.float64)
+    # SUMO inserts a vehicle at the first step after its departure: one that enters on the edge of its line departs
+    # on the step before, as far back as it drives meanwhile
+    on_step = np.floor(depart_s / step_s + 1e-9) * step_s
+    back = v * (depart_s - on_step)
+    snap = np.isfinite(pos) & (pos - back >= 0.0)
+    depart_s, pos = np.where(snap, on_step, depart_s), np.where(snap, pos - back, pos)
+    return SampledDemand(depart_s, edges_of, drawn.vclass, drawn.lanes, drawn.speed_factor, pos, offset, max_lag)
 
 
-def _draw_observed(keys: list[tuple[str, float] | None], at_start: list[bool],
-                   pools: dict[tuple[str, float], pd.DataFrame], rng: np.random.Generator
-                   ) -> tuple[list[str], list[str], np.ndarray]:
-    """For the vehicles of each (edge, interval): observed vehicles of the pool in a random order (then drawn
-    again at random when the pool is smaller)."""
+@dataclass(frozen=True)
+class _Drawn:
+    """What each vehicle of the demand took from an observed vehicle ("" / "random" / NaN where none)."""
+
+    vclass: list[str]
+    lanes: list[str]
+    speed_factor: np.ndarray
+    time_s: np.ndarray  # when the observed vehicle crossed the line (run clock, s); NaN: keep routeSampler's time
+    speed_mps: np.ndarray  # its spot speed there
+
+
+def _nearest_in_order(depart: np.ndarray, times: np.ndarray) -> set[int]:
+    """Positions of ``len(times)`` of the sorted ``depart`` (s), each the nearest free one to a time of the sorted
+    ``times`` (s), taken in the order of the times."""
+    if len(times) >= len(depart):
+        return set(range(len(depart)))
+    free = np.ones(len(depart), dtype=bool)
+    for t in times:
+        q = int(np.argmin(np.where(free, np.abs(depart - t), np.inf)))
+        free[q] = False
+    return set(np.flatnonzero(~free).tolist())
+
+
+def _draw_observed(keys: list[tuple[str, float] | None], at_start: list[bool], depart: np.ndarray,
+                   pools: dict[tuple[str, float], pd.DataFrame], rng: np.random.Generator) -> _Drawn:
+    """For the vehicles of each (edge, interval): the pool's observed vehicles with a time, as many as there are
+    vehicles (drawn at random when there are more), go in the order of their times to the vehicles whose departures
+    ``depart`` (s) lie nearest them; the other vehicles draw the pool's other observed vehicles in a random order,
+    then at random again when the pool is used up, without a time."""
     n = len(keys)
-    vclass, lanes, factor = [""] * n, ["random"] * n, np.full(n, np.nan)
+    vclass, lanes = [""] * n, ["random"] * n
+    factor, time_s, speed = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
     groups: dict[tuple[str, float], list[int]] = {}
     for i, k in enumerate(keys):
         if k is not None and k in pools:
             groups.setdefault(k, []).append(i)
     for k, idx in sorted(groups.items()):
-        pool = pools[k]
-        order = rng.permutation(len(pool))
-        if len(idx) > len(pool):
-            order = np.concatenate([order, rng.integers(0, len(pool), len(idx) - len(pool))])
-        for i, j in zip(idx, order[: len(idx)], strict=True):
+        pool = pools[k]  # in the order of the observed times
+        idx = sorted(idx, key=lambda i: (depart[i], i))
+        has_time = np.flatnonzero(np.isfinite(pool["time"].to_numpy(np.float64)))
+        m = min(len(idx), len(has_time))
+        timed = np.sort(rng.choice(has_time, m, replace=False))
+        to_time = _nearest_in_order(depart[idx], pool["time"].to_numpy(np.float64)[timed])
+        rest = rng.permutation(np.setdiff1d(np.arange(len(pool)), timed))
+        rest = np.concatenate([rest, rng.integers(0, len(pool), max(0, len(idx) - m - len(rest)))]).astype(int)
+        it, ir = iter(timed), iter(rest)
+        for q, i in enumerate(idx):
+            j = int(next(it)) if q in to_time else int(next(ir))
             vclass[i] = str(pool.at[j, "vclass"])
             factor[i] = float(pool.at[j, "speed_factor"])
+            speed[i] = float(pool.at[j, "speed_mps"])
+            if q in to_time:
+                time_s[i] = float(pool.at[j, "time"])
             if at_start[i]:
                 lanes[i] = str(pool.at[j, "lane"])
-    return vclass, lanes, factor
+    return _Drawn(vclass, lanes, factor, time_s, speed)
 
 
 def demand_xml(types: list[VehicleType], demand: SampledDemand) -> str:

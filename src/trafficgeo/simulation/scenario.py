@@ -227,7 +227,7 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
                                  parameters=("routes",))
             parts = _junction_parts(observed, Path(net), interval, b, e, net_crs, seed)
         else:
-            parts = _line_parts(observed, Path(net), interval, b, e, routes, net_crs, seed, work)
+            parts = _line_parts(observed, Path(net), interval, b, e, routes, net_crs, seed, work, step_s)
         offset = parts.demand.time_offset_s
         out.mkdir(parents=True, exist_ok=True)
         with hold_folder(out):  # one run at a time in a folder
@@ -235,7 +235,8 @@ def build_sumo_scenario(run: str | os.PathLike[str], net: str | os.PathLike[str]
             for stale in (*_SIMULATION_OUTPUTS, *_BUILD_OUTPUTS, COMPARE_MANIFEST):  # of an earlier scenario here
                 (out / stale).unlink(missing_ok=True)
             net_rel = os.path.relpath(Path(net).resolve(), out.resolve())
-            files = {"scenario.sumocfg": _sumocfg(net_rel, e + offset + parts.tail_s, step_s, seed,
+            # two steps past the end: a vehicle crossing a line in the last step is seen on both sides of it
+            files = {"scenario.sumocfg": _sumocfg(net_rel, e + offset + max(parts.tail_s, 2.0 * step_s), step_s, seed,
                                                   max(0.0, b + offset - 5.0)),
                      "demand.rou.xml": demand_xml(parts.types, parts.demand),
                      "outputs.add.xml": _outputs_add("simulated.edgedata.xml", interval, b + offset, e + offset)}
@@ -280,7 +281,7 @@ class _DemandParts:
 
 
 def _line_parts(observed: ObservedRun, net: Path, interval: float, b: float, e: float, routes, net_crs, seed: int,
-                work: Path) -> _DemandParts:
+                work: Path, step_s: float) -> _DemandParts:
     """The demand of the counting lines (routeSampler on edge counts, :mod:`trafficgeo.simulation.demand`)."""
     mapping = map_observations(observed, net, net_crs=net_crs)
     counts = edge_counts(observed, mapping, interval, b, e)
@@ -292,7 +293,7 @@ def _line_parts(observed: ObservedRun, net: Path, interval: float, b: float, e: 
     cand = candidates_for(net.resolve(), Path(routes).resolve() if routes is not None else None, work, counts,
                           seed=seed)
     sampled = sample_routes(cand, counts, work, seed=seed)
-    demand = place_departures(sampled, mapping.edge_lengths_m, observed, mapping, counts, seed=seed)
+    demand = place_departures(sampled, mapping.edge_lengths_m, observed, mapping, counts, seed=seed, step_s=step_s)
     return _DemandParts(demand, types, ("counts.edgedata.xml", *(["candidates.rou.xml"] if routes is None else [])),
                         {"mapping.csv": mapping.table, "observed_lane_counts.csv": counts.lanes}, mapping.warnings,
                         {"observed_vehicles_per_edge": int(counts.edges["entered"].sum())})
