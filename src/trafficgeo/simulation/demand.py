@@ -333,7 +333,9 @@ def place_departures(sampled: list[Path], net_lengths: dict[str, float], observe
     cr = _mapped_crossings(observed, mapping, counts.begin_s, counts.end_s)
     speed = {str(k): float(v) for k, v in (cr.groupby("sumo_edge")["speed_kmh"].mean() / 3.6).items()
              if np.isfinite(v) and v > 0.5}
-    first_pos = mapping.mapped.groupby("sumo_edge")["pos_m"].min().to_dict()
+    line_pos = mapping.mapped.groupby("sumo_edge")["pos_m"]
+    first_pos = line_pos.min().to_dict()
+    span = (line_pos.max() - line_pos.min()).to_dict()  # m from the first line of an edge to its last
     starts = np.sort(counts.edges["interval_start"].unique())
     depart, edges_of, dist_of, key_of, at_start, depart_pos = [], [], [], [], [], []
     for veh in vehicles:
@@ -362,12 +364,11 @@ def place_departures(sampled: list[Path], net_lengths: dict[str, float], observe
     edge_speed = np.array([speed.get(k[0], 13.9) if k is not None else 13.9 for k in key_of], dtype=np.float64)
     own = np.isfinite(drawn.speed_mps) & (drawn.speed_mps > 0.5)
     v = np.where(own, drawn.speed_mps, edge_speed)
-    half_length = dimensions_for(drawn.vclass)[:, 0] / 2.0 if key_of else np.zeros(0)
-    lag_a = (np.asarray(dist_of, dtype=np.float64) + np.where([k is not None for k in key_of], half_length, 0.0)) / v
+    half_length = np.where([k is not None for k in key_of], dimensions_for(drawn.vclass)[:, 0] / 2.0, 0.0)
+    lag_a = (np.asarray(dist_of, dtype=np.float64) + half_length) / v
     at_line = np.where(np.isfinite(drawn.time_s), drawn.time_s, np.asarray(depart, dtype=np.float64))
     # the warm-up's vehicles without an observed time pass the last line on their edge before the observation begins
     warm, w = counts.begin_s - counts.warmup_s, counts.warmup_s
-    span = mapping.mapped.groupby("sumo_edge")["pos_m"].agg(lambda p: float(p.max() - p.min()))
     for i, k in enumerate(key_of):
         if k is not None and k[1] == warm and not np.isfinite(drawn.time_s[i]):
             clear = min(w, float(span.get(k[0], 0.0)) / edge_speed[i] + 2.0)
