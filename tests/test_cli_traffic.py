@@ -131,6 +131,8 @@ BAD = {
     "line_off_road": (lambda s, t: ["--fps", 25, "--lines", _sky_line(t)], "does not map to the road"),
     "bad_sigma": (lambda s, t: ["--fps", 25, "--pixel-sigma", -1], "option --pixel-sigma=-1.0 is out of range"),
     "bad_coast": (lambda s, t: ["--fps", 25, "--coast-hidden", -2], "option --coast-hidden=-2.0 is out of range"),
+    "bad_box_sigma": (lambda s, t: ["--fps", 25, "--box-sigma-share", -0.05],
+                      "option --box-sigma-share=-0.05 is out of range"),
 }
 
 

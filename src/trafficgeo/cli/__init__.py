@@ -268,6 +268,7 @@ FLAGS = {"start_s": "--start", "end_s": "--end", "every": "--every", "checkpoint
          "crs": "--crs", "gcp_crs": "--gcp-crs", "odm_image": "--odm-image", "ground_z": "--ground-z",
          "image_size": "--image-size", "pattern": "--pattern", "focal_px": "--focal-px", "intrinsics": "--intrinsics",
          "fps": "--fps", "coast_hidden_s": "--coast-hidden", "max_gap_s": "--join-gap", "pixel_sigma": "--pixel-sigma",
+         "box_sigma_share": "--box-sigma-share",
          "accel_sigma": "--accel-sigma", "max_metres_per_px": "--max-metres-per-px", "camera": "--camera",
          "calibration_report": "--calibration-report", "frame": "--frame", "video": "--video", "ortho": "--ortho",
          "dem": "--dem", "cloud": "--cloud", "at_s": "--at", "gcps": "--gcps", "workdir": "--workdir",

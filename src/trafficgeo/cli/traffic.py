@@ -49,6 +49,9 @@ def analyze(
     movement_interval: MovementIntervalOpt = 900.0,
     pixel_sigma: Annotated[float | None, typer.Option(help="noise of a track's ground point in the image (px); "
                                                       "default 2, 3 with --gates")] = None,
+    box_sigma_share: Annotated[float | None, typer.Option(help="more noise for bigger boxes: this share of a box's "
+                                                          "height (px) added to --pixel-sigma in quadrature; "
+                                                          "default 0, 0.05 with --gates")] = None,
     accel_sigma: Annotated[float | None, typer.Option(help="how hard vehicles may accelerate/turn in the smoother "
                                                       "(m/s^2); default 1.5")] = None,
     box_correction: Annotated[bool, typer.Option(help="fit a vehicle cuboid to each box for its footprint "
@@ -86,7 +89,8 @@ def analyze(
     check_movement_interval(movement_interval)
     check_resolution(resolution)
     journeys = JourneyOptions.with_gap(join_gap)  # before any work
-    given = {k: v for k, v in (("pixel_sigma", pixel_sigma), ("accel_sigma", accel_sigma)) if v is not None}
+    given = {k: v for k, v in (("pixel_sigma", pixel_sigma), ("box_sigma_share", box_sigma_share),
+                               ("accel_sigma", accel_sigma)) if v is not None}
     smoother = TrajectoryOptions.at_junction if gates is not None else TrajectoryOptions  # its defaults
     opts = smoother(**given, box_correction=box_correction, max_metres_per_px=max_metres_per_px,
                     coast_hidden_s=coast_hidden)

@@ -19,9 +19,10 @@ BLOCK_POINTS = 8192  # per-point passes (ground points, covariances, cuboid fits
 # so their temporaries stay a few MB whatever the number of points
 
 
-def ground_covariance(camera: Camera, surface: Surface, uv: np.ndarray, xyz: np.ndarray, pixel_sigma: float,
-                      m_per_unit: float) -> np.ndarray:
-    """(N, 2, 2) horizontal covariance (m^2) of ground points ``xyz`` from ``pixel_sigma`` px of image noise:
+def ground_covariance(camera: Camera, surface: Surface, uv: np.ndarray, xyz: np.ndarray,
+                      pixel_sigma: float | np.ndarray, m_per_unit: float) -> np.ndarray:
+    """(N, 2, 2) horizontal covariance (m^2) of ground points ``xyz`` from ``pixel_sigma`` px of image noise (one
+    for all points, or (N,) one per point):
     ``pixel_sigma^2 J J^T`` with J the ground-from-pixel Jacobian by one-pixel differences. Where a neighbour pixel
     does not reach the road, an isotropic sigma of ``pixel_sigma * range / focal / sin(incidence)`` is used."""
     n = uv.shape[0]
@@ -30,12 +31,13 @@ def ground_covariance(camera: Camera, surface: Surface, uv: np.ndarray, xyz: np.
         nb = pixels_to_world(camera, uv + [du, dv], surface, with_lonlat=False, frame_margin_px=2.0)
         cols.append((nb.xyz[:, :2] - xyz[:, :2]) * m_per_unit)
     J = np.stack(cols, axis=2)  # (N, 2, 2): d(x, y) / d(u, v)
-    cov = pixel_sigma**2 * np.einsum("nij,nkj->nik", J, J) + (0.02**2) * np.eye(2)
+    sigma = np.broadcast_to(np.asarray(pixel_sigma, dtype=np.float64), (n,))
+    cov = sigma[:, None, None] ** 2 * np.einsum("nij,nkj->nik", J, J) + (0.02**2) * np.eye(2)
     bad = ~np.all(np.isfinite(cov.reshape(n, 4)), axis=1)
     if bad.any():
         rng = np.linalg.norm((xyz[bad] - camera.position) * m_per_unit, axis=1)
         sin_inc = np.clip(np.abs((xyz[bad, 2] - camera.position[2]) * m_per_unit) / np.maximum(rng, 1e-9), 0.05, 1)
-        s = pixel_sigma * rng / camera.focal_px / sin_inc
+        s = sigma[bad] * rng / camera.focal_px / sin_inc
         cov[bad] = s[:, None, None] ** 2 * np.eye(2)
     return cov
 

@@ -2,9 +2,10 @@
 kinematics.
 
 For each track point the ground contact pixel is mapped to the road surface (:func:`pixels_to_world`). Its
-uncertainty is the pixel noise ``pixel_sigma`` carried through the local image-to-ground Jacobian, so far points
-are trusted less, and mostly along the viewing ray. Each track is then smoothed in metres by a Kalman filter + RTS
-smoother (:mod:`trafficgeo.traffic.smoothing`) that rejects outlier points. A run of ``split_outliers`` rejected
+uncertainty is the pixel noise ``pixel_sigma`` (with ``box_sigma_share`` of the box's height added in quadrature:
+a detector's boxes scatter in proportion to their size) carried through the local image-to-ground Jacobian, so far
+points are trusted less, and mostly along the viewing ray. Each track is then smoothed in metres by a Kalman filter +
+RTS smoother (:mod:`trafficgeo.traffic.smoothing`) that rejects outlier points. A run of ``split_outliers`` rejected
 points in a row means the track jumped to another vehicle (an ID switch): the track is split there, as it is at
 gaps longer than ``max_gap_s`` and at gaps over ``check_gap_s`` that the motion on both sides does not bridge (an ID
 switch while the vehicle was lost: :func:`_gap_cuts`); the parts are named ``<track>.1``, ``<track>.2``, ...
@@ -72,6 +73,10 @@ MAX_COAST_HIDDEN_S = 30.0  # s, the longest a vehicle hidden behind another is c
 # one another, and the boxes of the half-hidden ones jitter more than on an open road (benchmarks/README.md,
 # junction benchmark, fourth pass)
 JUNCTION_PIXEL_SIGMA = 3.0
+# ... and with noise that grows with the box: the built-in detector's box edges scatter by 5-10 % of the box's height
+# about the true box at every size (junction worlds; a car 100 px tall: ~9 px), so a fixed few pixels make the
+# near vehicles' points outliers and cut their tracks (benchmarks/README.md, junction benchmark, sixth pass)
+JUNCTION_BOX_SIGMA_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -79,6 +84,7 @@ class TrajectoryOptions:
     """How image tracks become world trajectories (see the module docstring)."""
 
     pixel_sigma: float = 2.0  # px, 1-sigma noise of a ground contact point in the image
+    box_sigma_share: float = 0.0  # px of ground-point noise per px of box height, added to pixel_sigma in quadrature
     accel_sigma: float = 1.5  # m/s^2, spectral density^(1/2) of the white-noise acceleration
     gate: float = CHI2_2DOF_999  # chi-square (2 dof) gate for outlier points
     split_outliers: int = 5  # this many rejected points in a row split a track
@@ -96,9 +102,9 @@ class TrajectoryOptions:
 
     @classmethod
     def at_junction(cls, **changes: object) -> TrajectoryOptions:
-        """The defaults for a junction's turning movements (``pixel_sigma`` :data:`JUNCTION_PIXEL_SIGMA`), with
-        ``changes``."""
-        return cls(**{"pixel_sigma": JUNCTION_PIXEL_SIGMA, **changes})
+        """The defaults for a junction's turning movements (``pixel_sigma`` :data:`JUNCTION_PIXEL_SIGMA`,
+        ``box_sigma_share`` :data:`JUNCTION_BOX_SIGMA_SHARE`), with ``changes``."""
+        return cls(**{"pixel_sigma": JUNCTION_PIXEL_SIGMA, "box_sigma_share": JUNCTION_BOX_SIGMA_SHARE, **changes})
 
     def __post_init__(self) -> None:
         numbers = {k: v for k, v in asdict(self).items() if isinstance(v, float | int) and not isinstance(v, bool)}
@@ -110,7 +116,8 @@ class TrajectoryOptions:
             raise InputError(f"trajectory option coast_hidden_s={self.coast_hidden_s:g} is more than "
                              f"{MAX_COAST_HIDDEN_S:g} s: nobody stays hidden that long; give e.g. 3 (0: off)",
                              parameters=("coast_hidden_s",))
-        checks = {"pixel_sigma": self.pixel_sigma > 0, "accel_sigma": self.accel_sigma > 0, "gate": self.gate > 0,
+        checks = {"pixel_sigma": self.pixel_sigma > 0, "box_sigma_share": self.box_sigma_share >= 0,
+                  "accel_sigma": self.accel_sigma > 0, "gate": self.gate > 0,
                   "split_outliers": self.split_outliers >= 1, "max_gap_s": self.max_gap_s > 0,
                   "check_gap_s": self.check_gap_s > 0, "rejoin_gap_s": self.rejoin_gap_s > 0,
                   "max_metres_per_px": self.max_metres_per_px > 0, "coast_hidden_s": self.coast_hidden_s >= 0,
@@ -134,6 +141,14 @@ class WorldTracks:
 
 
 # ------------------------------------------------------------------------------------------------ ground points
+def point_sigma_px(box: np.ndarray, opts: TrajectoryOptions) -> np.ndarray:
+    """(N,) image noise (px, 1 sigma) of each track point's ground contact: ``pixel_sigma``, and with
+    ``box_sigma_share`` that share of the box's height added in quadrature (a detector's box edges scatter in
+    proportion to the box's size; points without a box get ``pixel_sigma``)."""
+    height = np.nan_to_num(box[:, 3] - box[:, 1], nan=0.0) if len(box) else np.zeros(0)
+    return np.hypot(opts.pixel_sigma, opts.box_sigma_share * np.maximum(height, 0.0))
+
+
 def clipped_boxes(camera: Camera, box: np.ndarray, margin_px: float) -> np.ndarray:
     """Boxes (N, 4) that touch the left, right or bottom edge of the frame: the vehicle is cut off there, so the
     box's bottom centre is not its ground point. NaN boxes are not clipped."""
@@ -321,8 +336,9 @@ def world_trajectories(camera: Camera, surface: Surface, tracks: ImageTracks,
     ok = status == "ok"
     cov = np.full((len(tracks), 2, 2), np.nan)
     use = np.flatnonzero(ok)
+    sigma_px = point_sigma_px(tracks.box, opts)
     for sl in blocks(use.size):
-        cov[use[sl]] = ground_covariance(camera, surface, uv[use[sl]], ground.xyz[use[sl]], opts.pixel_sigma, m)
+        cov[use[sl]] = ground_covariance(camera, surface, uv[use[sl]], ground.xyz[use[sl]], sigma_px[use[sl]], m)
     origin = camera.position[:2]
     slices = track_slices(tracks.track_id)
     n_steps = 2 * len(slices)
