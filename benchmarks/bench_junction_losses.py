@@ -38,18 +38,11 @@ MIN_IOU = 0.5
 MIN_VISIBLE = 0.5
 
 
-def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N, M) intersection over union of boxes a (N, 4) and b (M, 4)."""
-    iw = np.clip(np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0]), 0, None)
-    ih = np.clip(np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1]), 0, None)
-    inter = iw * ih
-    area = lambda z: (z[:, 2] - z[:, 0]) * (z[:, 3] - z[:, 1])  # noqa: E731
-    return inter / np.maximum(area(a)[:, None] + area(b)[None, :] - inter, 1e-9)
-
-
 def matched_boxes(world: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The detector's boxes (detections.csv) and the true boxes on its frames, each with ``pair``: the row of the
     other table it is matched to one to one (IoU >= MIN_IOU), -1 where none."""
+    from trafficgeo.video.detections import box_iou
+
     det = pd.read_csv(world / "run-process" / "detections.csv", keep_default_na=False)
     truth = pd.read_csv(world / "truth_tracks.csv")
     w, h = json.loads((world / "camera_truth.json").read_text()).get("image_size", [1920, 1080])
@@ -65,7 +58,7 @@ def matched_boxes(world: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
         t = by_frame.get(frame)
         if t is None:
             continue
-        m = iou(t[BOX].to_numpy(float), d[BOX].to_numpy(float))
+        m = box_iou(t[BOX].to_numpy(float)[:, None], d[BOX].to_numpy(float)[None, :])
         ti, di = linear_sum_assignment(-m)
         ok = m[ti, di] >= MIN_IOU
         det.loc[d.index[di[ok]], "pair"] = t.index[ti[ok]]

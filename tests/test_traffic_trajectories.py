@@ -221,7 +221,7 @@ def test_point_noise_from_the_box_height() -> None:
     np.testing.assert_allclose(got, [5.0, np.hypot(3.0, 30.0), 3.0])
     np.testing.assert_allclose(point_sigma_px(box, TrajectoryOptions(pixel_sigma=2.0)), 2.0)
     assert TrajectoryOptions().box_sigma_share == 0.0 < TrajectoryOptions.at_junction().box_sigma_share
-    with pytest.raises(InputError, match="box_sigma_share"):
+    with pytest.raises(InputError, match=r"box_sigma_share=-0.1 is out of range; it must be 0 \(off\) or more"):
         TrajectoryOptions(box_sigma_share=-0.1)
     # one sigma per point: each point's covariance is its own sigma's
     cam = _camera()

@@ -276,21 +276,21 @@ def sample_routes(routes: Path, counts: DemandCounts, work: Path, *, seed: int) 
     return out
 
 
-def _observed_pools(observed: ObservedRun, mapping: LaneMapping, counts: DemandCounts
+def _observed_pools(cr: pd.DataFrame, first_pos: pd.Series, mapping: LaneMapping, counts: DemandCounts
                     ) -> dict[tuple[str, float], pd.DataFrame]:
     """The observed vehicles at the first line of each mapped edge, per (edge, interval start): lane index, class,
     speed factor (spot speed / the lane's speed limit), spot speed (m/s) and the time to replay (s, in the order
     of the times; NaN where the vehicle was seen at a mapped line before: it is in the demand by that line). The
     warm-up's pool: the vehicles on the road when the observation begins (first seen downstream of the first line
     of their edge), timed back to that line at their spot speed, then the first interval's vehicles without a time
-    (their class, lane and speed only)."""
-    cr = _mapped_crossings(observed, mapping, counts.begin_s, counts.end_s)
+    (their class, lane and speed only). ``cr``: the mapped crossings of the observation; ``first_pos``: per SUMO
+    edge, the position (m) of its first line."""
     t = cr["time"].to_numpy(np.float64)
     seen_first = t <= cr.groupby("track_id")["time"].transform("min").to_numpy(np.float64) + 1e-9
-    first_pos = cr["sumo_edge"].map(mapping.mapped.groupby("sumo_edge")["pos_m"].min()).to_numpy(np.float64)
+    line_pos = cr["sumo_edge"].map(first_pos).to_numpy(np.float64)
     at_first = (cr["line"] == cr["sumo_edge"].map(first_lines(mapping))).to_numpy()
     speed = cr["speed_kmh"].to_numpy(np.float64) / 3.6
-    back = t - (cr["pos_m"].to_numpy(np.float64) - first_pos) / np.where(speed > 0.5, speed, np.nan)
+    back = t - (cr["pos_m"].to_numpy(np.float64) - line_pos) / np.where(speed > 0.5, speed, np.nan)
     on_road = seen_first & ~at_first & (back < counts.begin_s)  # NaN (no speed) compares False
     limit = {c.lane: c.speed_limit_mps for c in mapping.crossings}
     starts = np.sort(counts.edges["interval_start"].unique())
@@ -334,8 +334,9 @@ def place_departures(sampled: list[Path], net_lengths: dict[str, float], observe
     speed = {str(k): float(v) for k, v in (cr.groupby("sumo_edge")["speed_kmh"].mean() / 3.6).items()
              if np.isfinite(v) and v > 0.5}
     line_pos = mapping.mapped.groupby("sumo_edge")["pos_m"]
-    first_pos = line_pos.min().to_dict()
-    span = (line_pos.max() - line_pos.min()).to_dict()  # m from the first line of an edge to its last
+    first_pos_m = line_pos.min()
+    first_pos = first_pos_m.to_dict()
+    span = (line_pos.max() - first_pos_m).to_dict()  # m from the first line of an edge to its last
     starts = np.sort(counts.edges["interval_start"].unique())
     depart, edges_of, dist_of, key_of, at_start, depart_pos = [], [], [], [], [], []
     for veh in vehicles:
@@ -360,7 +361,7 @@ def place_departures(sampled: list[Path], net_lengths: dict[str, float], observe
         key_of.append((edges[k_first], start) if k_first is not None else None)
         at_start.append(k_first == 0)
     drawn = _draw_observed(key_of, at_start, np.asarray(depart, dtype=np.float64),
-                           _observed_pools(observed, mapping, counts), np.random.default_rng(seed))
+                           _observed_pools(cr, first_pos_m, mapping, counts), np.random.default_rng(seed))
     edge_speed = np.array([speed.get(k[0], 13.9) if k is not None else 13.9 for k in key_of], dtype=np.float64)
     own = np.isfinite(drawn.speed_mps) & (drawn.speed_mps > 0.5)
     v = np.where(own, drawn.speed_mps, edge_speed)

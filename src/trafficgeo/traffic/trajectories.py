@@ -125,7 +125,7 @@ class TrajectoryOptions:
         for name, ok in checks.items():
             if not ok:
                 need = {"min_points": "at least 2", "min_fragment_points": "at least 1",
-                        "coast_hidden_s": "0 (off) or more"}.get(name, "positive")
+                        "coast_hidden_s": "0 (off) or more", "box_sigma_share": "0 (off) or more"}.get(name, "positive")
                 raise InputError(f"trajectory option {name}={getattr(self, name)!r} is out of range; it must be "
                                  f"{need}", parameters=(name,))
 
