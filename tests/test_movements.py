@@ -352,3 +352,50 @@ def test_a_track_that_turns_back_along_its_own_way_or_only_by_a_join_is_no_u_tur
     assert not rows.at["r", "complete"]
     assert not (rows.at["p", "origin"] == rows.at["p", "destination"] == "S")
     assert (rows.at["u", "origin"], rows.at["u", "destination"], rows.at["u", "movement"]) == ("S", "S", "U")
+
+
+def test_a_vehicle_lost_while_it_stood_is_joined_when_found_again_nearby() -> None:
+    """A car standing 40 s 10 m before the centre (a red light): its track is lost 5 s into the stop and found
+    again 0.6 s after it sets off, 6 m on: one vehicle, though unseen for 35 s. Found again 16 m on (farther than
+    a queue creeps), or lost while it drove at 10 m/s, it is not."""
+    j = junction()
+    car = path("N", "S", stop_s=40.0, tid="car")
+    t, v = car["time"].to_numpy(), car["speed_kmh"].to_numpy()
+    stood = np.flatnonzero(v == 0)
+    lost, restart = t[stood[0]] + 5.0, t[stood[-1]]
+    head = car[t <= lost].assign(track_id="a")
+    rows = _with_trackers([head, car[t >= restart + 0.6].assign(track_id="b")], {"a": "1", "b": "2"}, j)
+    assert len(rows) == 1 and rows.iloc[0].track_ids == "a;b" and rows.iloc[0].complete
+    assert (rows.iloc[0].origin, rows.iloc[0].destination, rows.iloc[0].movement) == ("N", "S", "through")
+    far = _with_trackers([head, car[t >= restart + 1.6].assign(track_id="b")], {"a": "1", "b": "2"}, j)
+    assert not far["complete"].any()
+    moving = path("N", "S", tid="m")  # never stood: lost 8 m before the centre, found 35 s later 6 m past it
+    tm = moving["time"].to_numpy()
+    d = np.hypot(moving["x"], moving["y"]).to_numpy()
+    k_lost = int(np.flatnonzero(d < 8.0)[0])
+    first = moving.iloc[:k_lost].assign(track_id="c")
+    second = moving.iloc[k_lost + 14:].assign(track_id="d", time=tm[k_lost + 14:] + 35.0)
+    assert not _with_trackers([first, second], {"c": "1", "d": "2"}, j)["complete"].any()
+
+
+def test_a_tail_found_as_its_vehicle_sped_up_is_joined_and_a_truck_box_may_jump_aside() -> None:
+    """The distance between two halves is what the faster of their two speeds covers in the gap (a car lost as it
+    set off at 1 m/s, found 0.8 s later 8 m on at 10 m/s), and within the position error of the halves' ends (4 m)
+    the line between them may point anywhere (a truck's box centre 2.5 m on and 3.5 m aside)."""
+    j = junction()
+    car = path("E", "W", tid="car")
+    d = np.hypot(car["x"], car["y"]).to_numpy()
+    k = int(np.flatnonzero(d < 6.0)[0])
+    head = car.iloc[:k].assign(track_id="a")
+    head.loc[head.index[-5:], "speed_kmh"] = 3.6  # its smoothed speed at the end: 1 m/s
+    tail = car.iloc[k + 7:].assign(track_id="b")  # 0.8 s later, 8 m farther
+    rows = _with_trackers([head, tail], {"a": "1", "b": "2"}, j)
+    assert len(rows) == 1 and rows.iloc[0].complete and rows.iloc[0].track_ids == "a;b"
+    truck = path("W", "E", tid="truck", cls="truck", speed_mps=5.0)
+    d = np.hypot(truck["x"], truck["y"]).to_numpy()
+    k = int(np.flatnonzero(d < 3.0)[0])
+    first = truck.iloc[:k].assign(track_id="p")
+    # the next piece starts 0.1 s later, 2.5 m farther along (eastbound) and 3.5 m to the side: 4.3 m off at 54 deg
+    second = truck.iloc[k + 1:].assign(track_id="q", x=lambda p: p["x"] + 2.0, y=lambda p: p["y"] - 3.5)
+    rows = _with_trackers([first, second], {"p": "1", "q": "2"}, j)
+    assert len(rows) == 1 and rows.iloc[0].complete and (rows.iloc[0].origin, rows.iloc[0].destination) == ("W", "E")

@@ -6,15 +6,19 @@ its origin and destination, :func:`~trafficgeo.traffic.movements.vehicle_movemen
 
 * :func:`pair_halves` - two **halves** of one vehicle (its track broken inside the junction): a movement known only
   by its origin and a later one known only by its destination are one vehicle's when the second begins within
-  :data:`PAIR_GAP_S` of the first's end, no farther from it than its speed there covers in the gap (at least
-  :data:`PAIR_MIN_SPEED_MPS`) plus :data:`PAIR_SLACK_M`, ahead of it as it turns (the line between the two within
-  :data:`CHORD_TOLERANCE_DEG` of the mean of the directions where the first ends and the second begins, as an
-  arc's chord runs), and their classes are of one family (car or van; truck or bus; or unknown). The pairs are
-  chosen all at once by an assignment that prefers the arc whose length best matches what their speeds cover in the
-  gap. A tail that begins up to :data:`PAIR_OVERLAP_S` before its head ends is paired only where the two stand
-  together meanwhile (as doubles do), or, beginning at most :data:`TOUCH_S` before, within :data:`PAIR_SLACK_M` of
-  where the head ends. Two halves are never joined into a U-turn: a U-turn is counted only where one
-  piece of track shows it.
+  :data:`PAIR_GAP_S` of the first's end, no farther from it than the faster of its speeds where the first ends and
+  the second begins covers in the gap (at least :data:`PAIR_MIN_SPEED_MPS`) plus :data:`PAIR_SLACK_M`, ahead of it
+  as it turns (the line between the two within :data:`CHORD_TOLERANCE_DEG` of the mean of the directions where the
+  first ends and the second begins, as an arc's chord runs, widened by the angle the position error
+  :data:`PAIR_SLACK_M` subtends over that line), and their classes are of one family (car or van; truck or bus; or
+  unknown). A vehicle lost while it stood (the first half ends slower than :data:`QUEUE_STOPPED_MPS`: in a queue,
+  at a red light) may go unseen up to :data:`QUEUE_GAP_S`, if found again no farther than a queue creeps
+  (:data:`QUEUE_CREEP_M` plus :data:`PAIR_SLACK_M`) ahead. The pairs are chosen all at once by an assignment that
+  prefers the arc whose length best matches what their speeds cover in the gap, and a moving vehicle's pair over
+  a standing one's (nearest first). A tail that begins up to :data:`PAIR_OVERLAP_S` before its head ends is paired
+  only where the two stand together meanwhile (as doubles do), or, beginning at most :data:`TOUCH_S` before, within
+  :data:`PAIR_SLACK_M` of where the head ends. Two halves are never joined into a U-turn: a U-turn is counted only
+  where one piece of track shows it.
 * :func:`merge_doubles` - two pieces of track seen at once (for :data:`SAME_MIN_OVERLAP_S` or more: two ids on one
   vehicle, a bus detected in two boxes) are one vehicle when they stand together - the medians over their common
   time of the distance across the travel within :data:`SAME_ACROSS_M` (half a lane) and along it within
@@ -50,6 +54,9 @@ SAME_ALONG_M = {"light": 2.5, "heavy": 6.0}  # ... and this close along it (half
 SAME_MIN_OVERLAP_S = 0.3  # s: seen at once for at least this long
 PAIR_OVERLAP_S = 2.0  # s: a tail may begin this long before its head ends if the two stand together meanwhile
 TOUCH_S = 0.5  # s: ... or this long before, anyway, where it begins within PAIR_SLACK_M of where the head ends
+QUEUE_GAP_S = 120.0  # s: a vehicle lost while it stood (in a queue, at a red light) may go unseen this long
+QUEUE_STOPPED_MPS = 2.5  # m/s: a head that ends slower than this ended standing
+QUEUE_CREEP_M = 10.0  # m: and its vehicle may have crept this far ahead (plus PAIR_SLACK_M) meanwhile
 
 
 def _family(vehicle_class: str) -> str:
@@ -68,7 +75,7 @@ def _arc_length_m(chord: np.ndarray, d_end: np.ndarray | None, d_start: np.ndarr
     turn = float(np.arctan2(d_end[0] * d_start[1] - d_end[1] * d_start[0], d_end @ d_start))  # signed, radians
     mid = np.arctan2(d_end[1], d_end[0]) + 0.5 * turn  # an arc's chord runs at the mean of its end directions
     off = abs((np.arctan2(chord[1], chord[0]) - mid + np.pi) % (2 * np.pi) - np.pi)
-    if off > np.radians(CHORD_TOLERANCE_DEG):
+    if off > np.radians(CHORD_TOLERANCE_DEG) + np.arctan2(PAIR_SLACK_M, dist):
         return None
     half = 0.5 * abs(turn)
     return dist * half / np.sin(half) if half > 1e-6 else dist
@@ -186,7 +193,8 @@ def pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
         for b, j in enumerate(tails):
             t = rows[j]
             gap = t["_t0"] - h["_t1"]
-            if not -PAIR_OVERLAP_S <= gap <= PAIR_GAP_S or t["_t0"] <= h["_t0"] or t["_t1"] <= h["_t1"]:
+            queued = PAIR_GAP_S < gap <= QUEUE_GAP_S and h["_v1"] < QUEUE_STOPPED_MPS
+            if not (-PAIR_OVERLAP_S <= gap <= PAIR_GAP_S or queued) or t["_t0"] <= h["_t0"] or t["_t1"] <= h["_t1"]:
                 continue
             if _family(h["class"]) != _family(t["class"]) and h["class"] and t["class"]:
                 continue
@@ -202,11 +210,14 @@ def pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
                 gap = 0.0  # the tail began as the head ended: where the head ended, give or take the slack
             chord = (t["_p0"] - h["_p1"]) * metres_per_unit
             dist_m = float(np.hypot(*chord))
-            reach_m = max(h["_v1"], PAIR_MIN_SPEED_MPS) * gap + PAIR_SLACK_M
+            reach_m = (QUEUE_CREEP_M if queued else max(h["_v1"], t["_v0"], PAIR_MIN_SPEED_MPS) * gap) + PAIR_SLACK_M
             if dist_m > reach_m:
                 continue
             path_m = _arc_length_m(chord, h["_d1"], t["_d0"])
             if path_m is None:
+                continue
+            if queued:  # after any pair that a moving vehicle makes, the nearer the better
+                cost[a, b] = 2.0 + dist_m / reach_m
                 continue
             travelled_m = 0.5 * (h["_v1"] + t["_v0"]) * gap  # what its speeds on both sides cover in the gap
             cost[a, b] = abs(path_m - travelled_m) / (travelled_m + PAIR_SLACK_M) + gap / PAIR_GAP_S
