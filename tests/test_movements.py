@@ -399,3 +399,18 @@ def test_a_tail_found_as_its_vehicle_sped_up_is_joined_and_a_truck_box_may_jump_
     second = truck.iloc[k + 1:].assign(track_id="q", x=lambda p: p["x"] + 2.0, y=lambda p: p["y"] - 3.5)
     rows = _with_trackers([first, second], {"p": "1", "q": "2"}, j)
     assert len(rows) == 1 and rows.iloc[0].complete and (rows.iloc[0].origin, rows.iloc[0].destination) == ("W", "E")
+
+
+@pytest.mark.parametrize(("cut", "joined_class"), [(0.55, "truck"), (0.7, "van")])
+def test_a_vehicle_whose_pieces_are_partly_heavy_is_heavy_from_35_percent_of_its_points(cut, joined_class) -> None:
+    """A truck seen as a van by one id and as a truck by another over the same time (two boxes on one vehicle): the
+    detector takes a truck for a van far more often than the reverse, so the movement is a truck's when its truck
+    piece holds 35 % of the points (40 % here), though the van piece holds more; at 27 % it stays a van."""
+    j = junction()
+    whole = path("W", "S", tid="x")
+    k = int(cut * len(whole))
+    van = whole.iloc[: k + 15].assign(track_id="a", **{"class": "van"})
+    truck = whole.iloc[k:].assign(track_id="b", **{"class": "truck"})
+    rows = run([van, truck], j)
+    assert len(rows) == 1 and rows.iloc[0].track_ids == "a;b" and rows.iloc[0].complete
+    assert rows.iloc[0]["class"] == joined_class

@@ -29,12 +29,12 @@ its origin and destination, :func:`~trafficgeo.traffic.movements.vehicle_movemen
 
 :func:`~trafficgeo.traffic.movements.vehicle_movements` pairs halves, merges doubles, pairs the halves that
 merging completed, then joins the halves judged whole. A joined row's ``track_ids`` lists its pieces and its class
-is that of the piece seen longest.
+is that of the piece seen longest, or heavy where heavy pieces hold :data:`HEAVY_PIECE_SHARE` of its points.
 
 The rows are dicts with the movement columns and private keys (``_t``, ``_xy``: the piece's times and positions;
 ``_t0, _t1, _p0, _p1, _v0, _v1, _d0, _d1``: its first/last time, position, speed (m/s) and unit direction of
-travel (None if unknown); ``_n``: its number of points; ``_trackers``: the tracker ids it came from). Positions
-in CRS units (``metres_per_unit`` gives metres), times in seconds.
+travel (None if unknown); ``_n``: its number of points; ``_classes``: its points per class; ``_trackers``: the
+tracker ids it came from). Positions in CRS units (``metres_per_unit`` gives metres), times in seconds.
 """
 
 from __future__ import annotations
@@ -57,6 +57,20 @@ TOUCH_S = 0.5  # s: ... or this long before, anyway, where it begins within PAIR
 QUEUE_GAP_S = 120.0  # s: a vehicle lost while it stood (in a queue, at a red light) may go unseen this long
 QUEUE_STOPPED_MPS = 2.5  # m/s: a head that ends slower than this ended standing
 QUEUE_CREEP_M = 10.0  # m: and its vehicle may have crept this far ahead (plus PAIR_SLACK_M) meanwhile
+HEAVY_PIECE_SHARE = 0.35  # a joined movement is heavy when pieces of a heavy class hold this share of its points
+
+
+def _joined_class(a: dict, b: dict) -> dict:
+    """The class of two pieces joined, and its points per class (``_classes``): heavy (the most frequent heavy class)
+    when pieces of a heavy class hold :data:`HEAVY_PIECE_SHARE` or more of their points - the detector takes a
+    truck's box for a van's or a car's far more often than the reverse - else that of the piece seen longer."""
+    tally = dict(a["_classes"])
+    for k, n in b["_classes"].items():
+        tally[k] = tally.get(k, 0) + n
+    heavy = {k: n for k, n in tally.items() if k in HEAVY_CLASSES}
+    if heavy and sum(heavy.values()) >= HEAVY_PIECE_SHARE * sum(tally.values()):
+        return {"class": max(heavy, key=heavy.get), "_classes": tally}
+    return {"class": (a["class"] if a["_n"] >= b["_n"] else b["class"]) or a["class"] or b["class"], "_classes": tally}
 
 
 def _family(vehicle_class: str) -> str:
@@ -173,8 +187,7 @@ def _absorb(a: dict, b: dict) -> None:
     keep = np.argsort(t, kind="stable")
     a.update(_t=t[keep], _xy=xy[keep], track_ids=f"{a['track_ids']};{b['track_ids']}",
              _trackers=a["_trackers"] | b["_trackers"],
-             stopped_s=max(a["stopped_s"], b["stopped_s"]),
-             **{"class": (a["class"] if a["_n"] >= b["_n"] else b["class"]) or a["class"] or b["class"]})
+             stopped_s=max(a["stopped_s"], b["stopped_s"]), **_joined_class(a, b))
     a["_n"] += b["_n"]
 
 
@@ -238,8 +251,7 @@ def _join(h: dict, t: dict) -> None:
              stopped_s=h["stopped_s"] + t["stopped_s"], track_ids=f"{h['track_ids']};{t['track_ids']}",
              _t1=t["_t1"], _p1=t["_p1"], _v1=t["_v1"], _d1=t["_d1"],
              _t=np.concatenate([h["_t"], t["_t"][later]]), _xy=np.concatenate([h["_xy"], t["_xy"][later]]),
-             _trackers=h["_trackers"] | t["_trackers"],
-             **{"class": (h["class"] if h["_n"] >= t["_n"] else t["class"]) or h["class"] or t["class"]})
+             _trackers=h["_trackers"] | t["_trackers"], **_joined_class(h, t))
     h["_n"] += t["_n"]
 
 

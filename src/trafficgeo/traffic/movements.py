@@ -217,7 +217,7 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
                      "_v1": float(np.nan_to_num(speed[-1])) if len(speed) else 0.0, "_n": len(t),
                      "_d0": _travel_direction(xy, True, metres_per_unit),
                      "_d1": _travel_direction(xy, False, metres_per_unit), "_t": t, "_xy": xy,
-                     "_trackers": trackers.get(tid, set())})
+                     "_trackers": trackers.get(tid, set()), "_classes": {classes.get(tid, ""): len(t)}})
         _check_u_turn(rows[-1], pieces, arms, junction.centre, metres_per_unit)
     rows = pair_halves(rows, metres_per_unit)
     rows = pair_halves(merge_doubles(rows, metres_per_unit), metres_per_unit)  # halves that doubles completed
