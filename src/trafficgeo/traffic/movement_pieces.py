@@ -14,11 +14,11 @@ its origin and destination, :func:`~trafficgeo.traffic.movements.vehicle_movemen
   unknown). A vehicle lost while it stood (the first half ends slower than :data:`QUEUE_STOPPED_MPS`: in a queue,
   at a red light) may go unseen up to :data:`QUEUE_GAP_S`, if found again no farther than a queue creeps
   (:data:`QUEUE_CREEP_M` plus :data:`PAIR_SLACK_M`) ahead. The pairs are chosen all at once by an assignment that
-  prefers the arc whose length best matches what their speeds cover in the gap, and a moving vehicle's pair over
-  a standing one's (nearest first). A tail that begins up to :data:`PAIR_OVERLAP_S` before its head ends is paired
-  only where the two stand together meanwhile (as doubles do), or, beginning at most :data:`TOUCH_S` before, within
-  :data:`PAIR_SLACK_M` of where the head ends. Two halves are never joined into a U-turn: a U-turn is counted only
-  where one piece of track shows it.
+  prefers the arc whose length best matches what their speeds cover in the gap, and ranks a standing vehicle's
+  pairs (nearest first) behind most of a moving one's. A tail that begins up to :data:`PAIR_OVERLAP_S` before its
+  head ends is paired only where the two stand together meanwhile (as doubles do), or, beginning at most
+  :data:`TOUCH_S` before, within :data:`PAIR_SLACK_M` of where the head ends. Two halves are never joined into a
+  U-turn: a U-turn is counted only where one piece of track shows it.
 * :func:`merge_doubles` - two pieces of track seen at once (for :data:`SAME_MIN_OVERLAP_S` or more: two ids on one
   vehicle, a bus detected in two boxes) are one vehicle when they stand together - the medians over their common
   time of the distance across the travel within :data:`SAME_ACROSS_M` (half a lane) and along it within
@@ -229,7 +229,7 @@ def pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
             path_m = _arc_length_m(chord, h["_d1"], t["_d0"])
             if path_m is None:
                 continue
-            if queued:  # after any pair that a moving vehicle makes, the nearer the better
+            if queued:  # 2-3: behind a moving vehicle's pairs (mostly under 2), the nearer the better
                 cost[a, b] = 2.0 + dist_m / reach_m
                 continue
             travelled_m = 0.5 * (h["_v1"] + t["_v0"]) * gap  # what its speeds on both sides cover in the gap
