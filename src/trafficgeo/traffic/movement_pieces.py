@@ -33,8 +33,8 @@ is that of the piece seen longest, or heavy where heavy pieces hold :data:`HEAVY
 
 The rows are dicts with the movement columns and private keys (``_t``, ``_xy``: the piece's times and positions;
 ``_t0, _t1, _p0, _p1, _v0, _v1, _d0, _d1``: its first/last time, position, speed (m/s) and unit direction of
-travel (None if unknown); ``_n``: its number of points; ``_classes``: its points per class; ``_trackers``: the
-tracker ids it came from). Positions in CRS units (``metres_per_unit`` gives metres), times in seconds.
+travel (None if unknown); ``_classes``: its number of points per class (a Counter); ``_trackers``: the tracker
+ids it came from). Positions in CRS units (``metres_per_unit`` gives metres), times in seconds.
 """
 
 from __future__ import annotations
@@ -64,13 +64,12 @@ def _joined_class(a: dict, b: dict) -> dict:
     """The class of two pieces joined, and its points per class (``_classes``): heavy (the most frequent heavy class)
     when pieces of a heavy class hold :data:`HEAVY_PIECE_SHARE` or more of their points - the detector takes a
     truck's box for a van's or a car's far more often than the reverse - else that of the piece seen longer."""
-    tally = dict(a["_classes"])
-    for k, n in b["_classes"].items():
-        tally[k] = tally.get(k, 0) + n
+    tally = a["_classes"] + b["_classes"]
     heavy = {k: n for k, n in tally.items() if k in HEAVY_CLASSES}
-    if heavy and sum(heavy.values()) >= HEAVY_PIECE_SHARE * sum(tally.values()):
+    if heavy and sum(heavy.values()) >= HEAVY_PIECE_SHARE * tally.total():
         return {"class": max(heavy, key=heavy.get), "_classes": tally}
-    return {"class": (a["class"] if a["_n"] >= b["_n"] else b["class"]) or a["class"] or b["class"], "_classes": tally}
+    longer = a if a["_classes"].total() >= b["_classes"].total() else b
+    return {"class": longer["class"] or a["class"] or b["class"], "_classes": tally}
 
 
 def _family(vehicle_class: str) -> str:
@@ -188,7 +187,6 @@ def _absorb(a: dict, b: dict) -> None:
     a.update(_t=t[keep], _xy=xy[keep], track_ids=f"{a['track_ids']};{b['track_ids']}",
              _trackers=a["_trackers"] | b["_trackers"],
              stopped_s=max(a["stopped_s"], b["stopped_s"]), **_joined_class(a, b))
-    a["_n"] += b["_n"]
 
 
 def pair_halves(rows: list[dict], metres_per_unit: float) -> list[dict]:
@@ -252,7 +250,6 @@ def _join(h: dict, t: dict) -> None:
              _t1=t["_t1"], _p1=t["_p1"], _v1=t["_v1"], _d1=t["_d1"],
              _t=np.concatenate([h["_t"], t["_t"][later]]), _xy=np.concatenate([h["_xy"], t["_xy"][later]]),
              _trackers=h["_trackers"] | t["_trackers"], **_joined_class(h, t))
-    h["_n"] += t["_n"]
 
 
 def join_judged_halves(rows: list[dict]) -> list[dict]:

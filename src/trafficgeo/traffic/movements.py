@@ -31,6 +31,7 @@ between entering (else first seen) and leaving (else last seen).
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -214,10 +215,10 @@ def vehicle_movements(points: pd.DataFrame, vehicles: pd.DataFrame, junction: Ju
                      "origin_by": origin_by, "destination_by": destination_by, "track_ids": tid,
                      "_t0": t[0], "_t1": t[-1], "_p0": xy[0], "_p1": xy[-1],
                      "_v0": float(np.nan_to_num(speed[0])) if len(speed) else 0.0,
-                     "_v1": float(np.nan_to_num(speed[-1])) if len(speed) else 0.0, "_n": len(t),
+                     "_v1": float(np.nan_to_num(speed[-1])) if len(speed) else 0.0,
                      "_d0": _travel_direction(xy, True, metres_per_unit),
                      "_d1": _travel_direction(xy, False, metres_per_unit), "_t": t, "_xy": xy,
-                     "_trackers": trackers.get(tid, set()), "_classes": {classes.get(tid, ""): len(t)}})
+                     "_trackers": trackers.get(tid, set()), "_classes": Counter({classes.get(tid, ""): len(t)})})
         _check_u_turn(rows[-1], pieces, arms, junction.centre, metres_per_unit)
     rows = pair_halves(rows, metres_per_unit)
     rows = pair_halves(merge_doubles(rows, metres_per_unit), metres_per_unit)  # halves that doubles completed
