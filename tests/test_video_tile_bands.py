@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from test_video_tiling import (
@@ -51,6 +51,7 @@ def _holds(tiles: np.ndarray, boxes: np.ndarray) -> np.ndarray:
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(height=st.floats(4.0, 15.0), tilt=st.floats(1.0, 20.0), focal=st.floats(0.5, 1.5),
        seed=st.integers(0, 2 ** 16))
+@example(height=4.40625, tilt=19.0, focal=1.2109375, seed=2)
 def test_every_reachable_car_gets_the_minimum_size_with_its_truck_whole(height: float, tilt: float, focal: float,
                                                                        seed: int) -> None:
     cam = road_camera(height, tilt, focal * W)
@@ -69,8 +70,11 @@ def test_every_reachable_car_gets_the_minimum_size_with_its_truck_whole(height: 
     car, xyz = car[ok], xyz[ok]
     size = box_size_px(car)
     truck = _clip(cuboid_boxes(cam, xyz, np.zeros(len(xyz)), *LARGE_VEHICLE_M))
-    full_ok = size * plan.full_scale >= 24.0
     tol = 0.97  # the test's points fall between the plan's 1 m grid points
+    # ... for the full frame as for the tiles: a car the full frame brings to within tol of 24 px is served by it
+    # (hypothesis found 5 cars of 110.2-110.7 px at the top edge, 0.3 % short of the full frame's 110.8 px, beside
+    # grid points the full frame serves: height 4.4 m, tilt 19 deg, f = 2325 px)
+    full_ok = size * plan.full_scale >= tol * 24.0
     reachable = ~full_ok & (size * 2.0 >= 24.0 / tol)
     # The truck standing there lies whole in a tile that brings the car there to 24 px: everywhere but slivers
     # between the plan's 1 m samples, where a truck box can stick out of its band by a pixel (hypothesis found one
