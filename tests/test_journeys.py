@@ -194,3 +194,27 @@ def test_a_piece_placed_tens_of_metres_wide_joins_nothing_and_does_not_make_its_
     loose = join_fragments(world, options=JourneyOptions(max_position_sigma_m=1e3))  # the gate off: it joins
     assert "x" not in set(loose.vehicles["track_id"])
     assert not loose.vehicles["stationary"].any()  # judged by its best-placed piece, not by the 40 m one
+
+
+def test_a_glimpse_extends_a_track_on_a_road_but_not_at_a_junction() -> None:
+    """A car at 12 m/s is lost for 1.5 s and seen again for 0.2 s only (a glimpse: too short to show its own
+    motion). On a road the car's motion vouches for the glimpse and it joins; at a junction, where another
+    vehicle's glimpse fits a carried-on motion about as often, glimpses join nothing (JourneyOptions.at_junction)."""
+    rng = np.random.default_rng(5)
+    a, g = _times(0.0, 3.0), _times(4.5, 4.7)
+    tracks = _tracks(_fragment("7", a, 1.75, 10.0 + 12.0 * a, rng), _fragment("9", g, 1.75, 10.0 + 12.0 * g, rng))
+    road = _run(tracks)
+    assert list(road.links["from_fragment"]) == ["7"] and list(road.links["to_fragment"]) == ["9"]
+    assert road.vehicles.set_index("track_id").at["7", "fragments"] == 2
+    junction = _run(tracks, JourneyOptions.at_junction())
+    assert len(junction.links) == 0
+    assert junction.vehicles.set_index("track_id").at["7", "fragments"] == 1
+
+
+def test_junction_journey_defaults_and_the_join_gap() -> None:
+    assert JourneyOptions().join_glimpses and not JourneyOptions.at_junction().join_glimpses
+    assert JourneyOptions.at_junction(max_gap_s=2.0).max_gap_s == 2.0
+    four = JourneyOptions.with_gap(4.0, at_junction=True)
+    assert four.enabled and not four.join_glimpses and four.max_gap_s == 4.0
+    assert JourneyOptions.with_gap(4.0).join_glimpses
+    assert not JourneyOptions.with_gap(0.0, at_junction=True).enabled

@@ -74,6 +74,7 @@ def test_analyze_with_gates_counts_every_movement_of_the_vehicles_that_crossed_t
     # with gates, the tracks were smoothed with the junction's pixel noise
     options = json.loads((run / "summary.json").read_text())["options"]
     assert options["pixel_sigma"] == JUNCTION_PIXEL_SIGMA and options["accel_sigma"] == TrajectoryOptions().accel_sigma
+    assert options["journeys"]["join_glimpses"] is False  # and the journeys joined with the junction's defaults
 
 
 def test_junction_smoothing_defaults_give_way_to_what_is_asked() -> None:

@@ -95,7 +95,7 @@ def process(
                           checkpoint_s=checkpoint, tiles=tiles, tiling=tiling, backend=backend,
                           tile_schedule=tile_schedule, restart=restart)
     analysis = AnalysisOptions(interval_s=interval, movement_interval_s=movement_interval,
-                               journeys=JourneyOptions.with_gap(join_gap))
+                               journeys=JourneyOptions.with_gap(join_gap, at_junction=gates is not None))
     site = Site.load(camera, surface, lanes, lines, gates=gates, surface_crs=surface_crs, resolution_m=resolution)
     columns = (TextColumn("[progress.description]{task.description}"), BarColumn(),
                TextColumn("{task.completed}/{task.total} frames, {task.fields[rate]:.1f} fps, video {task.fields[t]}"),

@@ -88,7 +88,7 @@ def analyze(
     check_interval(interval)
     check_movement_interval(movement_interval)
     check_resolution(resolution)
-    journeys = JourneyOptions.with_gap(join_gap)  # before any work
+    journeys = JourneyOptions.with_gap(join_gap, at_junction=gates is not None)  # before any work
     given = {k: v for k, v in (("pixel_sigma", pixel_sigma), ("box_sigma_share", box_sigma_share),
                                ("accel_sigma", accel_sigma)) if v is not None}
     smoother = TrajectoryOptions.at_junction if gates is not None else TrajectoryOptions  # its defaults

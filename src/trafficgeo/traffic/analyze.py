@@ -83,7 +83,8 @@ class AnalysisOptions:
     """How image tracks become traffic data (:func:`analyze`): counts per ``interval_s`` s, a junction's turning
     movements per ``movement_interval_s`` s, the smoother's options (``trajectory``; None: the defaults, at a
     junction :meth:`~trafficgeo.traffic.trajectories.TrajectoryOptions.at_junction`) and how the
-    pieces of one vehicle's track are joined (``journeys``, :mod:`trafficgeo.traffic.journeys`; None: the defaults).
+    pieces of one vehicle's track are joined (``journeys``, :mod:`trafficgeo.traffic.journeys`; None: the defaults,
+    at a junction :meth:`~trafficgeo.traffic.journeys.JourneyOptions.at_junction`).
     Checked when made: a bad interval fails before any work."""
 
     interval_s: float = 60.0
@@ -240,7 +241,7 @@ def analyze(camera: Camera, surface: Surface, tracks: ImageTracks, *, lanes: Lan
                                speed_options=speed_opts)
     crs = camera_crs(camera)
     mpu = metres_per_unit(crs) if crs is not None else 1.0
-    journey_opts = journeys or JourneyOptions()
+    journey_opts = journeys or (JourneyOptions.at_junction() if junction is not None else JourneyOptions())
     joined = join_fragments(world, metres_per_unit=mpu, lanes=lanes, options=journey_opts, min_points=opts.min_points)
     dropped = dict(world.dropped)
     for reason, n in joined.dropped.items():

@@ -14,7 +14,11 @@ velocities' uncertainty over ``g / 2`` and the manoeuvre the vehicle may make in
 along its direction of travel, ``lateral_sigma_mps`` across it (a lane change takes a few seconds). The change of
 velocity is scored the same way. A *glimpse*, a fragment too short for its velocity to be known within
 ``weak_velocity_sigma_mps``, is met by the other fragment carried over the whole gap, and two glimpses are never
-joined to each other (a glimpse may be a bad box: only a fragment with a known motion vouches for it). A
+joined to each other (a glimpse may be a bad box: only a fragment with a known motion vouches for it). At a
+junction (:meth:`JourneyOptions.at_junction`) glimpses are not joined at all (``join_glimpses``): vehicles queue,
+turn and cross there, and the motion of one fragment carried over seconds fits another vehicle's glimpse about as
+often as its own (on 25 generated junction worlds, of the 300 glimpse joins made 150 were of two vehicles, 126
+of one). A
 different class (both known), a different length (both measured) and a different lane at the two ends add to the
 cost, and each second of gap adds ``gap_cost_per_s``. A pair is never
 joined when the two overlap in time (two vehicles seen at the same time), when ``b`` starts more than
@@ -100,6 +104,13 @@ class JourneyOptions:
     stationary_m: float = 2.5  # m: a vehicle never farther than this from where it stands is stationary ...
     stationary_min_s: float = 3.0  # ... when seen at least this long
     duplicates: DuplicateOptions | None = field(default_factory=DuplicateOptions)  # None: not merged
+    join_glimpses: bool = True  # a glimpse may be joined to a fragment whose motion is known; off at a junction
+
+    @classmethod
+    def at_junction(cls, **changes: object) -> JourneyOptions:
+        """The defaults for a junction's turning movements (glimpses not joined: module docstring), with
+        ``changes``."""
+        return cls(**{"join_glimpses": False, **changes})
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -114,14 +125,16 @@ class JourneyOptions:
 
 
     @classmethod
-    def with_gap(cls, max_gap_s: float) -> JourneyOptions:
-        """The defaults with fragments joined across gaps up to ``max_gap_s`` s (0: not joined)."""
+    def with_gap(cls, max_gap_s: float, *, at_junction: bool = False) -> JourneyOptions:
+        """The defaults (:meth:`at_junction`'s with ``at_junction``) with fragments joined across gaps up to
+        ``max_gap_s`` s (0: not joined)."""
         if not np.isfinite(max_gap_s) or max_gap_s < 0:
             raise InputError(f"max_gap_s={max_gap_s:g}: give the longest time (s) a vehicle may go unseen between "
                              "two pieces of its track, e.g. 4 (0: pieces are not joined)", parameters=("max_gap_s",))
+        make = cls.at_junction if at_junction else cls
         if max_gap_s == 0:
-            return cls(enabled=False)
-        return cls(max_gap_s=float(max_gap_s), window_s=max(cls.window_s, 3.0 * float(max_gap_s)))
+            return make(enabled=False)
+        return make(max_gap_s=float(max_gap_s), window_s=max(cls.window_s, 3.0 * float(max_gap_s)))
 
 
 @dataclass(frozen=True)
@@ -307,7 +320,7 @@ def link_candidates(ends: pd.DataFrame, options: JourneyOptions | None = None) -
     cost += np.minimum(length_d2, opts.gate)
     placed = np.hypot(col["sp1"][a].astype(np.float64), col["sp0"][b].astype(np.float64)) <= opts.max_position_sigma_m
     ok = ((d2_pos <= opts.gate) & (d2_vel <= opts.gate) & (jump <= opts.max_speed_mps) & ~turned & ~against & placed
-          & (strong1 | strong0) & np.isfinite(cost))
+          & ((strong1 | strong0) if opts.join_glimpses else (strong1 & strong0)) & np.isfinite(cost))
     out = pd.DataFrame({"a": a, "b": b, "gap_s": gap, "position_d2": d2_pos, "velocity_d2": d2_vel, "cost": cost})
     return out[ok].reset_index(drop=True) if ok.any() else empty
 
