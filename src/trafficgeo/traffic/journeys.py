@@ -16,9 +16,9 @@ velocity is scored the same way. A *glimpse*, a fragment too short for its veloc
 ``weak_velocity_sigma_mps``, is met by the other fragment carried over the whole gap, and two glimpses are never
 joined to each other (a glimpse may be a bad box: only a fragment with a known motion vouches for it). At a
 junction (:meth:`JourneyOptions.at_junction`) glimpses are not joined at all (``join_glimpses``): vehicles queue,
-turn and cross there, and the motion of one fragment carried over seconds fits another vehicle's glimpse about as
-often as its own (on 25 generated junction worlds, of the 300 glimpse joins made 150 were of two vehicles, 126
-of one). A
+turn and cross there, and the motion of one fragment carried over seconds fits another vehicle's glimpse
+more often than its own (on 29 generated junction worlds, of the 349 glimpse joins made 176 were of two vehicles,
+146 of one: ``benchmarks/bench_junction_links.py``). A
 different class (both known), a different length (both measured) and a different lane at the two ends add to the
 cost, and each second of gap adds ``gap_cost_per_s``. A pair is never
 joined when the two overlap in time (two vehicles seen at the same time), when ``b`` starts more than
