@@ -116,7 +116,14 @@ def test_first_or_last_seen_inside_is_assigned_by_the_path_or_left_incomplete() 
     leaving = path("N", "S", end_m=20.0, tid="leaving")  # last seen inside the gate, heading out south
     middle = path("S", "N", start_m=4.0, end_m=60.0, tid="middle")  # first seen in the middle of the junction
     lost = path("W", "E", start_m=60.0, end_m=2.0, tid="lost")  # lost in the middle
-    mv = run([queued, leaving, middle, lost], j).set_index("track_id")
+    # found again a quarter of the way out to its gate (7.5 m of 30), heading in; lost as far out, heading out
+    found, gone = path("S", "E", t0=100.0, tid="found"), path("E", "N", t0=200.0, tid="gone")
+    found = found.iloc[int(np.argmax(np.hypot(found["x"], found["y"]) <= 7.5)):]
+    near = np.flatnonzero(np.hypot(gone["x"], gone["y"]) <= 7.5)
+    gone = gone.iloc[: near[-1] + 1]
+    mv = run([queued, leaving, middle, lost, found, gone], j).set_index("track_id")
+    assert tuple(mv.loc["found", ["origin", "origin_by", "movement"]]) == ("S", "path", "right")
+    assert (mv.loc["gone", "destination"], mv.loc["gone", "destination_by"]) == ("N", "path")
     assert (mv.loc["queued", "origin"], mv.loc["queued", "origin_by"]) == ("E", "path")
     assert np.isnan(mv.loc["queued", "entry_time"]) and mv.loc["queued", "movement"] == "through"
     assert (mv.loc["leaving", "destination"], mv.loc["leaving", "destination_by"]) == ("S", "path")
@@ -249,7 +256,8 @@ def test_two_boxes_on_one_vehicle_seen_at_once_are_one_movement_but_neighbours_a
     heading = np.column_stack([np.gradient(second["x"].to_numpy()), np.gradient(second["y"].to_numpy())])
     heading /= np.hypot(*heading.T)[:, None]
     side = second.assign(x=second["x"] - 3.5 * heading[:, 1], y=second["y"] + 3.5 * heading[:, 0])
-    assert not run([first, side], j)["complete"].any()
+    apart = run([first, side], j)  # two movements (each may be complete by its own path), never one of both
+    assert len(apart) == 2 and not apart["track_ids"].str.contains(";").any()
     # the front of a bus detected as a van 4 m ahead of the bus's own box, its track ending inside the junction
     # where its path points to another arm: one vehicle, whose arms are the bus's gate crossings
     bus = path("W", "S", tid="bus", cls="bus", speed_mps=6.0)
@@ -318,7 +326,8 @@ def test_a_tail_that_begins_as_its_head_ends_is_joined_to_it() -> None:
     assert (rows.iloc[0].origin, rows.iloc[0].destination) == ("E", "W") and rows.iloc[0].complete
     # begun 1 s before the first ends (10 m back along it), it is another vehicle
     early = whole.iloc[k - 10:].assign(track_id="b", x=lambda p: p["x"] + 3.0 * ahead[0])
-    assert not _with_trackers([first, early], {"a": "1", "b": "2"}, j)["complete"].any()
+    apart = _with_trackers([first, early], {"a": "1", "b": "2"}, j)
+    assert len(apart) == 2 and not apart["track_ids"].str.contains(";").any()
 
 
 def _straight(points: list[tuple[float, float]], speed_mps: float = 8.0, dt: float = 0.1) -> np.ndarray:
