@@ -66,15 +66,18 @@ def link_truth(result, truth_tracks: pd.DataFrame, opts) -> pd.DataFrame:
 
 def world_rows(world: Path) -> tuple[list[dict], pd.DataFrame]:
     from trafficgeo import analyze_tracks
+    from trafficgeo.site.site import Site
     from trafficgeo.synth.scoring import movement_scores, truth_of_run_vehicles
+    from trafficgeo.traffic.tracks import read_tracks
 
     truth_tracks = pd.read_csv(world / "truth_tracks.csv")
     truth = pd.read_csv(world / "truth_movements.csv", keep_default_na=False)
+    site = Site.load(world / "camera_truth.json", world / "dem.tif", gates=world / "gates.gpkg")  # read once
+    tracks = read_tracks(world / "run-process" / "tracks.csv")
     out, links = [], []
     for name in SETTINGS:
         opts = options(name)
-        result = analyze_tracks(world / "camera_truth.json", world / "dem.tif", world / "run-process" / "tracks.csv",
-                                gates=world / "gates.gpkg", journeys=opts)
+        result = analyze_tracks(site, None, tracks, journeys=opts)
         moves = pd.read_csv(io.StringIO(result.movements.to_csv(index=False)), keep_default_na=False,
                             dtype={"track_id": str, "track_ids": str})
         of = truth_of_run_vehicles(truth_tracks, result.points.assign(track_id=result.points["track_id"].astype(str)))

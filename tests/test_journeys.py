@@ -199,7 +199,7 @@ def test_a_piece_placed_tens_of_metres_wide_joins_nothing_and_does_not_make_its_
 def test_a_glimpse_extends_a_track_on_a_road_but_not_at_a_junction() -> None:
     """A car at 12 m/s is lost for 1.5 s and seen again for 0.2 s only (a glimpse: too short to show its own
     motion). On a road the car's motion vouches for the glimpse and it joins; at a junction, where another
-    vehicle's glimpse fits a carried-on motion about as often, glimpses join nothing (JourneyOptions.at_junction)."""
+    vehicle's glimpse fits a carried-on motion more often, glimpses join nothing (JourneyOptions.at_junction)."""
     rng = np.random.default_rng(5)
     a, g = _times(0.0, 3.0), _times(4.5, 4.7)
     tracks = _tracks(_fragment("7", a, 1.75, 10.0 + 12.0 * a, rng), _fragment("9", g, 1.75, 10.0 + 12.0 * g, rng))
