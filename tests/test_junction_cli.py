@@ -71,3 +71,28 @@ def test_demo_junction_quick(tmp_path) -> None:
     html = (tmp_path / "demo" / "report.html").read_text(encoding="utf-8")
     assert "Turning-movement diagram" in html
     assert (tmp_path / "demo" / "traffic" / "movements.csv").is_file()
+
+
+class _Settled(Exception):
+    """Raised by the spy below once process_video has settled its options."""
+
+
+def test_process_with_gates_tracks_with_the_junction_tracker(world, tmp_path, monkeypatch) -> None:
+    """A site with gates settles on the junction tracker (video.pipeline.JUNCTION_TRACKER), one without on the
+    road's."""
+    import trafficgeo.video.pipeline as vp
+    from trafficgeo.pipeline.run import process_video
+    from trafficgeo.site.site import Site
+
+    asked = []
+
+    def spy(options, fps, *, junction=False):
+        asked.append(junction)
+        raise _Settled
+
+    monkeypatch.setattr(vp, "settled_options", spy)
+    for k, gates in enumerate((world / "gates.gpkg", None)):
+        site = Site.load(world / "camera_truth.json", world / "dem.tif", gates=gates)
+        with pytest.raises(_Settled):
+            process_video(world / "video.mp4", site, tmp_path / f"run{k}")
+    assert asked == [True, False]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pickle
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -10,6 +11,7 @@ import pytest
 
 from trafficgeo.errors import InputError
 from trafficgeo.video.detections import Detections
+from trafficgeo.video.pipeline import JUNCTION_TRACKER, LEARNED_TRACKER, ProcessOptions, settled_options
 from trafficgeo.video.stitch import stitch_tracks
 from trafficgeo.video.track import TrackerOptions, VehicleTracker
 
@@ -48,6 +50,51 @@ def test_a_long_occlusion_gives_a_new_identity_and_state_pickles() -> None:
     assert len(seen) == 2
     with pytest.raises(InputError):
         TrackerOptions(min_iou=1.5)
+
+
+def _queue_ids(options: TrackerOptions) -> tuple[set[int], set[int]]:
+    """A car (A) stands in a queue, seen for 2 s at 12.5 detections a second, then is hidden; at once a second car
+    (B) shows up beside it, its box overlapping A's by a quarter (IoU 0.25), and stands there 2 s. The ids of each."""
+    tracker = VehicleTracker(12.5, options)
+    a_box, b_box = [500.0, 300.0, 600.0, 360.0], [560.0, 300.0, 660.0, 360.0]
+    ids: tuple[set[int], set[int]] = (set(), set())
+    for k in range(50):
+        box = a_box if k < 25 else b_box
+        out = tracker.update(Detections(boxes=np.asarray([box]), scores=np.array([0.8]),
+                                        classes=np.asarray(["car"], dtype=object)))
+        ids[0 if k < 25 else 1].update(int(i) for i in out.track_ids)
+    return ids
+
+
+def test_at_a_junction_a_hidden_cars_identity_does_not_pass_to_the_car_beside_it() -> None:
+    a, b = _queue_ids(JUNCTION_TRACKER)
+    assert len(a) == 1 and len(b) == 1
+    assert a.isdisjoint(b)  # B is a new vehicle, not A moved
+    a, b = _queue_ids(LEARNED_TRACKER)  # the road's looser gate lets A's track take B's box
+    assert a == b
+    assert JUNCTION_TRACKER == replace(LEARNED_TRACKER, min_iou=0.3)  # nothing else differs
+
+
+def test_a_site_with_gates_settles_on_the_junction_tracker() -> None:
+    road = settled_options(ProcessOptions(), 25.0)
+    junction = settled_options(ProcessOptions(), 25.0, junction=True)
+    assert road.tracker == LEARNED_TRACKER and junction.tracker == JUNCTION_TRACKER
+    assert road.every == junction.every == 2  # the learned detector about 10 times a second
+    background = settled_options(ProcessOptions(detector="mog2"), 25.0, junction=True)
+    assert background.tracker == TrackerOptions() and background.every == 1
+    mine = TrackerOptions(min_iou=0.5)
+    assert settled_options(ProcessOptions(tracker=mine), 25.0, junction=True).tracker == mine  # asked for: kept
+
+
+def test_a_car_driving_through_a_junction_keeps_its_identity_at_the_learned_detectors_rate() -> None:
+    """A car 100 px long crossing the frame 25 px per detection frame (12.5 a second): one identity."""
+    tracker = VehicleTracker(12.5, JUNCTION_TRACKER)
+    ids = set()
+    for k in range(60):
+        box = np.array([[20.0 + 25 * k, 400.0 + 2 * k, 120.0 + 25 * k, 460.0 + 2 * k]])
+        out = tracker.update(Detections(boxes=box, scores=np.array([0.6]), classes=np.asarray(["car"], dtype=object)))
+        ids.update(int(i) for i in out.track_ids)
+    assert len(ids) == 1
 
 
 def _chunk(rows: list[tuple]) -> pd.DataFrame:

@@ -167,7 +167,9 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
     process``), writing the run folder ``out_dir`` (:mod:`trafficgeo.run.folder`). Resumes from the folder's
     checkpoint when run again with the same inputs (``options.restart`` to start over).
 
-    ``site``: the camera, surface, lanes, counting lines and gates, loaded once (:class:`trafficgeo.site.Site`);
+    ``site``: the camera, surface, lanes, counting lines and gates, loaded once (:class:`trafficgeo.site.Site`;
+    with gates the learned detector's tracks follow the junction's tracker, :func:`~trafficgeo.video.pipeline.
+    settled_options`);
     ``options``: the detector, time range, frame step and checkpoints (:class:`~trafficgeo.video.pipeline.
     ProcessOptions`); ``analysis``: counting intervals, the smoother and journeys
     (:class:`~trafficgeo.traffic.analyze.AnalysisOptions`); ``roi``: a bool mask (H, W) or a mask image / CSV polygon;
@@ -192,7 +194,7 @@ def process_video(video: PathLike, site: Site, out_dir: PathLike, *, options: Pr
     video = Path(video)
     site = _check_site(site)
     calls = callbacks or RunCallbacks()
-    opts = settled_options(options or ProcessOptions(), video_info(video).fps)
+    opts = settled_options(options or ProcessOptions(), video_info(video).fps, junction=bool(site.gates))
     mask = roi
     if roi is not None and not isinstance(roi, np.ndarray):
         from trafficgeo.video.roi import read_roi
