@@ -158,7 +158,7 @@ def settled_options(options: ProcessOptions, fps: float, *, junction: bool = Fal
       At a ``junction`` (a site with gates) :data:`JUNCTION_TRACKER`: a track takes a detection only where its
       predicted box overlaps it by IoU 0.3, not 0.1, so an identity passes less often to the next car in a queue
       or across a turn, where slow vehicles' boxes touch (37 generated junction worlds, their detections
-      tracked again: tracks holding two true vehicles 265 -> 213, turning-movement count errors 78 -> 69 of 880
+      tracked again: tracks holding two true vehicles 265 -> 229, turning-movement count errors 78 -> 69 of 880
       vehicles; IoU 0.2 / 0.25 / 0.35 / 0.4 / 0.5 gave 73 / 74 / 66 / 78 / 79). Not on roads: a fast vehicle in a
       tile the sparse schedule runs rarely moves further than its length between looks, and only the loose gate
       keeps its identity (tests/test_tile_schedule.py).
