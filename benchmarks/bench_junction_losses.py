@@ -1,8 +1,9 @@
 """Benchmark: where the junction's turning-movement counts are lost between exact boxes and the detector's (issue 39).
 
 For each junction world that ``bench_junction.py`` has run (``out/bench-junction-world-*`` with
-``run-process/detections.csv``), the same tracker as ``process`` (``LEARNED_TRACKER``, on ``process``'s detection
-frames) is fed boxes that differ in one thing at a time, and its tracks are analysed with ``analyze --gates``:
+``run-process/detections.csv``), the same tracker as ``process --gates`` (``JUNCTION_TRACKER``, on ``process``'s
+detection frames) is fed boxes that differ in one thing at a time, and its tracks are analysed with ``analyze
+--gates``:
 
 * ``true``: the true box of every vehicle at least 50 % visible;
 * ``true, found``: only those the detector found (one of its boxes with IoU >= 0.5, matched one to one);
@@ -15,8 +16,11 @@ frames) is fed boxes that differ in one thing at a time, and its tracks are anal
 * ``detector ids (all), true boxes``: the tracks of ``detector, all``, analysed with the true box where one matches
   (the detector's boxes that match no true one kept).
 
+With ``--min-iou 0.1,0.3``: only ``detector, all``, once per overlap gate of the tracker (``TrackerOptions.min_iou``;
+the junction's is 0.3, the road's 0.1) - how the gate moves the counts on the same detections.
+
 Scored as ``bench_junction.py`` scores (:func:`bench_junction.score`). Run ``python benchmarks/bench_junction_losses.py
-[--seeds 5,6,7] [--box-sigma-share 0.05]`` (the analysis's junction default, or the share given).
+[--seeds 5,6,7] [--box-sigma-share 0.05] [--min-iou 0.1,0.3]`` (the analysis's junction default, or the share given).
 """
 
 from __future__ import annotations
@@ -66,12 +70,14 @@ def matched_boxes(world: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     return det, true
 
 
-def track(world: Path, boxes: pd.DataFrame, frames: np.ndarray) -> pd.DataFrame:
-    """``boxes`` (frame, x1..y2, score, class, row) through ``process``'s tracker; its tracks with each box's
-    ``row`` (the index of the box it came from)."""
+def track(world: Path, boxes: pd.DataFrame, frames: np.ndarray, min_iou: float | None = None) -> pd.DataFrame:
+    """``boxes`` (frame, x1..y2, score, class, row) through ``process --gates``'s tracker (with its overlap gate
+    ``min_iou`` when given); its tracks with each box's ``row`` (the index of the box it came from)."""
+    from dataclasses import replace
+
     from trafficgeo.video import track as vt
     from trafficgeo.video.detections import DetectionFrames
-    from trafficgeo.video.pipeline import LEARNED_TRACKER
+    from trafficgeo.video.pipeline import JUNCTION_TRACKER
 
     fps = json.loads((world / "world.json").read_text())["options"]["fps"]
     step = int(np.min(np.diff(frames)))
@@ -79,7 +85,8 @@ def track(world: Path, boxes: pd.DataFrame, frames: np.ndarray) -> pd.DataFrame:
     dets = DetectionFrames(frame_index=frames, time_s=frames / fps, row=np.searchsorted(frames, boxes["frame"]),
                            boxes=boxes[BOX].to_numpy(float), scores=boxes["score"].to_numpy(float),
                            classes=boxes["class"].astype(str).to_numpy(object))
-    out = vt.track_frames(dets, fps / step, LEARNED_TRACKER).as_written().to_table()
+    tracker = JUNCTION_TRACKER if min_iou is None else replace(JUNCTION_TRACKER, min_iou=min_iou)
+    out = vt.track_frames(dets, fps / step, tracker).as_written().to_table()
     # each tracked box back to its source row (the tracker writes the detection's own box, to the thousandth)
     out["row"] = -1
     by_frame = dict(tuple(boxes.groupby("frame")))
@@ -110,6 +117,23 @@ def analysed(world: Path, name: str, tracks: pd.DataFrame, box_sigma_share: floa
     return score(world, folder / "run")
 
 
+def _row(world: Path, name: str, s: dict[str, object]) -> dict[str, object]:
+    return {"world": world.name.replace("bench-junction-world-", ""), "boxes": name,
+            "errors": round((1.0 - s["accuracy"]) * s["true"]), **s}
+
+
+def world_gates(world: Path, ious: list[float], box_sigma_share: float | None) -> list[dict[str, object]]:
+    """``detector, all`` once per tracker overlap gate of ``ious``."""
+    det = pd.read_csv(world / "run-process" / "detections.csv", keep_default_na=False)
+    frames = np.unique(det["frame"])
+    rows = []
+    for iou in ious:
+        name = f"detector, all, IoU {iou:g}"
+        rows.append(_row(world, name, analysed(world, name, track(world, det.assign(row=det.index), frames, iou),
+                                               box_sigma_share)))
+    return rows
+
+
 def world_losses(world: Path, box_sigma_share: float | None) -> list[dict[str, object]]:
     det, true = matched_boxes(world)
     frames = np.unique(det["frame"])
@@ -135,9 +159,7 @@ def world_losses(world: Path, box_sigma_share: float | None) -> list[dict[str, o
     runs["detector ids (all), true boxes"] = swap(runs["detector, all"], det, true, keep_unmatched=True)
     rows = []
     for name, tracks in runs.items():
-        s = analysed(world, name, tracks, box_sigma_share)
-        rows.append({"world": world.name.replace("bench-junction-world-", ""), "boxes": name,
-                     "errors": round((1.0 - s["accuracy"]) * s["true"]), **s})
+        rows.append(_row(world, name, analysed(world, name, tracks, box_sigma_share)))
     return rows
 
 
@@ -145,13 +167,17 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", default="5,6,7,41,42,43,44,45,46")
     ap.add_argument("--box-sigma-share", type=float, default=None)
+    ap.add_argument("--min-iou", default=None, help="tracker overlap gates, e.g. 0.1,0.3: 'detector, all' per gate")
     args = ap.parse_args()
+    ious = [float(v) for v in args.min_iou.split(",")] if args.min_iou else None
     rows = []
     for seed in args.seeds.split(","):
         for world in sorted(OUT.glob(f"bench-junction-world-seed{seed}-*")):
             if (world / "run-process" / "detections.csv").is_file():
-                rows += world_losses(world, args.box_sigma_share)
-                print(pd.DataFrame(rows[-7:])[["world", "boxes", "true", "accuracy", "errors"]].to_string(index=False),
+                found = (world_gates(world, ious, args.box_sigma_share) if ious
+                         else world_losses(world, args.box_sigma_share))
+                rows += found
+                print(pd.DataFrame(found)[["world", "boxes", "true", "accuracy", "errors"]].to_string(index=False),
                       flush=True)
     table = pd.DataFrame(rows)
     pooled = table.groupby("boxes", sort=False)[["true", "errors", "counted", "wrong arm", "incomplete", "missed",
