@@ -5,6 +5,7 @@ benchmarks/bench_junction.py), and `demo --junction`."""
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 
 import pytest
 
@@ -12,6 +13,7 @@ from cli_support import invoke
 from trafficgeo.run.folder import MOVEMENT_COUNTS, MOVEMENTS, RunFolder
 from trafficgeo.synth.junction_sumo import JunctionOptions
 from trafficgeo.synth.junction_world import build_junction_world
+from trafficgeo.video.track import TrackerOptions
 
 pytest.importorskip("sumolib")
 pytestmark = pytest.mark.slow
@@ -46,6 +48,8 @@ def test_process_and_stitch_with_gates_write_the_movements(world, tmp_path) -> N
     assert code == 0, err
     assert "turning movements" in out
     _junction_outputs(tmp_path / "run")
+    tracker = json.loads((tmp_path / "run" / "process.json").read_text())["options"]["tracker"]
+    assert tracker == asdict(TrackerOptions())  # the background detector's tracker, at a junction too
     for k, (start, end) in enumerate(((0.0, 5.0), (3.0, 8.0))):
         code, _, err = invoke("process", world / "video.mp4", *common, "--start", start, "--end", end, "-o",
                               tmp_path / f"chunk{k}")

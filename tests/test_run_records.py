@@ -285,6 +285,31 @@ def test_process_json_of_the_pipeline_writer_reads_back_typed(tmp_path: Path) ->
     assert info.to_dict() == json.loads((tmp_path / "process.json").read_text())
 
 
+def test_process_json_records_the_tracker_the_run_settled_on(tmp_path: Path) -> None:
+    """A junction run (gates) and a road run track differently (video.pipeline.JUNCTION_TRACKER): process.json says
+    which; a file written before the key reads as None."""
+    from dataclasses import asdict
+
+    from trafficgeo.pipeline.run import run_info
+    from trafficgeo.video.pipeline import JUNCTION_TRACKER, LEARNED_TRACKER, ProcessOptions, settled_options
+
+    read = {"start_s": 0.0, "end_s": 4.0, "frames": 100, "complete": True}
+    seen = {}
+    for junction in (True, False):
+        opts = settled_options(ProcessOptions(), 25.0, junction=junction)
+        folder = tmp_path / f"junction{junction}"
+        with RunFolder(folder).writing("process") as run:
+            run.process(run_info(video="clip.mp4", camera="camera.json", options=opts, seconds=1.0, detections=0,
+                                 track_rows=0, read=read))
+        seen[junction] = RunFolder(folder).process().options.tracker
+        assert json.loads((folder / "process.json").read_text())["options"]["tracker"] == seen[junction]
+    assert seen[True] == asdict(JUNCTION_TRACKER) and seen[True]["min_iou"] == 0.3
+    assert seen[False] == asdict(LEARNED_TRACKER) and seen[False]["min_iou"] == 0.1
+    doc = _process().to_dict()
+    doc["options"].pop("tracker")
+    assert ProcessRecord.from_dict(doc).options.tracker is None
+
+
 def test_a_table_is_written_only_under_its_schema(reference_run: dict, tmp_path: Path) -> None:
     tracks = RunFolder(reference_run["folder"]).trajectories()
     folder = RunFolder(tmp_path / "run")

@@ -12,7 +12,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -327,7 +327,8 @@ def stitch(chunks: Sequence[PathLike], site: Site, out_dir: PathLike, *, analysi
 def run_info(*, video: str, camera: str, options: ProcessOptions, seconds: float, detections: int,
              track_rows: int, read: dict | None = None, detector: dict | None = None) -> ProcessRecord:
     """The record of ``process.json``: what was processed (``video``, ``camera``: paths as given, or relative to
-    the run folder), how (the detector and time range asked for in ``options``), what was read (``read``:
+    the run folder), how (the detector and time range asked for in ``options``, and the tracker they settled
+    on: pass options settled by :func:`~trafficgeo.video.pipeline.settled_options`), what was read (``read``:
     ``start_s``/``end_s`` of the frames decoded (s, the end of the last frame), ``frames``, and ``complete``: false
     when the video ended before the asked end, e.g. a truncated file), and how fast (``seconds`` of wall clock)."""
     from trafficgeo.run.records import ProcessSettings, VideoRead
@@ -336,7 +337,8 @@ def run_info(*, video: str, camera: str, options: ProcessOptions, seconds: float
     settings = ProcessSettings(detector=detector_name(options.detector), detector_format=options.detector_format,
                                start_s=options.start_s, end_s=options.end_s, every=options.every,
                                tiles=options.tiles, tiling=options.tiling, backend=options.backend,
-                               tile_schedule=options.tile_schedule)
+                               tile_schedule=options.tile_schedule,
+                               tracker=asdict(options.tracker) if options.tracker is not None else None)
     return ProcessRecord(
         video=video, camera=camera, options=settings, detector=detector,
         read=VideoRead(read["start_s"], read["end_s"], read["frames"], read["complete"]) if read is not None else None,

@@ -132,8 +132,10 @@ class RunSummary(Record):
 class ProcessSettings(Record):
     """What ``process`` was asked for (``options`` of ``process.json``; :class:`trafficgeo.video.pipeline.
     ProcessOptions`): the detector (a name or a model's path) and its model layout, the time range (s of video;
-    ``end_s`` None: to the end), every n-th frame, the tiles and their planning, the runtime and the tile
-    schedule. A key a file lacks (written by an older trafficgeo) reads as None."""
+    ``end_s`` None: to the end), every n-th frame, the tiles and their planning, the runtime, the tile schedule and
+    the tracker the run settled on (``tracker``: :class:`trafficgeo.video.track.TrackerOptions` as a JSON object,
+    e.g. ``min_iou`` 0.3 at a junction, 0.1 on a road; it joined the format later). A key a file lacks (written by
+    an older trafficgeo) reads as None."""
 
     detector: Text | None = None
     detector_format: Text | None = None
@@ -144,6 +146,7 @@ class ProcessSettings(Record):
     tiling: Text | None = None
     backend: Text | None = None
     tile_schedule: Text | None = None
+    tracker: Obj | None = None
 
 
 
