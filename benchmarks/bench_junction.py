@@ -49,7 +49,7 @@ from bench_video import cpu_flags  # this machine's CPU and SIMD flags, as the v
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "out"
-DEVELOPMENT_SEEDS = {5, 6, 7, *range(41, 47), *range(51, 87)}  # rules and defaults were developed on these
+DEVELOPMENT_SEEDS = {5, 6, 7, *range(41, 47), *range(51, 91)}  # rules and defaults were developed on these
 CAMERAS = {  # name -> JunctionOptions fields
     "pole12": {"camera_height": 12.0, "camera_corner": "SE"},
     "pole18": {"camera_height": 18.0, "camera_corner": "NW", "azimuth_deg": -10.0},
