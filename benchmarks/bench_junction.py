@@ -3,10 +3,10 @@
 Each world (:func:`trafficgeo.synth.junction_world.build_junction_world`: a signalised four-arm SUMO junction, 2
 lanes each way, a camera on a pole at a corner) is built once into ``out/bench-junction-world-seed<N>-<camera>``.
 The movement rules were written against constructed paths (tests/test_movements.py) and checked on development
-seeds (marked in the table): 5-7 first, then 41-46, 51-58, 59-66, 67-74, 75-78, 79-82 and 83-86 once their
-held-out figures had been taken (59-62 at the sixth pass and again at the seventh, 63-66 at the seventh, 67-74 at
-the eighth, 75-78 at the ninth, 79-82 at the tenth, 83-86 at the eleventh: benchmarks/README.md); a new figure
-needs seeds never run before (87 on).
+seeds (marked in the table): 5-7 first, then 41-46, 51-58, 59-66, 67-74, 75-78, 79-82, 83-86 and 87-90 once
+their held-out figures had been taken (59-62 at the sixth pass and again at the seventh, 63-66 at the seventh,
+67-74 at the eighth, 75-78 at the ninth, 79-82 at the tenth, 83-86 at the eleventh, 87-90 at the twelfth:
+benchmarks/README.md); a new figure needs seeds never run before (91 on).
 Where the counts are lost between exact boxes and the detector's: ``bench_junction_losses.py``.
 
 Per world, side by side on the same truth:
